@@ -1,0 +1,70 @@
+# glossdepth: the two commands a newcomer needs are `make demo` and `make test`.
+# Both create/update the virtual environment in .venv and install the Debian packages they need.
+
+SHELL := /bin/bash
+PYTHON ?= python3
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed-stamp
+# Outputs (renders, sessions, reports) go here; git ignores it.
+OUT ?= out
+# PsychoPy writes preferences into $HOME: keep them inside the project.
+PROJECT_HOME := $(CURDIR)/.home
+
+# Mitsuba's LLVM variants need LLVM >= 17 (libLLVM 15/16 abort at dr.maximum); Debian ships 19.
+export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
+
+# Debian packages the tests and the demo need (Xvfb for PsychoPy windows, PsychoPy's audio/keyboard
+# libraries, LLVM for Mitsuba, R with lme4 and car as the reference for the mixed models, a font).
+DEB_PACKAGES := xvfb xauth libglu1-mesa libgl1 libegl1 libfontconfig1 libasound2 \
+	libjack-jackd2-0 libportaudio2 libusb-1.0-0 libxrandr2 libxcursor1 libxi6 libxinerama1 \
+	libllvm19 r-base-core r-cran-lme4 r-cran-car fonts-dejavu-core
+XVFB := xvfb-run -a -s "-screen 0 1280x1024x24"
+
+.PHONY: help demo test test-fast system-deps venv lint bench clean-venv
+
+help:
+	@echo "make demo   - set up and run the whole pipeline on embedded defaults into $(OUT)/"
+	@echo "make test   - set up and run the test suite (slow tests included)"
+	@echo "make test-fast - the tests without those marked slow"
+	@echo "make lint   - ruff"
+
+# apt-get only when something is missing, so a set-up machine needs no root.
+system-deps:
+	@missing=$$(for p in $(DEB_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null \
+		| grep -q 'install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+		echo "installing Debian packages: $$missing"; \
+		SUDO=$$( [ $$(id -u) -eq 0 ] || echo sudo ); \
+		$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq \
+			--no-install-recommends $$missing; \
+	fi
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[test]'
+	touch $@
+
+venv: $(STAMP)
+
+test: system-deps $(STAMP)
+	mkdir -p $(PROJECT_HOME)
+	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(PYTEST_ARGS)
+
+test-fast: PYTEST_ARGS += -m "not slow"
+test-fast: test
+
+demo: system-deps $(STAMP)
+	mkdir -p $(PROJECT_HOME)
+	HOME=$(PROJECT_HOME) OUT=$(OUT) PY=$(PY) XVFB='$(XVFB)' bash scripts/demo.sh
+
+lint: $(STAMP)
+	$(PY) -m ruff check .
+
+bench: system-deps $(STAMP)
+	mkdir -p $(PROJECT_HOME)
+	for b in bench/*.py; do HOME=$(PROJECT_HOME) $(XVFB) $(PY) $$b || exit 1; done
+
+clean-venv:
+	rm -rf $(VENV)

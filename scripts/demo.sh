@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# The main job on embedded defaults: design -> calibration -> gloss fit -> stimuli -> sessions ->
+# analysis report -> sim-to-real report. Called by `make demo` (which sets PY, XVFB, OUT, HOME).
+# Each run writes into a new folder out/demo-<UTC time>; nothing from an earlier run is touched.
+set -euo pipefail
+PY=${PY:-.venv/bin/python}
+XVFB=${XVFB:-xvfb-run -a -s "-screen 0 1280x1024x24"}
+OUT=${OUT:-out}
+RUN="$OUT/demo-$(date -u +%Y%m%dT%H%M%SZ)"
+mkdir -p "$RUN"
+ln -sfn "$(basename "$RUN")" "$OUT/latest"
+t0=$(date +%s)
+step() { echo; echo "== $* ($(( $(date +%s) - t0 )) s)"; }
+
+# --- design (issue 2) ---
+step "study design"
+"$PY" -m studydesign check
+"$PY" -m studydesign show
+mkdir -p "$RUN/design"
+"$PY" -m studydesign stimuli --out "$RUN/design/stimuli.csv"
+"$PY" -m studydesign json > "$RUN/design/design.json"
+# --- end design ---
+
+# --- calibration (issue 4) ---
+# --- end calibration ---
+
+# --- gloss fit (issue 7) ---
+# --- end gloss fit ---
+
+# --- stimuli (issue 3) ---
+# --- end stimuli ---
+
+# --- experiment (issue 5) ---
+# --- end experiment ---
+
+# --- analysis report (issue 6) ---
+# --- end analysis report ---
+
+# --- image statistics (issue 9) ---
+# --- end image statistics ---
+
+# --- sim-to-real gap (issue 8) ---
+# --- end sim-to-real gap ---
+
+step "done"
+echo "demo output: $RUN"
+if [ -f "$RUN/report/index.html" ]; then echo "report: $RUN/report/index.html"; fi

@@ -1,0 +1,70 @@
+"""``python -m studydesign``: show, check and export the study design."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from studydesign.design import DesignError, load_design
+
+
+def _summary(design) -> str:
+    g, d, a = design.gloss, design.depth, design.array
+    lines = [
+        f"design file: {design.source}",
+        f"gloss: {g.n_levels} physical levels {g.physical_pct[0]:g}-{g.physical_pct[-1]:g} % "
+        f"(labels 1-{g.n_levels}); rendered labels {g.rendered_levels[0]}-{g.rendered_levels[-1]} "
+        f"({g.rendered_pct[0]:g}-{g.rendered_pct[-1]:g} %)",
+        f"depth: d_i = {d.step_cm:g} * i cm, i = 1..{d.n_levels} "
+        f"({d.physical_cm[0]:g}-{d.physical_cm[-1]:g} cm); rendered levels "
+        f"{d.rendered_levels[0]}-{d.rendered_levels[-1]} "
+        f"({d.rendered_cm[0]:g}-{d.rendered_cm[-1]:g} cm)",
+        f"array: {a.n_x}x{a.n_y} half-ellipsoids over {a.extent_cm:g} cm, pitch {a.pitch_cm:g} cm, "
+        f"x/y radius {a.radius_xy_cm:g} cm, jitter +-{a.jitter_cm:g} cm",
+        "illuminations: "
+        + ", ".join(f"{il.name} ({il.kind}, {il.envmap})" for il in design.illuminations),
+        f"stimuli: {design.n_stimuli} in {design.sessions.n_sessions} sessions of "
+        f"{design.sessions.trials_per_session} trials",
+        f"display: {design.display.resolution_px[0]}x{design.display.resolution_px[1]} px at "
+        f"{design.display.viewing_distance_cm:g} cm",
+        f"slider: {design.slider.min:g}-{design.slider.max:g}; depth_cm = "
+        f"{design.slider.depth_cm_per_unit:g} v, gloss_pct = {design.slider.gloss_pct_per_unit:g} (v - 1)",
+    ]
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m studydesign", description="Show, check and export the study design."
+    )
+    parser.add_argument("--design", help="a design.toml (default: the shipped one)")
+    sub = parser.add_subparsers(dest="command", required=True)
+    sub.add_parser("show", help="print a summary of the design")
+    sub.add_parser("check", help="validate the design file; exit 1 with the reason if invalid")
+    st = sub.add_parser("stimuli", help="write the stimulus table as CSV")
+    st.add_argument("--out", default="-", help="CSV path, '-' for stdout")
+    sub.add_parser("json", help="print the design as JSON")
+    args = parser.parse_args(argv)
+    try:
+        design = load_design(args.design)
+    except DesignError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    if args.command == "show":
+        print(_summary(design))
+    elif args.command == "check":
+        print(f"ok: {design.source} is a valid design ({design.n_stimuli} stimuli)")
+    elif args.command == "stimuli":
+        table = design.stimuli()
+        if args.out == "-":
+            table.to_csv(sys.stdout, index=False)
+        else:
+            table.to_csv(args.out, index=False)
+    elif args.command == "json":
+        print(json.dumps(design.to_dict(), indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,496 @@
+"""The study design as one typed, validated, frozen object.
+
+Every number that defines the gloss x depth study (levels, array geometry, sessions, display,
+slider scale, analysis bins) lives in ``design.toml`` and reaches code only through
+:class:`StudyDesign`. Nothing here reads a file at import time: call :func:`load_design`.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import asdict, dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "AnalysisSpec",
+    "ArraySpec",
+    "DepthSpec",
+    "DesignError",
+    "DisplaySpec",
+    "GlossSpec",
+    "Illumination",
+    "SessionSpec",
+    "SliderSpec",
+    "StudyDesign",
+    "ToneMapSpec",
+    "default_design_path",
+    "load_design",
+]
+
+STIMULUS_COLUMNS = (
+    "stimulus_id",
+    "illumination",
+    "gloss_level",
+    "depth_level",
+    "true_gloss_pct",
+    "true_depth_cm",
+)
+
+
+class DesignError(ValueError):
+    """A design file is missing, malformed, or inconsistent."""
+
+
+def _require(condition: bool, message: str) -> None:
+    if not condition:
+        raise DesignError(message)
+
+
+def _levels(levels: Any, n_levels: int, name: str) -> tuple[int, ...]:
+    _require(
+        isinstance(levels, (list, tuple)) and len(levels) > 0,
+        f"{name}.rendered_levels must be a non-empty list of level labels, got {levels!r}",
+    )
+    out = tuple(int(v) for v in levels)
+    _require(
+        all(1 <= v <= n_levels for v in out),
+        f"{name}.rendered_levels {list(out)} has labels outside 1..{n_levels}; "
+        f"use labels of the physical reference set",
+    )
+    _require(
+        len(set(out)) == len(out) and list(out) == sorted(out),
+        f"{name}.rendered_levels {list(out)} must be strictly increasing without repeats",
+    )
+    return out
+
+
+@dataclass(frozen=True)
+class GlossSpec:
+    """Gloss levels: physical references labelled 1..n, ``gloss_pct = step_pct * (label - 1)``."""
+
+    n_levels: int
+    step_pct: float
+    rendered_levels: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        _require(self.n_levels >= 2, f"gloss.n_levels must be >= 2, got {self.n_levels}")
+        _require(self.step_pct > 0, f"gloss.step_pct must be > 0 %, got {self.step_pct}")
+        _require(
+            self.step_pct * (self.n_levels - 1) <= 100.0 + 1e-9,
+            f"gloss levels reach {self.step_pct * (self.n_levels - 1)} % > 100 %; "
+            "lower gloss.step_pct or gloss.n_levels",
+        )
+
+    @property
+    def labels(self) -> tuple[int, ...]:
+        """Labels of the physical reference objects, 1..n."""
+        return tuple(range(1, self.n_levels + 1))
+
+    def pct(self, level):
+        """Gloss in % (0-100) of level label(s) 1..n."""
+        return np.round(self.step_pct * (np.asarray(level, dtype=float) - 1.0), 10)
+
+    @property
+    def physical_pct(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.pct(self.labels))
+
+    @property
+    def rendered_pct(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.pct(self.rendered_levels))
+
+
+@dataclass(frozen=True)
+class DepthSpec:
+    """Depth levels: ``d_i = step_cm * i`` for i = 1..n (cm)."""
+
+    n_levels: int
+    step_cm: float
+    rendered_levels: tuple[int, ...]
+
+    def __post_init__(self) -> None:
+        _require(self.n_levels >= 2, f"depth.n_levels must be >= 2, got {self.n_levels}")
+        _require(self.step_cm > 0, f"depth.step_cm must be > 0 cm, got {self.step_cm}")
+
+    @property
+    def labels(self) -> tuple[int, ...]:
+        return tuple(range(1, self.n_levels + 1))
+
+    def cm(self, level):
+        """Maximum ellipsoid height d_i in cm of level label(s) i."""
+        return np.round(self.step_cm * np.asarray(level, dtype=float), 10)
+
+    @property
+    def physical_cm(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.cm(self.labels))
+
+    @property
+    def rendered_cm(self) -> tuple[float, ...]:
+        return tuple(float(v) for v in self.cm(self.rendered_levels))
+
+
+@dataclass(frozen=True)
+class ArraySpec:
+    """The ellipsoid array: ``n_x * n_y`` half-ellipsoids on a jittered grid (cm)."""
+
+    n_x: int
+    n_y: int
+    extent_cm: float
+    pitch_cm: float
+    radius_xy_cm: float
+    jitter_cm: float
+    z_radius_min_fraction: float
+
+    def __post_init__(self) -> None:
+        _require(self.n_x >= 1 and self.n_y >= 1, "array.n_x and array.n_y must be >= 1")
+        _require(self.extent_cm > 0, f"array.extent_cm must be > 0, got {self.extent_cm}")
+        _require(self.pitch_cm > 0, f"array.pitch_cm must be > 0, got {self.pitch_cm}")
+        _require(
+            self.pitch_cm * (max(self.n_x, self.n_y) - 1) <= self.extent_cm + 1e-9,
+            f"array.pitch_cm {self.pitch_cm} puts grid centres outside the "
+            f"{self.extent_cm} cm square; use pitch_cm <= extent_cm / (n - 1)",
+        )
+        _require(self.radius_xy_cm > 0, "array.radius_xy_cm must be > 0")
+        _require(self.jitter_cm >= 0, "array.jitter_cm must be >= 0")
+        _require(
+            0.0 <= self.z_radius_min_fraction <= 1.0,
+            "array.z_radius_min_fraction must lie in [0, 1]",
+        )
+
+    @property
+    def n_ellipsoids(self) -> int:
+        return self.n_x * self.n_y
+
+    def grid_centres_cm(self) -> np.ndarray:
+        """Un-jittered centres, shape (n_x * n_y, 2), in cm, centred on the origin."""
+        xs = (np.arange(self.n_x) - (self.n_x - 1) / 2.0) * self.pitch_cm
+        ys = (np.arange(self.n_y) - (self.n_y - 1) / 2.0) * self.pitch_cm
+        gx, gy = np.meshgrid(xs, ys, indexing="xy")
+        return np.column_stack([gx.ravel(), gy.ravel()])
+
+
+@dataclass(frozen=True)
+class Illumination:
+    """One illumination condition: a name used in stimulus ids and a light-probe file."""
+
+    name: str
+    envmap: str
+    kind: str
+
+    def __post_init__(self) -> None:
+        _require(
+            self.name.isidentifier() and self.name == self.name.lower(),
+            f"illumination name {self.name!r} must be a lower-case identifier (e.g. 'indoor')",
+        )
+        _require(
+            self.kind in ("indoor", "outdoor"),
+            f"illumination {self.name!r}: kind must be 'indoor' or 'outdoor', got {self.kind!r}",
+        )
+
+
+@dataclass(frozen=True)
+class ToneMapSpec:
+    """Seed tone mapping: linear below the knee, asymptotic logistic above (8-bit values)."""
+
+    linear_fraction: float
+    knee_value: int
+    max_value: int
+
+    def __post_init__(self) -> None:
+        _require(
+            0.0 < self.linear_fraction < 1.0,
+            f"tonemap.linear_fraction must lie in (0, 1), got {self.linear_fraction}",
+        )
+        _require(
+            0 < self.knee_value < self.max_value,
+            "tonemap.knee_value must lie between 0 and tonemap.max_value",
+        )
+
+
+@dataclass(frozen=True)
+class SessionSpec:
+    n_sessions: int
+    trials_per_session: int
+
+
+@dataclass(frozen=True)
+class DisplaySpec:
+    """The CRT as the design expects it."""
+
+    resolution_px: tuple[int, int]
+    viewing_distance_cm: float
+    nominal_refresh_hz: float
+
+    def __post_init__(self) -> None:
+        _require(
+            len(self.resolution_px) == 2 and all(v > 0 for v in self.resolution_px),
+            f"display.resolution_px must be [width, height] in pixels, got {self.resolution_px}",
+        )
+        _require(self.viewing_distance_cm > 0, "display.viewing_distance_cm must be > 0")
+        _require(self.nominal_refresh_hz > 0, "display.nominal_refresh_hz must be > 0")
+
+    @property
+    def frame_s(self) -> float:
+        """Nominal frame duration in s."""
+        return 1.0 / self.nominal_refresh_hz
+
+
+@dataclass(frozen=True)
+class SliderSpec:
+    """Continuous slider scale and its mapping to physical units."""
+
+    min: float
+    max: float
+    depth_cm_per_unit: float
+    gloss_pct_per_unit: float
+
+    def __post_init__(self) -> None:
+        _require(self.max > self.min, "slider.max must exceed slider.min")
+
+    @property
+    def ticks(self) -> tuple[int, ...]:
+        return tuple(range(int(np.ceil(self.min)), int(np.floor(self.max)) + 1))
+
+    def _check(self, value) -> np.ndarray:
+        v = np.asarray(value, dtype=float)
+        bad = ~np.isfinite(v) | (v < self.min) | (v > self.max)
+        if np.any(bad):
+            raise DesignError(
+                f"slider value(s) {np.atleast_1d(v)[np.atleast_1d(bad)][:5].tolist()} lie outside "
+                f"[{self.min:g}, {self.max:g}]; slider matches are raw slider positions"
+            )
+        return v
+
+    def to_depth_cm(self, value):
+        """Slider position(s) in [min, max] -> matched depth in cm (``0.4 * v``)."""
+        return self.depth_cm_per_unit * self._check(value)
+
+    def to_gloss_pct(self, value):
+        """Slider position(s) in [min, max] -> matched gloss in % (``10 * (v - 1)``)."""
+        return self.gloss_pct_per_unit * (self._check(value) - 1.0)
+
+
+@dataclass(frozen=True)
+class AnalysisSpec:
+    depth_bins_cm: dict[str, tuple[float, ...]]
+    gloss_bins_pct: dict[str, tuple[float, ...]]
+    depth_boxcox_lambda: float
+
+
+@dataclass(frozen=True)
+class StudyDesign:
+    """The whole study design. Build it with :func:`load_design`."""
+
+    gloss: GlossSpec
+    depth: DepthSpec
+    array: ArraySpec
+    illuminations: tuple[Illumination, ...]
+    tonemap: ToneMapSpec
+    sessions: SessionSpec
+    display: DisplaySpec
+    slider: SliderSpec
+    analysis: AnalysisSpec
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        names = [il.name for il in self.illuminations]
+        _require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
+        _require(len(set(names)) == len(names), f"illumination names repeat: {names}")
+        n = self.n_stimuli
+        _require(
+            self.sessions.n_sessions * self.sessions.trials_per_session == n,
+            f"sessions: {self.sessions.n_sessions} x {self.sessions.trials_per_session} trials "
+            f"!= {n} stimuli ({len(names)} illuminations x {len(self.gloss.rendered_levels)} "
+            f"gloss x {len(self.depth.rendered_levels)} depth); fix [sessions]",
+        )
+        # The slider and the physical reference set must describe the same units.
+        _require(
+            np.isclose(self.slider.depth_cm_per_unit, self.depth.step_cm)
+            and np.isclose(self.slider.gloss_pct_per_unit, self.gloss.step_pct),
+            "slider units disagree with the reference sets: slider.depth_cm_per_unit must equal "
+            "depth.step_cm and slider.gloss_pct_per_unit must equal gloss.step_pct",
+        )
+        rendered_depth = set(np.round(self.depth.rendered_cm, 9).tolist())
+        for name, values in self.analysis.depth_bins_cm.items():
+            _require(
+                set(np.round(values, 9)) <= rendered_depth,
+                f"analysis.depth_bins_cm.{name} {list(values)} are not rendered depths "
+                f"{sorted(rendered_depth)}",
+            )
+        rendered_gloss = set(np.round(self.gloss.rendered_pct, 9).tolist())
+        for name, values in self.analysis.gloss_bins_pct.items():
+            _require(
+                set(np.round(values, 9)) <= rendered_gloss,
+                f"analysis.gloss_bins_pct.{name} {list(values)} are not rendered gloss values",
+            )
+
+    @property
+    def n_stimuli(self) -> int:
+        return (
+            len(self.illuminations)
+            * len(self.gloss.rendered_levels)
+            * len(self.depth.rendered_levels)
+        )
+
+    def illumination(self, name: str) -> Illumination:
+        for il in self.illuminations:
+            if il.name == name:
+                return il
+        raise DesignError(
+            f"unknown illumination {name!r}; the design has "
+            f"{[il.name for il in self.illuminations]}"
+        )
+
+    @staticmethod
+    def stimulus_id(illumination: str, gloss_level: int, depth_level: int) -> str:
+        """Stable stimulus id, e.g. ``indoor_g05_d07``."""
+        return f"{illumination}_g{int(gloss_level):02d}_d{int(depth_level):02d}"
+
+    def stimuli(self) -> pd.DataFrame:
+        """The experiment's stimulus set, one row per stimulus.
+
+        Returns
+        -------
+        DataFrame
+            Columns ``stimulus_id, illumination, gloss_level, depth_level, true_gloss_pct (%),
+            true_depth_cm (cm)``; ``n_stimuli`` rows ordered illumination, gloss, depth.
+        """
+        rows = []
+        for il in self.illuminations:
+            for g in self.gloss.rendered_levels:
+                for d in self.depth.rendered_levels:
+                    rows.append(
+                        (
+                            self.stimulus_id(il.name, g, d),
+                            il.name,
+                            g,
+                            d,
+                            float(self.gloss.pct(g)),
+                            float(self.depth.cm(d)),
+                        )
+                    )
+        return pd.DataFrame(rows, columns=list(STIMULUS_COLUMNS))
+
+    def depth_bin(self, depth_cm) -> np.ndarray:
+        """Bin name ('low', 'medium', 'high') of each true depth in cm; '' when in no bin."""
+        return _bin(depth_cm, self.analysis.depth_bins_cm)
+
+    def gloss_bin(self, gloss_pct) -> np.ndarray:
+        """Bin name of each true gloss in %; '' when in no bin."""
+        return _bin(gloss_pct, self.analysis.gloss_bins_pct)
+
+    def to_dict(self) -> dict:
+        """Plain-dict form, e.g. to save beside data."""
+        return asdict(self)
+
+
+def _bin(values, bins: dict[str, tuple[float, ...]]) -> np.ndarray:
+    v = np.round(np.asarray(values, dtype=float), 9)
+    out = np.full(v.shape, "", dtype=object)
+    for name, members in bins.items():
+        out[np.isin(v, np.round(members, 9))] = name
+    return out
+
+
+def default_design_path() -> Path:
+    """Path of the ``design.toml`` shipped with the project."""
+    return Path(str(resources.files("studydesign").joinpath("design.toml")))
+
+
+def _section(raw: dict, name: str, path: Path) -> dict:
+    if name not in raw:
+        raise DesignError(f"{path}: missing section [{name}]; see the shipped design.toml")
+    return raw[name]
+
+
+def _build(cls, raw: dict, name: str, path: Path, **override):
+    fields = set(cls.__dataclass_fields__)
+    given = dict(raw)
+    given.update(override)
+    unknown = set(given) - fields
+    missing = fields - set(given)
+    if unknown:
+        raise DesignError(f"{path}: unknown key(s) {sorted(unknown)} in [{name}]")
+    if missing:
+        raise DesignError(f"{path}: missing key(s) {sorted(missing)} in [{name}]")
+    try:
+        return cls(**given)
+    except TypeError as exc:
+        raise DesignError(f"{path}: [{name}]: {exc}") from exc
+
+
+def load_design(path: str | Path | None = None) -> StudyDesign:
+    """Load and validate a study design.
+
+    Parameters
+    ----------
+    path : path-like, optional
+        A ``design.toml``; the shipped one when omitted.
+
+    Returns
+    -------
+    StudyDesign
+
+    Raises
+    ------
+    DesignError
+        If the file is missing, is not TOML, or any value is inconsistent; the message names the
+        key and the fix.
+    """
+    path = Path(path) if path is not None else default_design_path()
+    if not path.is_file():
+        raise DesignError(f"design file {path} not found; pass an existing design.toml")
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise DesignError(f"design file {path} is not valid TOML: {exc}") from exc
+
+    g = _section(raw, "gloss", path)
+    d = _section(raw, "depth", path)
+    gloss = _build(
+        GlossSpec, g, "gloss", path,
+        rendered_levels=_levels(g.get("rendered_levels"), int(g.get("n_levels", 0)), "gloss"),
+    )
+    depth = _build(
+        DepthSpec, d, "depth", path,
+        rendered_levels=_levels(d.get("rendered_levels"), int(d.get("n_levels", 0)), "depth"),
+    )
+    array = _build(ArraySpec, _section(raw, "array", path), "array", path)
+    ills = raw.get("illuminations")
+    if not isinstance(ills, list):
+        raise DesignError(f"{path}: missing [[illuminations]] entries")
+    illuminations = tuple(
+        _build(Illumination, il, "illuminations", path) for il in ills
+    )
+    tonemap = _build(ToneMapSpec, _section(raw, "tonemap", path), "tonemap", path)
+    sessions = _build(SessionSpec, _section(raw, "sessions", path), "sessions", path)
+    disp = _section(raw, "display", path)
+    display = _build(
+        DisplaySpec, disp, "display", path,
+        resolution_px=tuple(int(v) for v in disp.get("resolution_px", ())),
+    )
+    slider = _build(SliderSpec, _section(raw, "slider", path), "slider", path)
+    an = _section(raw, "analysis", path)
+    analysis = _build(
+        AnalysisSpec, an, "analysis", path,
+        depth_bins_cm={k: tuple(float(x) for x in v) for k, v in an.get("depth_bins_cm", {}).items()},
+        gloss_bins_pct={
+            k: tuple(float(x) for x in v) for k, v in an.get("gloss_bins_pct", {}).items()
+        },
+    )
+    return StudyDesign(
+        gloss=gloss,
+        depth=depth,
+        array=array,
+        illuminations=illuminations,
+        tonemap=tonemap,
+        sessions=sessions,
+        display=display,
+        slider=slider,
+        analysis=analysis,
+        source=str(path),
+    )
