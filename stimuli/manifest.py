@@ -1,0 +1,151 @@
+"""The render manifest: one CSV row per rendered stimulus, the contract between stimuli and its users.
+
+The experiment checks a manifest before a session (every PNG present, checksums match); analysis
+keys image statistics by it. Paths in the manifest are relative to the manifest's folder.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import os
+from pathlib import Path
+
+import pandas as pd
+
+__all__ = [
+    "MANIFEST_COLUMNS",
+    "ManifestError",
+    "append_manifest_row",
+    "load_manifest",
+    "sha256_file",
+    "verify_manifest",
+]
+
+MANIFEST_COLUMNS = [
+    "stimulus_id",
+    "illumination",
+    "gloss_level",
+    "depth_level",
+    "true_gloss_pct",
+    "true_depth_cm",
+    "light_field",
+    "array_index",
+    "seed",
+    "rho_d",
+    "rho_s",
+    "alpha",
+    "spp",
+    "width_px",
+    "height_px",
+    "image_width_cm",
+    "variant",
+    "envmap",
+    "calibration_id",
+    "exr_path",
+    "png_path",
+    "exr_sha256",
+    "png_sha256",
+]
+
+
+class ManifestError(ValueError):
+    """A manifest is missing, malformed, or disagrees with the files beside it."""
+
+
+def sha256_file(path: str | Path, chunk_bytes: int = 1 << 20) -> str:
+    """Hex SHA-256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(chunk_bytes), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def append_manifest_row(path: str | Path, row: dict) -> None:
+    """Append one row (all of ``MANIFEST_COLUMNS``) to a manifest, writing the header if new.
+
+    The row is flushed and fsynced before returning, so a crash never loses a finished render's
+    record.
+    """
+    missing = [c for c in MANIFEST_COLUMNS if c not in row]
+    if missing:
+        raise ManifestError(f"manifest row lacks {missing}")
+    path = Path(path)
+    new = not path.exists() or path.stat().st_size == 0
+    with open(path, "a", newline="", encoding="utf-8") as fh:
+        writer = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS, extrasaction="raise")
+        if new:
+            writer.writeheader()
+        writer.writerow({c: row[c] for c in MANIFEST_COLUMNS})
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def load_manifest(path: str | Path) -> pd.DataFrame:
+    """Read and check a manifest CSV.
+
+    Raises
+    ------
+    ManifestError
+        If the file is missing, lacks columns, or repeats a stimulus id.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / "manifest.csv"
+    if not path.is_file():
+        raise ManifestError(
+            f"stimulus manifest {path} not found; render the stimuli first "
+            "(python -m stimuli render --set experiment --out DIR)"
+        )
+    try:
+        frame = pd.read_csv(path, dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str})
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise ManifestError(f"stimulus manifest {path} is not a readable CSV: {exc}") from exc
+    missing = [c for c in MANIFEST_COLUMNS if c not in frame.columns]
+    if missing:
+        raise ManifestError(f"stimulus manifest {path} lacks columns {missing}; re-render with this version")
+    dup = frame["stimulus_id"][frame["stimulus_id"].duplicated()].tolist()
+    if dup:
+        raise ManifestError(f"stimulus manifest {path} lists {dup[:5]} more than once")
+    frame.attrs["manifest_path"] = str(path)
+    return frame
+
+
+def verify_manifest(path: str | Path, *, kinds: tuple[str, ...] = ("png",), stimulus_ids=None) -> list[str]:
+    """Check that the files a manifest lists exist and match their checksums.
+
+    Parameters
+    ----------
+    path : path-like
+        The manifest CSV (or its folder).
+    kinds : tuple of {"png", "exr"}
+        Which files to check.
+    stimulus_ids : iterable of str, optional
+        Check only these stimuli (and report any of them missing from the manifest).
+
+    Returns
+    -------
+    list of str
+        One message per problem, naming the file and the fix; empty when all is well.
+    """
+    frame = load_manifest(path)
+    root = Path(frame.attrs["manifest_path"]).parent
+    problems = []
+    if stimulus_ids is not None:
+        wanted = list(stimulus_ids)
+        absent = sorted(set(wanted) - set(frame["stimulus_id"]))
+        problems += [f"{sid}: not in the manifest; render it" for sid in absent]
+        frame = frame[frame["stimulus_id"].isin(wanted)]
+    for row in frame.itertuples(index=False):
+        for kind in kinds:
+            rel = getattr(row, f"{kind}_path")
+            file = root / str(rel)
+            if not file.is_file():
+                problems.append(f"{row.stimulus_id}: {file} is missing; re-render it")
+            elif sha256_file(file) != getattr(row, f"{kind}_sha256"):
+                problems.append(
+                    f"{row.stimulus_id}: {file} does not match its checksum in the manifest "
+                    "(changed after rendering); re-render it"
+                )
+    return problems

@@ -1,0 +1,33 @@
+"""The manifest records renders durably and detects missing or changed files."""
+
+import pytest
+
+from stimuli import MANIFEST_COLUMNS, ManifestError, append_manifest_row, load_manifest, sha256_file, verify_manifest
+
+
+def _row(tmp_path, sid):
+    png = tmp_path / "png" / f"{sid}.png"
+    png.parent.mkdir(exist_ok=True)
+    png.write_bytes(sid.encode())
+    row = {c: 0 for c in MANIFEST_COLUMNS}
+    row.update(stimulus_id=sid, png_path=f"png/{sid}.png", png_sha256=sha256_file(png),
+               exr_path=f"exr/{sid}.exr", exr_sha256="")
+    return row
+
+
+def test_manifest_round_trip_and_verification(tmp_path):
+    for sid in ("indoor_g02_d02", "indoor_g02_d03"):
+        append_manifest_row(tmp_path / "manifest.csv", _row(tmp_path, sid))
+    assert list(load_manifest(tmp_path)["stimulus_id"]) == ["indoor_g02_d02", "indoor_g02_d03"]
+    assert verify_manifest(tmp_path) == []
+    (tmp_path / "png" / "indoor_g02_d03.png").write_bytes(b"tampered")
+    (tmp_path / "png" / "indoor_g02_d02.png").unlink()
+    problems = verify_manifest(tmp_path, stimulus_ids=["indoor_g02_d02", "indoor_g02_d03", "x"])
+    assert len(problems) == 3
+    assert any("missing" in p for p in problems) and any("checksum" in p for p in problems)
+    assert any(p.startswith("x: not in the manifest") for p in problems)
+
+
+def test_missing_manifest_names_the_fix(tmp_path):
+    with pytest.raises(ManifestError, match="python -m stimuli render"):
+        load_manifest(tmp_path / "manifest.csv")
