@@ -1,0 +1,82 @@
+"""HTML report of a diagnosis: localisation figure, ranked candidates, before/after, verdict."""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+
+from analysis.gap.engine import Diagnosis, GapError
+
+__all__ = ["write_report"]
+
+
+def _verdict_text(d: Diagnosis) -> str:
+    if not d.steps:
+        return ("No candidate in the catalogue reduces the held-out gap significantly "
+                "(Holm-corrected, alpha 0.05): the gap is <b>unexplained</b> by the catalogue.")
+    return (f"The gap is best explained by <b>{html.escape(d.verdict)}</b>; adding it shrinks the "
+            f"held-out gap by {d.shrink_abs:.3f} nats/trial ({d.shrink_pct:.0f} %, 95 % CI "
+            f"{d.shrink_pct_ci[0]:.0f} to {d.shrink_pct_ci[1]:.0f} %).")
+
+
+def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
+    """Write ``out_dir/index.html`` (+ figure, JSON). Refuses an existing report."""
+    out = Path(out_dir)
+    if (out / "index.html").exists():
+        raise GapError(f"report {out / 'index.html'} exists; pass a new --out folder")
+    out.mkdir(parents=True, exist_ok=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
+    for ax, resp in zip(axes, ("gloss", "depth")):
+        sub = local[local["response"] == resp].reset_index(drop=True)
+        x = range(len(sub))
+        ax.errorbar(x, sub["mean_residual"], yerr=[sub["mean_residual"] - sub["ci_low"],
+                    sub["ci_high"] - sub["mean_residual"]], fmt="o")
+        ax.axhline(0, color="k", lw=0.5)
+        ax.set_xticks(list(x))
+        ax.set_xticklabels([f"{g}/{d}/{i}" for g, d, i in
+                            zip(sub["gloss_bin"], sub["depth_bin"], sub["illumination"])],
+                           rotation=90, fontsize=6)
+        ax.set_title(f"{resp} response - truth (slider units), 95 % CI")
+        ax.set_xlabel("gloss bin / depth bin / illumination")
+    fig.tight_layout()
+    fig.savefig(out / "localisation.png", dpi=100)
+    plt.close(fig)
+    rows = "".join(
+        f"<tr><td>{html.escape(s['name'])}</td><td>{s['gain']:.4f}</td>"
+        f"<td>[{s['ci_low']:.4f}, {s['ci_high']:.4f}]</td><td>{s['p_holm']:.4f}</td>"
+        f"<td>{'yes' if s['significant'] else 'no'}</td></tr>" for s in diag.ranking)
+    steps = "".join(f"<li>+ {html.escape(s['added'])}: held-out gain {s['gain']:.4f} "
+                    f"(p={s['p']:.4f}), parameters {html.escape(json.dumps(s['params']))}</li>"
+                    for s in diag.steps) or "<li>none</li>"
+    page = f"""<!doctype html><html><head><meta charset="utf-8">
+<title>Sim-to-real gap: {html.escape(diag.layer)}</title></head><body>
+<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
+<p>{_verdict_text(diag)}</p>
+<h2>Before / after (held-out, mean NLL above the simulation's own noise, nats/trial)</h2>
+<p>before {diag.gap_before:.4f}; after {diag.gap_after:.4f}; shrink {diag.shrink_abs:.4f}
+(95 % CI {diag.shrink_abs_ci[0]:.4f} to {diag.shrink_abs_ci[1]:.4f}),
+{diag.shrink_pct:.1f} % (95 % CI {diag.shrink_pct_ci[0]:.1f} to {diag.shrink_pct_ci[1]:.1f} %)</p>
+<h2>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h2>
+<table border="1"><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>
+<th>significant</th></tr>{rows}</table>
+<h2>Greedy combination</h2><ol>{steps}</ol>
+<h2>Where</h2><img src="localisation.png" alt="localisation">
+<p>seed {diag.seed}</p></body></html>"""
+    (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
+    local.to_csv(out / "localisation.csv", index=False)
+    fd, tmp = tempfile.mkstemp(dir=out, suffix=".html")
+    with os.fdopen(fd, "w") as fh:
+        fh.write(page)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.link(tmp, out / "index.html")  # never replaces an existing report
+    os.unlink(tmp)
+    return out / "index.html"
