@@ -40,6 +40,15 @@ mkdir -p "$RUN/design"
 # --- end image statistics ---
 
 # --- sim-to-real gap (issue 8) ---
+step "sim-to-real gap: observer layer"
+if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
+  $PY -m analysis.gap diagnose --layer observer --real "$RUN/data/sessions" \
+    --sim "$RUN/data_ideal/sessions" --out "$RUN/gap/observer"
+else
+  echo "gap diagnose skipped: needs humanlike sessions in \$RUN/data/sessions and ideal-observer"
+  echo "sessions in \$RUN/data_ideal/sessions (experiment's ideal run not in the demo yet)"
+  $PY -m analysis.gap benchmark --layer observer --trials 4 --seed 1
+fi
 # --- end sim-to-real gap ---
 
 step "done"
