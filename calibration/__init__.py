@@ -2,9 +2,76 @@
 
 Public API
 ----------
+Calibration, load_calibration, save_calibration, default_calibration
+    The calibration record (``calibration.json``); ``Calibration.drive_for_fraction`` is the
+    inverse gamma used by stimuli tone mapping.
+SimulatedCRT, load_crt
+    The simulated display the fake photometer measures (parameters in ``crt.toml``).
+GammaFit, fit_gamma, fit_gamma_models, choose_gamma_model, gamma_luminance,
+gamma_drive_for_luminance
+    Gamma models (PsychoPy eq. 1 and 4, extended power with offset).
+UniformityMap, fit_uniformity
+    Spatial uniformity and correction gains.
+READINGS_COLUMNS
+    Columns of ``readings.csv``.
+CalibrationError, PhotometerError, PhotometerNotFound, PhotometerTimeout, BadReading
+    Errors (all ``ValueError`` subclasses).
 available_ports
+    Serial ports the system reports.
 """
 
+from calibration.crt import SimulatedCRT, default_crt_path, load_crt
+from calibration.errors import (
+    BadReading,
+    CalibrationError,
+    PhotometerError,
+    PhotometerNotFound,
+    PhotometerTimeout,
+)
+from calibration.gamma import (
+    GAMMA_MODELS,
+    GammaFit,
+    choose_gamma_model,
+    fit_gamma,
+    fit_gamma_models,
+    gamma_drive_for_luminance,
+    gamma_luminance,
+)
 from calibration.ports import available_ports
+from calibration.readings import READINGS_COLUMNS, load_readings
+from calibration.record import (
+    DEFAULT_CRT,
+    Calibration,
+    default_calibration,
+    load_calibration,
+    save_calibration,
+)
+from calibration.uniformity import UniformityMap, fit_uniformity
 
-__all__ = ["available_ports"]
+__all__ = [
+    "DEFAULT_CRT",
+    "GAMMA_MODELS",
+    "READINGS_COLUMNS",
+    "BadReading",
+    "Calibration",
+    "CalibrationError",
+    "GammaFit",
+    "PhotometerError",
+    "PhotometerNotFound",
+    "PhotometerTimeout",
+    "SimulatedCRT",
+    "UniformityMap",
+    "available_ports",
+    "choose_gamma_model",
+    "default_calibration",
+    "default_crt_path",
+    "fit_gamma",
+    "fit_gamma_models",
+    "fit_uniformity",
+    "gamma_drive_for_luminance",
+    "gamma_luminance",
+    "load_calibration",
+    "load_crt",
+    "load_readings",
+    "save_calibration",
+]
