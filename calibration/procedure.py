@@ -1,0 +1,368 @@
+"""The measurement procedure: patches in a PsychoPy window, one photometer reading per patch.
+
+Order of work (``python -m calibration run``):
+
+1. Positions in a fixed order, the centre first. At each, the experimenter aims the photometer
+   at a cross and presses space (in simulation the procedure writes the aim for the fake
+   instrument instead; see :mod:`calibration.fake_instrument`).
+2. At each position, every (level, repeat) in an order shuffled by the recorded seed; each patch
+   is shown, left ``settle_s`` to settle, measured, and the reading appended to
+   ``readings.csv`` at once (flush + fsync). Rejected replies go to ``rejected.csv`` and the
+   patch is measured again (at most ``max_rejects`` times).
+3. A rerun with the same ``--out`` reads ``procedure.json`` (settings and seed, written once)
+   and ``readings.csv`` and measures only what is missing.
+
+Levels are drive values on the 8-bit grid (k/255), so the value recorded is exactly the value
+displayed. Positions are patch centres in norm units. The centre gets all ``n_levels`` levels;
+other positions get ``uniformity_levels`` evenly spaced levels (black and white included).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from calibration.errors import BadReading, CalibrationError
+from calibration.readings import (
+    READINGS_COLUMNS,
+    REJECTED_COLUMNS,
+    append_row,
+    load_readings,
+)
+from calibration.record import utc_now_iso
+
+__all__ = [
+    "VALIDATION_COLUMNS",
+    "PatchDisplay",
+    "ProcedureSettings",
+    "calibration_window",
+    "load_or_create_settings",
+    "make_schedule",
+    "measure_schedule",
+]
+
+VALIDATION_COLUMNS = READINGS_COLUMNS + ("target_fraction",)
+
+
+@dataclass(frozen=True)
+class ProcedureSettings:
+    """Settings of one calibration run (saved once as ``procedure.json``).
+
+    Attributes
+    ----------
+    calibration_id : str
+    device : str
+    seed : int
+        Seeds the order of patches (recorded so a rerun resumes the same schedule).
+    n_levels : int
+        Levels at the centre (default 17).
+    uniformity_levels : int
+        Levels at the other positions.
+    n_repeats : int
+        Readings per (position, level).
+    grid : int
+        Positions per side (3: a 3 x 3 grid; 1: the centre only).
+    grid_extent_norm : float
+        Outermost patch centres at +-this, norm units.
+    patch_frac : float
+        Patch side as a fraction of the screen height.
+    background_level : float
+        Drive of the surround (a CRT's output depends a little on the whole picture; keep it
+        like the experiment's).
+    settle_s : float
+        Wait after each flip before measuring, s.
+    max_rejects : int
+        Rejected replies tolerated per patch before the run stops.
+    n_validation : int
+        Fractions of the luminance range measured after correction (0: no validation).
+    """
+
+    calibration_id: str
+    device: str
+    seed: int
+    n_levels: int = 17
+    uniformity_levels: int = 5
+    n_repeats: int = 2
+    grid: int = 3
+    grid_extent_norm: float = 0.6
+    patch_frac: float = 0.2
+    background_level: float = 0.5
+    settle_s: float = 0.5
+    max_rejects: int = 3
+    n_validation: int = 9
+
+    def __post_init__(self) -> None:
+        checks = [
+            (self.n_levels >= 4, "n_levels must be >= 4 (the gamma fit needs 4 levels)"),
+            (2 <= self.uniformity_levels <= self.n_levels,
+             "uniformity_levels must lie in 2..n_levels"),
+            (self.n_repeats >= 1, "n_repeats must be >= 1"),
+            (self.grid >= 1, "grid must be >= 1"),
+            (0 < self.grid_extent_norm < 1, "grid_extent_norm must lie in (0, 1)"),
+            (0 < self.patch_frac <= 1, "patch_frac must lie in (0, 1]"),
+            (0 <= self.background_level <= 1, "background_level must lie in [0, 1]"),
+            (self.settle_s >= 0, "settle_s must be >= 0"),
+            (self.max_rejects >= 1, "max_rejects must be >= 1"),
+            (self.n_validation == 0 or self.n_validation >= 3, "n_validation must be 0 or >= 3"),
+            (self.calibration_id.replace("-", "").replace("_", "").isalnum(),
+             "calibration_id may hold letters, digits, '-' and '_' only"),
+        ]
+        for ok, msg in checks:
+            if not ok:
+                raise CalibrationError(f"procedure settings: {msg} (got {self})")
+
+    def positions(self) -> list[tuple[float, float]]:
+        """Patch centres (x_norm, y_norm), the centre first, then row by row from the top."""
+        if self.grid == 1:
+            return [(0.0, 0.0)]
+        v = np.linspace(-self.grid_extent_norm, self.grid_extent_norm, self.grid)
+        pos = [(float(x), float(y)) for y in v[::-1] for x in v]
+        pos.sort(key=lambda p: (p != (0.0, 0.0)))
+        return pos if (0.0, 0.0) in pos else [(0.0, 0.0)] + pos
+
+    def levels(self, n: int) -> np.ndarray:
+        """``n`` drive values evenly spaced on the 8-bit grid, 0 and 1 included."""
+        return np.unique(np.round(np.linspace(0, 1, n) * 255)) / 255
+
+
+def make_schedule(settings: ProcedureSettings) -> pd.DataFrame:
+    """Every patch to measure, in measuring order.
+
+    Returns
+    -------
+    DataFrame
+        Columns x_norm, y_norm, level, repeat; one row per reading.
+    """
+    rng = np.random.default_rng(settings.seed)
+    rows = []
+    for x, y in settings.positions():
+        centre = (x, y) == (0.0, 0.0)
+        levels = settings.levels(settings.n_levels if centre else settings.uniformity_levels)
+        block = [(x, y, float(lv), r) for r in range(settings.n_repeats) for lv in levels]
+        rows += [block[i] for i in rng.permutation(len(block))]
+    return pd.DataFrame(rows, columns=["x_norm", "y_norm", "level", "repeat"])
+
+
+def load_or_create_settings(out_dir: Path, settings: ProcedureSettings) -> ProcedureSettings:
+    """The run's settings: those in ``out_dir/procedure.json`` if it exists, else ``settings``.
+
+    The file is written once (never replaced), so a rerun resumes the same schedule.
+
+    Raises
+    ------
+    CalibrationError
+        If the stored settings are for another device.
+    """
+    path = Path(out_dir) / "procedure.json"
+    if path.is_file():
+        try:
+            stored = ProcedureSettings(**json.loads(path.read_text()))
+        except (ValueError, TypeError) as exc:
+            raise CalibrationError(f"{path} is malformed ({exc}); use a new --out") from exc
+        if stored.device != settings.device:
+            raise CalibrationError(
+                f"{out_dir} holds a {stored.device} run; calibrate with {settings.device} "
+                "into a new --out folder"
+            )
+        return stored
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(asdict(settings), indent=2) + "\n")
+    with open(tmp) as fh:
+        os.fsync(fh.fileno())
+    try:
+        os.link(tmp, path)  # never replaces an existing file
+    finally:
+        tmp.unlink()
+    return settings
+
+
+@contextmanager
+def calibration_window(*, fullscr: bool = True, size_px=None, screen: int = 0):
+    """A PsychoPy window in pixel units, closed on exit.
+
+    Parameters
+    ----------
+    fullscr : bool
+        Full screen (the lab: the CRT, in the design's mode); the window then has the
+        screen's size.
+    size_px : (int, int) or None
+        Requested size.
+    """
+    from psychopy import logging, visual
+
+    logging.console.setLevel(logging.ERROR)
+    win = visual.Window(size=tuple(size_px) if size_px else (800, 600), fullscr=fullscr,
+                        units="pix", color=(-1, -1, -1), colorSpace="rgb", allowGUI=False,
+                        screen=screen, checkTiming=False, winType="pyglet")
+    try:
+        yield win
+    finally:
+        win.close()
+
+
+class PatchDisplay:
+    """Draws calibration patches and aiming targets in a PsychoPy window.
+
+    Parameters
+    ----------
+    win : psychopy.visual.Window
+        In pixel units.
+    settings : ProcedureSettings
+    sim_aim : path or None
+        Simulation only: where to write the photometer's aim for the fake instrument, instead
+        of asking the experimenter to move the photometer.
+    """
+
+    def __init__(self, win, settings: ProcedureSettings, sim_aim=None):
+        from psychopy import visual
+
+        self.win = win
+        self.settings = settings
+        self.sim_aim = Path(sim_aim) if sim_aim else None
+        self.width_px, self.height_px = (int(v) for v in win.size)
+        side = settings.patch_frac * self.height_px
+        self._patch = visual.Rect(win, width=side, height=side, lineColor=None,
+                                  colorSpace="rgb", units="pix")
+        self._cross = visual.ShapeStim(
+            win, vertices="cross", size=side / 3, fillColor=(1, -1, -1), lineColor=None,
+            units="pix")
+        self._text = visual.TextStim(win, text="", height=self.height_px / 30, units="pix",
+                                     pos=(0, -0.42 * self.height_px), color=(1, 1, 1))
+
+    def to_pix(self, x_norm: float, y_norm: float) -> tuple[float, float]:
+        """Norm units -> window pixels (origin at the centre, y up)."""
+        return x_norm * self.width_px / 2, y_norm * self.height_px / 2
+
+    def _background(self) -> None:
+        self.win.color = [2 * self.settings.background_level - 1] * 3
+
+    def aim(self, x_norm: float, y_norm: float) -> None:
+        """Ask for the photometer at a position (in simulation: write the aim file)."""
+        from psychopy import event
+
+        self._background()
+        self._cross.pos = self.to_pix(x_norm, y_norm)
+        if self.sim_aim is not None:
+            x_px = round((x_norm + 1) / 2 * self.width_px)
+            y_px = round((1 - y_norm) / 2 * self.height_px)
+            tmp = self.sim_aim.with_suffix(".tmp")
+            tmp.write_text(json.dumps({"x_px": x_px, "y_px": y_px}))
+            os.replace(tmp, self.sim_aim)
+            return
+        self._text.text = ("Aim the photometer at the red cross and focus it, then press space "
+                           "(escape stops; readings so far are kept)")
+        event.clearEvents()
+        while True:
+            self._cross.draw()
+            self._text.draw()
+            self.win.flip()
+            keys = event.getKeys(["space", "escape"])
+            if "escape" in keys:
+                raise CalibrationError("stopped by the experimenter; rerun to resume")
+            if "space" in keys:
+                return
+
+    def show(self, x_norm: float, y_norm: float, level: float) -> None:
+        """Show one patch and wait for it to settle."""
+        from psychopy import event
+
+        self._background()
+        self._patch.pos = self.to_pix(x_norm, y_norm)
+        self._patch.fillColor = [2 * level - 1] * 3
+        self._patch.draw()
+        self.win.flip()
+        if event.getKeys(["escape"]):
+            raise CalibrationError("stopped by the experimenter; rerun to resume")
+        time.sleep(self.settings.settle_s)
+
+
+def _measure_patch(photometer, display, settings, row, path, rejected_path, extra=None) -> dict:
+    """Show one patch and read it; rejected replies are recorded and the patch remeasured."""
+    base = {"calibration_id": settings.calibration_id, "device": settings.device,
+            "x_norm": row["x_norm"], "y_norm": row["y_norm"], "level": row["level"],
+            "repeat": int(row["repeat"])} | (extra or {})
+    for _ in range(settings.max_rejects):
+        display.show(row["x_norm"], row["y_norm"], row["level"])
+        try:
+            reading = photometer.measure()
+        except BadReading as exc:
+            append_row(rejected_path, base | {"timestamp_utc": utc_now_iso(),
+                                              "luminance_cd_m2": "",
+                                              "raw_reply": exc.raw_reply, "flag": exc.kind},
+                       columns=REJECTED_COLUMNS)
+            last = exc
+            continue
+        out = base | {"timestamp_utc": utc_now_iso(), "luminance_cd_m2": reading.luminance_cd_m2,
+                      "raw_reply": reading.raw_reply}
+        append_row(path, out, columns=READINGS_COLUMNS + tuple(extra or ()))
+        return out
+    raise CalibrationError(
+        f"patch level {row['level']:.4f} at ({row['x_norm']}, {row['y_norm']}) was rejected "
+        f"{settings.max_rejects} times ({last.kind}; last raw reply {last.raw_reply!r}); "
+        "saturated: add a neutral-density filter or lower the white level; garbled: check the "
+        "cable. Readings so far are kept; rerun to resume."
+    )
+
+
+def measure_schedule(photometer, display: PatchDisplay, settings: ProcedureSettings,
+                     out_dir: Path, *, progress=print) -> pd.DataFrame:
+    """Measure every patch of :func:`make_schedule` not yet in ``out_dir/readings.csv``.
+
+    Returns
+    -------
+    DataFrame
+        All readings of this calibration (earlier runs included).
+    """
+    out_dir = Path(out_dir)
+    path, rejected = out_dir / "readings.csv", out_dir / "rejected.csv"
+    schedule = make_schedule(settings)
+    done = load_readings(path)
+    done = done[done["calibration_id"] == settings.calibration_id]
+    key = ["x_norm", "y_norm", "level", "repeat"]
+    have = {tuple(np.round(r, 6)) for r in done[key].to_numpy(float)}
+    todo = schedule[[tuple(np.round(r, 6)) not in have for r in schedule[key].to_numpy(float)]]
+    progress(f"{settings.calibration_id}: {len(schedule) - len(todo)} of {len(schedule)} "
+             f"readings already in {path}; measuring {len(todo)}")
+    aimed = None
+    for i, (_, row) in enumerate(todo.iterrows(), 1):
+        if (row["x_norm"], row["y_norm"]) != aimed:
+            aimed = (row["x_norm"], row["y_norm"])
+            display.aim(*aimed)
+        r = _measure_patch(photometer, display, settings, row, path, rejected)
+        if i % 10 == 0 or i == len(todo):
+            progress(f"  {i}/{len(todo)}: level {r['level']:.3f} at ({r['x_norm']:+.2f}, "
+                     f"{r['y_norm']:+.2f}) -> {r['luminance_cd_m2']:.3f} cd/m^2")
+    return load_readings(path)
+
+
+def measure_validation(photometer, display: PatchDisplay, settings: ProcedureSettings,
+                       calibration, out_dir: Path, *, progress=print) -> pd.DataFrame:
+    """Measure gamma-corrected patches at the centre: fractions of the range, evenly spaced.
+
+    Each row of ``validation.csv`` holds the drive used (``level``, from
+    ``calibration.drive_for_fraction``) and its ``target_fraction``.
+    """
+    out_dir = Path(out_dir)
+    path = out_dir / "validation.csv"
+    fractions = np.linspace(0, 1, settings.n_validation)
+    done = pd.read_csv(path) if path.is_file() else pd.DataFrame(columns=VALIDATION_COLUMNS)
+    have = set(np.round(done["target_fraction"].astype(float), 6)) if len(done) else set()
+    display.aim(0.0, 0.0)
+    for f in fractions:
+        if round(float(f), 6) in have:
+            continue
+        drive = float(np.round(calibration.drive_for_fraction(f) * 255) / 255)
+        row = {"x_norm": 0.0, "y_norm": 0.0, "level": drive, "repeat": 0}
+        _measure_patch(photometer, display, settings, row, path, out_dir / "rejected.csv",
+                       extra={"target_fraction": float(f)})
+    progress(f"validation: {len(fractions)} corrected patches in {path}")
+    frame = pd.read_csv(path, on_bad_lines="skip")
+    return frame[frame["calibration_id"] == settings.calibration_id]

@@ -1,0 +1,84 @@
+"""A PsychoPy Monitor profile from a calibration, written into a project folder.
+
+PsychoPy keeps monitor profiles in ``psychopy.monitors.calibTools.monitorFolder`` (by default
+``$HOME/.psychopy3/monitors``, fixed when PsychoPy is imported). We point that name at the
+calibration's own ``monitors/`` folder while saving, so nothing is written into the user's
+home; the lab's other experiments use the profile by copying ``<name>.json`` into their
+monitor folder (or by setting ``monitorFolder`` the same way).
+
+The gamma grid (rows luminance, R, G, B; columns min, max, gamma, a, b, k) holds PsychoPy's
+eq. 4 parameters when the chosen model is ``offset_power``; otherwise the eq. 1 (``power``) fit,
+which PsychoPy can invert (the extended power function's threshold has no PsychoPy equation).
+The readings themselves are stored as ``levelsPre``/``lumsPre`` for PsychoPy's interpolation.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from calibration.record import Calibration
+
+__all__ = ["gamma_grid", "write_monitor_profile"]
+
+
+def gamma_grid(cal: Calibration) -> tuple[np.ndarray, int]:
+    """PsychoPy gamma grid (4 x 6) and linearise method for a calibration."""
+    fit = {f.model: f for f in cal.fits}
+    if cal.gamma_model == "offset_power" or not fit:
+        p = cal.gamma_params if cal.gamma_model == "offset_power" else None
+    else:
+        p = None
+    if p is not None:
+        row = [cal.min_luminance_cd_m2, cal.max_luminance_cd_m2, p["gamma"], p["a"], p["b"],
+               p["k"]]
+        method = 4
+    else:
+        q = fit["power"].params
+        row = [q["a"], q["a"] + q["b"] ** q["gamma"], q["gamma"], q["a"], q["b"], 1.0]
+        method = 1
+    return np.array([row] * 4, dtype=float), method
+
+
+def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | None = None) -> Path:
+    """Save ``cal`` as PsychoPy Monitor ``cal.monitor_name`` in ``folder``.
+
+    Returns
+    -------
+    Path
+        ``folder/<monitor_name>.json``.
+    """
+    from psychopy import monitors
+    from psychopy.monitors import calibTools
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    saved = calibTools.monitorFolder
+    calibTools.monitorFolder = str(folder)
+    try:
+        mon = monitors.Monitor(cal.monitor_name, width=cal.width_cm, distance=cal.distance_cm,
+                               verbose=False, autoLog=False)
+        mon.newCalib(calibName=cal.calibration_id, width=cal.width_cm, distance=cal.distance_cm)
+        mon.setSizePix(list(cal.resolution_px))
+        grid, method = gamma_grid(cal)
+        mon.setGammaGrid(grid)
+        mon.setLineariseMethod(method)
+        if readings is not None and len(readings):
+            centre = readings[(readings["x_norm"] == 0) & (readings["y_norm"] == 0)]
+            means = centre.groupby("level")["luminance_cd_m2"].mean()
+            mon.setLevelsPre(list(np.round(means.index.to_numpy() * 255, 3)))
+            mon.setLumsPre(np.tile(means.to_numpy(), (4, 1)))
+        date = datetime.fromisoformat(cal.created_utc).timestamp()
+        mon.setCalibDate(date)
+        mon.setNotes(
+            f"glossdepth calibration {cal.calibration_id} ({cal.device}); chosen model "
+            f"{cal.gamma_model} {cal.gamma_params}; refresh {cal.refresh_hz:.1f} Hz; see "
+            "calibration.json beside this folder"
+        )
+        mon.save()
+    finally:
+        calibTools.monitorFolder = saved
+    return folder / f"{cal.monitor_name}.json"

@@ -1,0 +1,84 @@
+"""Write a calibration's outputs: JSON, PsychoPy monitor profile, figures, a text report."""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import pandas as pd
+
+from calibration.gamma import GAMMA_MODELS
+from calibration.plots import plot_gamma, plot_uniformity
+from calibration.profile import write_monitor_profile
+from calibration.record import Calibration, save_calibration
+
+__all__ = ["report_text", "write_outputs"]
+
+
+def report_text(cal: Calibration, readings: pd.DataFrame) -> str:
+    """A plain-text summary: the models, the choice, uniformity, validation, warnings."""
+    lines = [
+        f"Calibration {cal.calibration_id}  ({cal.created_utc})",
+        (f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
+        f"{cal.instrument.get('port', '?')}"),
+        (f"display: {cal.monitor_name}, {cal.resolution_px[0]} x {cal.resolution_px[1]} px, "
+        f"{cal.width_cm:g} cm wide, viewed at {cal.distance_cm:g} cm, {cal.refresh_hz:.1f} Hz"),
+        (f"readings: {len(readings)} accepted "
+        f"({readings[['x_norm', 'y_norm']].drop_duplicates().shape[0]} positions)"),
+        "",
+        "gamma models (screen centre)             RMSE     held-out RMSE  (cd/m^2)",
+    ]
+    for f in cal.fits:
+        mark = "*" if f.model == cal.gamma_model else " "
+        params = ", ".join(f"{k}={f.params[k]:.4g}" for k in GAMMA_MODELS[f.model])
+        lines.append(f" {mark} {f.model:<16} {f.rmse_cd_m2:8.4f}  {f.heldout_rmse_cd_m2:8.4f}"
+                     f"   {params}")
+    lines += [
+        (f"chosen: {cal.gamma_model} (smallest held-out error; a model with more parameters must "
+        "beat a simpler one by 2 %)"),
+        f"luminance range: {cal.min_luminance_cd_m2:.3f} - {cal.max_luminance_cd_m2:.3f} cd/m^2",
+    ]
+    if cal.uniformity is not None:
+        u = cal.uniformity
+        lines += ["", (f"uniformity: non-uniformity {u.nonuniformity_pct:.2f} % "
+                      "(relative luminance, rows top to bottom):")]
+        for y, row in zip(reversed(u.y_norm), reversed(u.relative)):
+            lines.append(f"  y={y:+.2f}: " + "  ".join(f"{v:.3f}" for v in row))
+    if cal.validation_max_deviation_pct is not None:
+        lines += ["", (f"validation after correction: max deviation from linear luminance "
+                      f"{cal.validation_max_deviation_pct:.2f} % of the range")]
+    lines += ["", "warnings:" if cal.warnings else "warnings: none"]
+    lines += [f"  - {w}" for w in cal.warnings]
+    return "\n".join(lines) + "\n"
+
+
+def _write_text(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
+                  validation: pd.DataFrame | None = None) -> dict:
+    """Write calibration.json, monitors/<name>.json, gamma.png, uniformity.png, report.txt.
+
+    Returns
+    -------
+    dict
+        Name -> path of each file written.
+    """
+    out_dir = Path(out_dir)
+    paths = {"calibration": save_calibration(cal, out_dir / "calibration.json")}
+    paths["monitor"] = write_monitor_profile(cal, out_dir / "monitors", readings)
+    paths["gamma_plot"] = plot_gamma(cal, readings, out_dir / "gamma.png", validation)
+    uni = plot_uniformity(cal, out_dir / "uniformity.png")
+    if uni is not None:
+        paths["uniformity_plot"] = uni
+    text = report_text(cal, readings)
+    _write_text(out_dir / "report.txt", text)
+    paths["report"] = out_dir / "report.txt"
+    return paths
