@@ -59,8 +59,13 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
     saved = calibTools.monitorFolder
     calibTools.monitorFolder = str(folder)
     try:
-        mon = monitors.Monitor(cal.monitor_name, width=cal.width_cm, distance=cal.distance_cm,
-                               verbose=False, autoLog=False)
+        existed = (folder / f"{cal.monitor_name}.json").is_file()
+        mon = monitors.Monitor(cal.monitor_name, verbose=False, autoLog=False)
+        # Monitor() makes a temporary calibration for a new profile; a refit replaces its own.
+        stale = [n for n in mon.calibNames if not existed or n == cal.calibration_id]
+        for name in stale:
+            mon.calibNames.remove(name)
+            mon.calibs.pop(name, None)
         mon.newCalib(calibName=cal.calibration_id, width=cal.width_cm, distance=cal.distance_cm)
         mon.setSizePix(list(cal.resolution_px))
         grid, method = gamma_grid(cal)
