@@ -22,6 +22,24 @@ mkdir -p "$RUN/design"
 # --- end design ---
 
 # --- calibration (issue 4) ---
+step "display calibration: simulated PR-655 on a pseudo-terminal, PsychoPy window under Xvfb"
+# The fake photometer and the procedure share one X display: the fake reads the window's pixels.
+# Fewer levels/repeats and short settling than a lab run, to keep the demo under a minute.
+CAL="$RUN/calibration"
+mkdir -p "$CAL"
+bash -c "$XVFB \"\$@\"" xvfb bash -c '
+  set -euo pipefail
+  PY=$1; CAL=$2
+  "$PY" -m calibration fake-photometer --device pr655 --aim "$CAL/aim.json" \
+    --port-file "$CAL/port" --seed 1 >"$CAL/fake-photometer.log" 2>&1 &
+  fake=$!
+  trap "kill $fake 2>/dev/null || true" EXIT
+  for _ in $(seq 150); do [ -s "$CAL/port" ] && break; sleep 0.1; done
+  [ -s "$CAL/port" ] || { echo "fake photometer did not start:"; cat "$CAL/fake-photometer.log"; exit 1; }
+  "$PY" -m calibration run --device pr655 --port "$(cat "$CAL/port")" --out "$CAL" \
+    --sim-aim "$CAL/aim.json" --fast --levels 9 --repeats 1 --uniformity-levels 3 \
+    --validation 5 --calibration-id demo
+' calibration "$PY" "$CAL"
 # --- end calibration ---
 
 # --- gloss fit (issue 7) ---
