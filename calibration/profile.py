@@ -51,13 +51,15 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
     Path
         ``folder/<monitor_name>.json``.
     """
-    from psychopy import monitors
+    from psychopy import logging, monitors
     from psychopy.monitors import calibTools
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    saved = calibTools.monitorFolder
+    saved, level = calibTools.monitorFolder, logging.console.level
     calibTools.monitorFolder = str(folder)
+    # A new profile makes Monitor() warn "specification not found"; that is expected here.
+    logging.console.setLevel(logging.ERROR)
     try:
         existed = (folder / f"{cal.monitor_name}.json").is_file()
         mon = monitors.Monitor(cal.monitor_name, verbose=False, autoLog=False)
@@ -86,4 +88,5 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
         mon.save()
     finally:
         calibTools.monitorFolder = saved
+        logging.console.setLevel(level)
     return folder / f"{cal.monitor_name}.json"
