@@ -24,10 +24,12 @@ mkdir -p "$RUN/design"
 # --- calibration (issue 4) ---
 step "display calibration: simulated PR-655 on a pseudo-terminal, PsychoPy window under Xvfb"
 # The fake photometer and the procedure share one X display: the fake reads the window's pixels.
+# That display has the design's resolution (as the lab's CRT would), not $XVFB's 1280x1024.
 # Fewer levels/repeats and short settling than a lab run, to keep the demo under a minute.
 CAL="$RUN/calibration"
 mkdir -p "$CAL"
-bash -c "$XVFB \"\$@\"" xvfb bash -c '
+CAL_RES=$("$PY" -c 'from studydesign import load_design; w, h = load_design().display.resolution_px; print(f"{w}x{h}")')
+xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
   set -euo pipefail
   PY=$1; CAL=$2
   "$PY" -m calibration fake-photometer --device pr655 --aim "$CAL/aim.json" \
