@@ -112,3 +112,11 @@ def test_bad_values_are_rejected(design, change, message):
     d.update(change)
     with pytest.raises(CalibrationError, match=message):
         Calibration.from_dict(d)
+
+
+def test_default_command_writes_the_default_calibration(tmp_path, design):
+    from tests.calibration.conftest import run_cli
+
+    res = run_cli(["default", "--out", tmp_path / "default.json"])
+    assert res.returncode == 0, res.stderr
+    assert load_calibration(tmp_path / "default.json") == default_calibration(design)
