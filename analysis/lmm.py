@@ -193,7 +193,13 @@ class CrossProducts:
     Xty: np.ndarray
     yty: float
     n: int
-    tril: tuple = field(default=(), repr=False)
+    ZtXy: np.ndarray = field(repr=False)
+    XtXy: np.ndarray = field(repr=False)
+    tril: tuple = field(repr=False)
+    diag_q: np.ndarray = field(repr=False)
+    shared: bool = field(repr=False)
+    shared_rhs: np.ndarray = field(repr=False)
+    shared_S: np.ndarray = field(repr=False)
 
 
 def crossproducts(X, Z, y, groups) -> CrossProducts:
@@ -210,15 +216,31 @@ def crossproducts(X, Z, y, groups) -> CrossProducts:
     np.add.at(ZtZ, groups, Z[:, :, None] * Z[:, None, :])
     np.add.at(ZtX, groups, Z[:, :, None] * X[:, None, :])
     np.add.at(Zty, groups, Z * y[:, None])
+    return _assemble(ZtZ, ZtX, Zty, X.T @ X, X.T @ y, float(y @ y), y.size)
+
+
+def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n) -> CrossProducts:
+    q, p = ZtX.shape[1:]
+    XtXy = np.empty((p + 1, p + 1))
+    XtXy[:p, :p] = XtX
+    XtXy[:p, p] = XtXy[p, :p] = Xty
+    XtXy[p, p] = yty
+    # theta fills the lower triangle column by column (lme4's Lind); numpy's tril_indices runs
+    # row by row, so take the transposed upper triangle's indices.
+    upper = np.triu_indices(q)
+    shared = bool(np.all(ZtZ == ZtZ[0]) and np.all(ZtX == ZtX[0]))
     return CrossProducts(
-        ZtZ=ZtZ, ZtX=ZtX, Zty=Zty, XtX=X.T @ X, Xty=X.T @ y, yty=float(y @ y), n=y.size,
-        tril=np.tril_indices(q),
+        ZtZ=ZtZ, ZtX=ZtX, Zty=Zty, XtX=XtX, Xty=Xty, yty=float(yty), n=int(n),
+        ZtXy=np.concatenate([ZtX, Zty[:, :, None]], axis=2), XtXy=XtXy,
+        tril=(upper[1], upper[0]), diag_q=np.arange(q), shared=shared,
+        shared_rhs=np.concatenate([ZtX[0], Zty.sum(axis=0)[:, None] / Zty.shape[0]], axis=1),
+        shared_S=Zty.T @ Zty,
     )
 
 
 def with_response(cp: CrossProducts, Zty, Xty, yty) -> CrossProducts:
     """The same model with a new response: only the y cross-products change."""
-    return CrossProducts(cp.ZtZ, cp.ZtX, Zty, cp.XtX, Xty, float(yty), cp.n, cp.tril)
+    return _assemble(cp.ZtZ, cp.ZtX, Zty, cp.XtX, Xty, yty, cp.n)
 
 
 def _q(cp: CrossProducts) -> int:
@@ -241,24 +263,60 @@ def _theta_to_T(theta, q: int) -> np.ndarray:
 
 
 def _solve_pls(theta, cp: CrossProducts):
-    """Penalised least squares at theta: (ldL2, RX, beta-rhs, pwrss)."""
-    q = _q(cp)
-    T = _theta_to_T(theta, q)
-    # Per group: A_j = T' Z_j'Z_j T + I = L_j L_j'.
-    A = np.einsum("ki,jkl,lm->jim", T, cp.ZtZ, T)
-    A[:, range(q), range(q)] += 1.0
-    L = np.linalg.cholesky(A)
-    TZtX = np.einsum("ki,jkp->jip", T, cp.ZtX)
-    TZty = np.einsum("ki,jk->ji", T, cp.Zty)
-    RZX = np.linalg.solve(L, TZtX)
-    cu = np.linalg.solve(L, TZty[:, :, None])[:, :, 0]
-    RXtRX = cp.XtX - np.einsum("jkp,jkr->pr", RZX, RZX)
-    rhs = cp.Xty - np.einsum("jkp,jk->p", RZX, cu)
-    RX = np.linalg.cholesky(RXtRX)
-    cb = np.linalg.solve(RX, rhs)
-    pwrss = cp.yty - float(np.sum(cu * cu)) - float(cb @ cb)
-    ldL2 = 2.0 * float(np.sum(np.log(np.diagonal(L, axis1=1, axis2=2))))
-    return ldL2, RX, cb, pwrss
+    """Penalised least squares at theta: (log|L_theta|^2, R_X, c_beta, r^2).
+
+    With ``A_j = T' Z_j'Z_j T + I = L_j L_j'`` per group and ``R_j = L_j^-1 T' Z_j'[X y]``, the
+    Schur complement ``[X y]'[X y] - sum_j R_j' R_j`` has the Cholesky factor
+    ``[[R_X', 0], [c_beta', r]]``: lme4's R_X, the fixed-effect right-hand side and the square
+    root of the penalised residual sum of squares in one factorisation (Bates et al. 2015, eqs.
+    16-18 and 30-34).
+    """
+    q = cp.ZtZ.shape[1]
+    p = cp.XtX.shape[0]
+    T = np.zeros((q, q))
+    T[cp.tril] = theta
+    if cp.shared:
+        # Every participant saw the same stimuli: one block A = L L' serves them all. With
+        # Q = L^-1 T', sum_j |c_u,j|^2 = trace(Q S Q') where S = sum_j Z_j'y_j y_j'Z_j, so a refit
+        # needs only 3 x 3 and 5 x 5 products whatever the number of participants.
+        J = cp.Zty.shape[0]
+        A = T.T @ cp.ZtZ[0] @ T
+        Linv, ld = _chol_inv(A)
+        Q = Linv @ T.T
+        R = Q @ cp.shared_rhs
+        M = cp.XtXy - J * (R.T @ R)
+        M[p, p] = cp.yty - float(np.sum(Q * (Q @ cp.shared_S)))
+        ldL2 = 2.0 * J * ld
+    else:
+        A = T.T @ cp.ZtZ @ T
+        A += np.eye(q)
+        L = np.linalg.cholesky(A)
+        R = np.linalg.solve(L, T.T @ cp.ZtXy)
+        Rf = R.reshape(-1, p + 1)
+        M = cp.XtXy - Rf.T @ Rf
+        ldL2 = 2.0 * float(np.sum(np.log(L[:, cp.diag_q, cp.diag_q])))
+    C = np.linalg.cholesky(M)
+    return ldL2, C[:p, :p], C[p, :p], float(C[p, p]) ** 2
+
+
+def _chol_inv(A: np.ndarray):
+    """``(L^-1, log det L)`` of ``A + I = L L'`` (closed form for 3 x 3; numpy otherwise)."""
+    if A.shape[0] != 3:
+        L = np.linalg.cholesky(A + np.eye(A.shape[0]))
+        return np.linalg.inv(L), float(np.sum(np.log(np.diag(L))))
+    (a00, _, _), (a10, a11, _), (a20, a21, a22) = A.tolist()
+    l00 = math.sqrt(a00 + 1.0)
+    l10 = a10 / l00
+    l20 = a20 / l00
+    l11 = math.sqrt(a11 + 1.0 - l10 * l10)
+    l21 = (a21 - l20 * l10) / l11
+    l22 = math.sqrt(a22 + 1.0 - l20 * l20 - l21 * l21)
+    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    Linv = np.array([[m00, 0.0, 0.0], [m10, m11, 0.0], [m20, m21, m22]])
+    return Linv, math.log(l00 * l11 * l22)
 
 
 def profiled_deviance(theta, cp: CrossProducts) -> float:

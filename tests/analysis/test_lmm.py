@@ -10,6 +10,7 @@ one kept), then ``car::Anova(type = 2)``.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 from pathlib import Path
@@ -180,3 +181,13 @@ def test_fit_round_trips_through_json():
 def test_bad_model_frames_are_rejected(change, message):
     with pytest.raises(LmmError, match=message):
         fit_lmm(change(_data("unbalanced_5")), response="y")
+
+
+def test_shared_block_shortcut_equals_per_participant_blocks():
+    X, Z, y, groups, _ = model_matrices(_data("gloss"), "y")
+    cp = crossproducts(X, Z, y, groups)
+    assert cp.shared
+    general = dataclasses.replace(cp, shared=False)
+    for theta in sample_thetas(np.random.default_rng(3)):
+        assert profiled_deviance(theta, cp) == pytest.approx(
+            profiled_deviance(theta, general), rel=1e-12)
