@@ -200,6 +200,11 @@ class CrossProducts:
     shared: bool = field(repr=False)
     shared_rhs: np.ndarray = field(repr=False)
     shared_S: np.ndarray = field(repr=False)
+    py_G: list = field(repr=False)
+    py_rhs: list = field(repr=False)
+    py_S: list = field(repr=False)
+    py_XtXy: list = field(repr=False)
+    n_groups: int = field(repr=False)
 
 
 def crossproducts(X, Z, y, groups) -> CrossProducts:
@@ -229,12 +234,15 @@ def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n) -> CrossProducts:
     # row by row, so take the transposed upper triangle's indices.
     upper = np.triu_indices(q)
     shared = bool(np.all(ZtZ == ZtZ[0]) and np.all(ZtX == ZtX[0]))
+    shared_rhs = np.concatenate([ZtX[0], Zty.sum(axis=0)[:, None] / Zty.shape[0]], axis=1)
+    shared_S = Zty.T @ Zty
     return CrossProducts(
         ZtZ=ZtZ, ZtX=ZtX, Zty=Zty, XtX=XtX, Xty=Xty, yty=float(yty), n=int(n),
         ZtXy=np.concatenate([ZtX, Zty[:, :, None]], axis=2), XtXy=XtXy,
         tril=(upper[1], upper[0]), diag_q=np.arange(q), shared=shared,
-        shared_rhs=np.concatenate([ZtX[0], Zty.sum(axis=0)[:, None] / Zty.shape[0]], axis=1),
-        shared_S=Zty.T @ Zty,
+        shared_rhs=shared_rhs, shared_S=shared_S, py_G=ZtZ[0].tolist(),
+        py_rhs=shared_rhs.tolist(), py_S=shared_S.tolist(), py_XtXy=XtXy.tolist(),
+        n_groups=int(Zty.shape[0]),
     )
 
 
@@ -319,6 +327,68 @@ def _chol_inv(A: np.ndarray):
     return Linv, math.log(l00 * l11 * l22)
 
 
+def _deviance_shared3(theta, cp: CrossProducts) -> float:
+    """`profiled_deviance` for the shared-block case with q = 3, in scalar arithmetic.
+
+    The same algebra as `_solve_pls`'s shared branch, written out so that one evaluation costs
+    a few microseconds of Python instead of a dozen numpy calls on 3 x 3 arrays (the optimiser
+    calls it ~250 times per bootstrap refit).
+    """
+    t0, t1, t2, t3, t4, t5 = theta
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = cp.py_G
+    # GT = G T (T lower triangular, columns (t0, t1, t2), (0, t3, t4), (0, 0, t5)).
+    gt00 = g00 * t0 + g01 * t1 + g02 * t2
+    gt10 = g01 * t0 + g11 * t1 + g12 * t2
+    gt20 = g02 * t0 + g12 * t1 + g22 * t2
+    gt11 = g11 * t3 + g12 * t4
+    gt21 = g12 * t3 + g22 * t4
+    gt22 = g22 * t5
+    # A = T' G T + I, lower triangle, and its Cholesky factor L.
+    l00 = math.sqrt(t0 * gt00 + t1 * gt10 + t2 * gt20 + 1.0)
+    l10 = (t3 * gt10 + t4 * gt20) / l00
+    l20 = t5 * gt20 / l00
+    l11 = math.sqrt(t3 * gt11 + t4 * gt21 + 1.0 - l10 * l10)
+    l21 = (t5 * gt21 - l20 * l10) / l11
+    l22 = math.sqrt(t5 * gt22 + 1.0 - l20 * l20 - l21 * l21)
+    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    m10 = -l10 * m00 * m11
+    m21 = -l21 * m11 * m22
+    m20 = -(l20 * m00 + l21 * m10) * m22
+    # Q = L^-1 T'.
+    Q = (
+        (m00 * t0, m00 * t1, m00 * t2),
+        (m10 * t0, m10 * t1 + m11 * t3, m10 * t2 + m11 * t4),
+        (m20 * t0, m20 * t1 + m21 * t3, m20 * t2 + m21 * t4 + m22 * t5),
+    )
+    r0, r1, r2 = cp.py_rhs
+    R0, R1, R2 = ([qa * a + qb * b + qc * c for a, b, c in zip(r0, r1, r2)] for qa, qb, qc in Q)
+    J = cp.n_groups
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = cp.py_S
+    quad = 0.0
+    for qa, qb, qc in Q:
+        quad += (qa * qa * s00 + qb * qb * s11 + qc * qc * s22
+                 + 2.0 * (qa * qb * s01 + qa * qc * s02 + qb * qc * s12))
+    # Cholesky of M = [X y]'[X y] - sum_j R_j' R_j; its last diagonal element is r.
+    k = len(R0)
+    C = []
+    for c in range(k):
+        Xc = cp.py_XtXy[c]
+        Cc = []
+        for d in range(c + 1):
+            v = Xc[d] - J * (R0[c] * R0[d] + R1[c] * R1[d] + R2[c] * R2[d])
+            if d == k - 1:
+                v = cp.yty - quad
+            Cd = C[d] if d < c else Cc
+            for e in range(d):
+                v -= Cc[e] * Cd[e]
+            Cc.append(v / Cd[d] if d < c else math.sqrt(v))
+        C.append(Cc)
+    pwrss = C[k - 1][k - 1] ** 2
+    n = cp.n
+    ldL2 = 2.0 * J * math.log(l00 * l11 * l22)
+    return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
+
+
 def profiled_deviance(theta, cp: CrossProducts) -> float:
     """lme4's profiled ML deviance at theta (Bates et al. 2015, eq. 34).
 
@@ -336,6 +406,8 @@ def profiled_deviance(theta, cp: CrossProducts) -> float:
     float
         The deviance (what ``lmer(..., REML = FALSE, devFunOnly = TRUE)(theta)`` returns).
     """
+    if cp.shared and cp.ZtZ.shape[1] == 3:
+        return _deviance_shared3(np.asarray(theta, float).tolist(), cp)
     ldL2, _, _, pwrss = _solve_pls(np.asarray(theta, float), cp)
     n = cp.n
     return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
@@ -409,8 +481,12 @@ def _optimise(cp: CrossProducts, start, step, ftol_abs, xtol_abs, maxeval):
     opt.set_lower_bounds(theta_lower_bounds(q))
     n_evals = [0]
 
+    fast = cp.shared and q == 3
+
     def objective(x, grad):
         n_evals[0] += 1
+        if fast:
+            return _deviance_shared3(x.tolist(), cp)
         return profiled_deviance(x, cp)
 
     opt.set_min_objective(objective)
