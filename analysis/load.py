@@ -1,0 +1,216 @@
+"""Read and validate the session CSVs of a data folder.
+
+Every session file ``DATA_DIR/sessions/<participant>_s<session>.csv`` is read, checked against
+the experiment's format and the study design, and converted to physical units through the
+design (`analysis.units.matches_to_physical`). Errors (the data cannot be analysed as they are)
+raise `SessionDataError` naming the file, the row and the fix; what can be analysed but is
+worth knowing (an incomplete session, a participant with one session) becomes a warning that the
+report shows.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.units import matches_to_physical
+from studydesign import StudyDesign
+
+__all__ = ["SESSION_COLUMNS", "SessionData", "SessionDataError", "load_sessions"]
+
+#: Columns of a session CSV, in order (the experiment's format).
+SESSION_COLUMNS = (
+    "participant", "session", "trial", "order", "stimulus_id", "illumination", "gloss_level",
+    "depth_level", "true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match", "rt_s",
+    "onset_s", "dropped_frames", "timestamp_utc", "app_version", "calibration_id",
+)
+_NAME = re.compile(r"^(?P<participant>[A-Za-z0-9_-]{1,32})_s(?P<session>\d+)\.csv$")
+_NUMERIC = ("session", "trial", "order", "gloss_level", "depth_level", "true_gloss_pct",
+            "true_depth_cm", "gloss_match", "depth_match", "rt_s")
+
+
+class SessionDataError(ValueError):
+    """A session file that cannot be analysed as it is."""
+
+
+@dataclass(frozen=True)
+class SessionData:
+    """All valid trials of a data folder.
+
+    Attributes
+    ----------
+    frame : DataFrame
+        The session columns plus ``gloss_match_pct`` (%), ``depth_match_cm`` (cm),
+        ``gloss_bin`` and ``depth_bin`` (the design's low/medium/high); one row per trial.
+    warnings : tuple of str
+        Incomplete sessions and participants without every session.
+    files : tuple of str
+        The files read, sorted.
+    """
+
+    frame: pd.DataFrame
+    warnings: tuple
+    files: tuple
+
+    @property
+    def participants(self) -> list:
+        return sorted(self.frame["participant"].unique())
+
+
+def _session_dir(data_dir: Path) -> Path:
+    if (data_dir / "sessions").is_dir():
+        return data_dir / "sessions"
+    if data_dir.is_dir() and any(data_dir.glob("*_s*.csv")):
+        return data_dir
+    raise SessionDataError(
+        f"no session files in {data_dir}: expected {data_dir}/sessions/<participant>_s<n>.csv "
+        "(written by `python -m experiment run`)"
+    )
+
+
+def _read_one(path: Path, design: StudyDesign, stimuli: pd.DataFrame) -> pd.DataFrame:
+    m = _NAME.match(path.name)
+    if not m:
+        raise SessionDataError(
+            f"{path}: file name is not <participant>_s<session>.csv; rename it or move it out "
+            "of the sessions folder"
+        )
+    try:
+        frame = pd.read_csv(path, dtype={"participant": str, "stimulus_id": str,
+                                         "calibration_id": str, "app_version": str})
+    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
+        raise SessionDataError(f"{path}: not a readable CSV ({exc})") from exc
+    if tuple(frame.columns) != SESSION_COLUMNS:
+        missing = [c for c in SESSION_COLUMNS if c not in frame.columns]
+        extra = [c for c in frame.columns if c not in SESSION_COLUMNS]
+        raise SessionDataError(
+            f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
+            f"a session CSV has exactly {list(SESSION_COLUMNS)}"
+        )
+    for col in _NUMERIC:
+        values = pd.to_numeric(frame[col], errors="coerce")
+        bad = values.isna()
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise SessionDataError(
+                f"{path}: row {row + 2} has {col} = {frame[col].iloc[row]!r}, not a number; "
+                "fix or remove the row"
+            )
+        frame[col] = values
+    if (frame["participant"] != m["participant"]).any() or (
+        frame["session"] != int(m["session"])
+    ).any():
+        raise SessionDataError(
+            f"{path}: rows name participant/session "
+            f"{sorted(set(zip(frame['participant'], frame['session'].astype(int))))}, but the "
+            f"file name says {m['participant']!r} session {int(m['session'])}"
+        )
+    lo, hi = design.slider.min, design.slider.max
+    for col in ("gloss_match", "depth_match"):
+        bad = (frame[col] < lo) | (frame[col] > hi)
+        if bad.any():
+            row = int(np.flatnonzero(bad.to_numpy())[0])
+            raise SessionDataError(
+                f"{path}: trial {int(frame['trial'].iloc[row])} has {col} = "
+                f"{frame[col].iloc[row]}, outside the slider's [{lo}, {hi}]; matches are raw "
+                "slider values"
+            )
+    dup = frame["trial"].duplicated(keep=False)
+    if dup.any():
+        raise SessionDataError(
+            f"{path}: trial numbers {sorted(set(frame['trial'][dup].astype(int)))} occur more "
+            "than once; each trial is one row"
+        )
+    known = stimuli.set_index("stimulus_id")
+    unknown = sorted(set(frame["stimulus_id"]) - set(known.index))
+    if unknown:
+        raise SessionDataError(
+            f"{path}: stimuli {unknown[:5]} are not in the design "
+            f"({design.source}); was the data recorded with another design file?"
+        )
+    ref = known.loc[frame["stimulus_id"]]
+    for col in ("illumination", "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm"):
+        a = frame[col].to_numpy()
+        b = ref[col].to_numpy()
+        same = (a == b) if col == "illumination" else np.isclose(a.astype(float), b.astype(float))
+        if not same.all():
+            row = int(np.flatnonzero(~same)[0])
+            raise SessionDataError(
+                f"{path}: trial {int(frame['trial'].iloc[row])} ({frame['stimulus_id'].iloc[row]}) "
+                f"has {col} = {_show(a[row])} but the design says {_show(b[row])}"
+            )
+    return frame
+
+
+def _show(value) -> str:
+    return repr(value) if isinstance(value, str) else f"{float(value):g}"
+
+
+def load_sessions(data_dir, design: StudyDesign) -> SessionData:
+    """Read, validate and convert every session CSV of a data folder.
+
+    Parameters
+    ----------
+    data_dir : str or Path
+        A folder holding ``sessions/`` (or the sessions folder itself).
+    design : StudyDesign
+
+    Returns
+    -------
+    SessionData
+
+    Raises
+    ------
+    SessionDataError
+        No session files; a file with a bad name, wrong columns, non-numeric values, matches
+        outside the slider range, duplicate trials or trial numbers with gaps, a stimulus that is
+        not in the design (or whose levels disagree with it), or one stimulus shown twice to a
+        participant.
+    """
+    folder = _session_dir(Path(data_dir))
+    files = sorted(folder.glob("*.csv"))
+    stimuli = design.stimuli()
+    n_trials = design.sessions.trials_per_session
+    frames, warnings = [], []
+    for path in files:
+        frame = _read_one(path, design, stimuli)
+        trials = np.sort(frame["trial"].astype(int).to_numpy())
+        expected = np.arange(1, trials.size + 1)
+        if trials.size == 0:
+            warnings.append(f"{path.name}: empty session (no trials); left out")
+            continue
+        if not np.array_equal(trials, expected):
+            gaps = sorted(set(range(1, int(trials.max()) + 1)) - set(trials.tolist()))
+            raise SessionDataError(
+                f"{path}: trials {gaps[:10]} are missing before trial {int(trials.max())}; rows "
+                "are appended as trials run, so a gap means a damaged file"
+            )
+        if trials.size < n_trials:
+            warnings.append(
+                f"{path.name}: incomplete session, {trials.size} of {n_trials} trials "
+                f"(the analysis uses the {trials.size} recorded)"
+            )
+        frames.append(frame)
+    if not frames:
+        raise SessionDataError(f"no trials in {folder}; nothing to analyse")
+    data = pd.concat(frames, ignore_index=True)
+    shown_twice = data.duplicated(["participant", "stimulus_id"], keep=False)
+    if shown_twice.any():
+        who = data.loc[shown_twice, ["participant", "stimulus_id"]].drop_duplicates()
+        raise SessionDataError(
+            f"stimuli shown twice to one participant: {who.head(5).values.tolist()}; two files "
+            "of one participant overlap (a session recorded twice?)"
+        )
+    for participant, grp in data.groupby("participant"):
+        missing = sorted(set(range(1, design.sessions.n_sessions + 1)) - set(grp["session"]))
+        if missing:
+            warnings.append(f"participant {participant}: session(s) {missing} not recorded")
+    data = matches_to_physical(data, design)
+    data["gloss_bin"] = design.gloss_bin(data["true_gloss_pct"].to_numpy())
+    data["depth_bin"] = design.depth_bin(data["true_depth_cm"].to_numpy())
+    data = data.sort_values(["participant", "session", "trial"], ignore_index=True)
+    return SessionData(frame=data, warnings=tuple(warnings), files=tuple(str(f) for f in files))
