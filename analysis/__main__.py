@@ -1,13 +1,24 @@
-"""``python -m analysis``: turn session data into results."""
+"""``python -m analysis``: turn session data into results.
+
+Subcommands: ``units`` (slider matches to %/cm), ``report`` (the HTML analysis report),
+``gap`` and ``imagestats`` (passed on to ``analysis.gap`` and ``analysis.imagestats``).
+"""
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import sys
 
 import pandas as pd
 
 from studydesign import DesignError, load_design
+
+# Subcommands owned by subpackages: everything after the name goes to their own main(argv).
+_PASSTHROUGH = {
+    "gap": ("analysis.gap.__main__", "sim-to-real gap: diagnose, benchmark (see `gap --help`)"),
+    "imagestats": ("analysis.imagestats.__main__", "image statistics (see `imagestats --help`)"),
+}
 
 
 def _cmd_units(args) -> int:
@@ -22,14 +33,70 @@ def _cmd_units(args) -> int:
     return 0
 
 
+def _cmd_report(args) -> int:
+    from analysis.load import SessionDataError
+    from analysis.report import ReportExistsError, build_report
+
+    if args.bootstrap < 0:
+        print(f"error: --bootstrap {args.bootstrap}: use 0 (none) or a positive number of runs",
+              file=sys.stderr)
+        return 2
+    try:
+        index = build_report(args.data_dir, args.out, load_design(args.design),
+                             n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
+                             progress=not args.quiet)
+    except (ReportExistsError, SessionDataError, DesignError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"report: {index}")
+    return 0
+
+
+def _passthrough(name: str, argv: list[str]) -> int:
+    module, _ = _PASSTHROUGH[name]
+    try:
+        mod = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name and module.startswith(exc.name):
+            print(f"error: `python -m analysis {name}` is not built yet ({module} missing)",
+                  file=sys.stderr)
+            return 2
+        raise
+    return int(mod.main(argv) or 0)
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    # Subpackage commands take the rest of the line verbatim (their own argparse parses it).
+    for i, word in enumerate(argv):
+        if word in _PASSTHROUGH:
+            if i == 0:
+                return _passthrough(word, argv[1:])
+            break
     parser = argparse.ArgumentParser(prog="python -m analysis", description="Analyse session data.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
     sub = parser.add_subparsers(dest="command", required=True)
     p = sub.add_parser("units", help="add physical units (%%, cm) to a session CSV's matches")
     p.add_argument("csv", help="a session CSV")
     p.set_defaults(func=_cmd_units)
+    p = sub.add_parser(
+        "report", help="figures, mixed models and bootstrap of DATA_DIR/sessions as HTML",
+        description="Load and validate every session CSV of DATA_DIR, draw the seed's figures, "
+        "fit the mixed models (Type II Wald tests), bootstrap them and write "
+        "REPORT_DIR/index.html. An existing report is never overwritten.")
+    p.add_argument("data_dir", help="folder holding sessions/<participant>_s<n>.csv")
+    p.add_argument("--out", required=True, help="report folder (must not hold an index.html)")
+    p.add_argument("--bootstrap", type=int, default=10_000, metavar="N",
+                   help="parametric bootstrap runs per model (default 10000; 0 = none)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
+    p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=_cmd_report)
+    for name, (_, help_text) in _PASSTHROUGH.items():
+        sub.add_parser(name, help=help_text, add_help=False)
     args = parser.parse_args(argv)
+    if args.command in _PASSTHROUGH:
+        return _passthrough(args.command, argv[argv.index(args.command) + 1:])
     return args.func(args)
 
 

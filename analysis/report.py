@@ -1,0 +1,295 @@
+"""The analysis report: session data in, an HTML page with the seed's figures and tests out.
+
+`build_report` loads and validates the sessions, draws the figures, fits the two mixed models
+with Type II Wald tests, runs the parametric bootstrap, checks the seed's qualitative pattern
+and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
+``results.json``). An existing report is never overwritten: if ``REPORT_DIR/index.html`` exists
+the build stops before computing anything (choose another ``--out`` or move the old report
+away); ``index.html`` is written last, with ``os.link``, which fails rather than replace a file.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+import platform
+import tempfile
+from dataclasses import asdict
+from datetime import UTC, datetime
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.bootstrap import parametric_bootstrap
+from analysis.figures import (
+    find_metamers,
+    group_means,
+    plot_depth_matches,
+    plot_gloss_contours,
+    plot_gloss_matches,
+    plot_observers,
+    save_figure,
+)
+from analysis.lmm import FIXED_TERMS, RANDOM_TERMS
+from analysis.load import load_sessions
+from analysis.models import fit_seed_models, model_frame
+from studydesign import StudyDesign
+
+__all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p", "seed_pattern"]
+
+ALPHA = 0.05
+
+
+class ReportExistsError(FileExistsError):
+    """The output folder already holds a report."""
+
+
+def format_p(p: float, *, floor: float | None = None) -> str:
+    """"p < 0.001" below 0.001, else "p = 0.023"; ``floor`` marks a bootstrap's smallest p."""
+    if floor is not None and p <= floor * (1 + 1e-9):
+        return f"p ≤ {floor:.2g}" if floor >= 0.001 else "p < 0.001"
+    return "p < 0.001" if p < 0.001 else f"p = {p:.3f}"
+
+
+def chi2_sentence(test, n_participants: int) -> str:
+    """The seed's style: "χ²(1, N = 11) = 3716.04, p < 0.001"."""
+    return f"χ²({test.df}, N = {n_participants}) = {test.chi2:.2f}, {format_p(test.p)}"
+
+
+def seed_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
+    """The seed's qualitative findings, each checked on these data.
+
+    Returns
+    -------
+    dict of str to (bool, str)
+        Finding -> (holds, the numbers behind it).
+    """
+    dm, gm = models["depth"], models["gloss"]
+    p = {m: {t.term: t.p for t in models[m].tests} for m in models}
+    depth_bins = group_means(frame, "depth_match_cm", ["depth_bin"]).set_index("depth_bin")
+    true_bins = frame.groupby("depth_bin")["true_depth_cm"].mean()
+    over_low = depth_bins.loc["low", "mean"] - true_bins["low"]
+    over_high = depth_bins.loc["high", "mean"] - true_bins["high"]
+    gloss_bins = group_means(frame, "gloss_match_pct", ["depth_bin"]).set_index("depth_bin")
+    deeper = gloss_bins.loc["high", "mean"] - gloss_bins.loc["low", "mean"]
+    return {
+        "large depth effect on estimated depth": (
+            p["depth"]["depth"] < alpha and dm.fit.fixef["depth"] > 0,
+            f"depth χ² = {dm.chi2()['depth']:.2f}, {format_p(p['depth']['depth'])}"),
+        "no gloss effect on estimated depth": (
+            p["depth"]["gloss"] >= alpha, f"{format_p(p['depth']['gloss'])}"),
+        "no gloss × depth interaction on estimated depth": (
+            p["depth"]["gloss:depth"] >= alpha, f"{format_p(p['depth']['gloss:depth'])}"),
+        "gloss effect on estimated gloss": (
+            p["gloss"]["gloss"] < alpha, f"{format_p(p['gloss']['gloss'])}"),
+        "depth effect on estimated gloss": (
+            p["gloss"]["depth"] < alpha, f"{format_p(p['gloss']['depth'])}"),
+        "gloss × depth interaction on estimated gloss": (
+            p["gloss"]["gloss:depth"] < alpha, f"{format_p(p['gloss']['gloss:depth'])}"),
+        "depth compression (low depths overestimated, high underestimated)": (
+            over_low > 0 and over_high < 0,
+            f"low bin {over_low:+.2f} cm, high bin {over_high:+.2f} cm (perceived − true)"),
+        "deeper looks glossier": (
+            deeper > 0 and gm.fit.fixef["depth"] > 0 and p["gloss"]["depth"] < alpha,
+            f"high − low depth bin: {deeper:+.1f} % perceived gloss"),
+    }
+
+
+def _versions() -> dict:
+    import matplotlib
+    import nlopt
+    import scipy
+
+    return {"python": platform.python_version(), "numpy": np.__version__,
+            "scipy": scipy.__version__, "pandas": pd.__version__,
+            "matplotlib": matplotlib.__version__, "nlopt": nlopt.__version__}
+
+
+def _table(header, rows) -> str:
+    head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
+    body = "".join(
+        "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in rows
+    )
+    return f"<table><tr>{head}</tr>{body}</table>"
+
+
+def _model_section(res, boot, n_part: int) -> str:
+    fit = res.fit
+    parts = [f"<h3>{html.escape(res.label)}</h3>"]
+    if res.boxcox_lambda is not None:
+        parts.append(f"<p>Response: car::bcPower(depth, λ = {res.boxcox_lambda:g}) = "
+                     "(depth<sup>λ</sup> − 1)/λ.</p>")
+    sentences = "; ".join(f"{t.term}: {chi2_sentence(t, n_part)}" for t in res.tests)
+    parts.append(f"<p class='sentence'>Type II Wald tests — {html.escape(sentences)}.</p>")
+    rows = []
+    for t in res.tests:
+        bp = "" if boot is None else format_p(boot.chi2_p[t.term], floor=1 / (boot.n_ok + 1))
+        rows.append([t.term, f"{t.chi2:.2f}", t.df, format_p(t.p), bp])
+    parts.append(_table(["term", "χ²", "df", "p (χ²)", "p (bootstrap)"], rows))
+    rows = []
+    for t in FIXED_TERMS:
+        ci = "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.fixef_ci[t])
+        rows.append([t, f"{fit.fixef[t]:.3f}", f"{fit.se[t]:.3f}", ci])
+    parts.append("<p>Fixed effects (per SD of the standardised predictors):</p>")
+    parts.append(_table(["coefficient", "estimate", "SE", "95 % bootstrap CI"], rows))
+    rows = [[f"participant: {t}", f"{fit.re_sd[t]:.3f}",
+             "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.re_sd_ci[t])]
+            for t in RANDOM_TERMS]
+    rows.append(["residual", f"{fit.sigma:.3f}",
+                 "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.sigma_ci)])
+    parts.append(_table(["random effect", "SD", "95 % bootstrap CI"], rows))
+    cors = ", ".join(f"{k}: {v:.2f}" for k, v in fit.re_cor.items())
+    singular = (" <b>Singular fit</b> (a random-effect variance or correlation on the boundary, "
+                "as lme4's isSingular)." if fit.singular else "")
+    parts.append(f"<p>Random-effect correlations: {html.escape(cors)}. Log-likelihood "
+                 f"{fit.loglik:.2f} (ML), {fit.n_obs} trials, {fit.n_groups} participants."
+                 f"{singular}</p>")
+    return "\n".join(parts)
+
+
+def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000,
+                 seed: int = 0, n_jobs: int = 2, progress: bool = True) -> Path:
+    """Analyse a data folder into ``out_dir/index.html``.
+
+    Parameters
+    ----------
+    data_dir : str or Path
+        Folder with ``sessions/`` (see `analysis.load.load_sessions`).
+    out_dir : str or Path
+        Report folder; created if needed. Must not already hold an ``index.html``.
+    design : StudyDesign
+    n_boot : int
+        Parametric bootstrap runs per model (0 skips the bootstrap).
+    seed : int
+        Bootstrap seed (recorded in the report).
+    n_jobs : int
+        Parallel bootstrap workers.
+    progress : bool
+        Show progress bars.
+
+    Returns
+    -------
+    Path
+        The index.html written.
+
+    Raises
+    ------
+    ReportExistsError
+        If ``out_dir/index.html`` exists.
+    analysis.load.SessionDataError
+        If the sessions do not validate.
+    """
+    out = Path(out_dir)
+    index = out / "index.html"
+    if index.exists():
+        raise ReportExistsError(
+            f"{index} exists; reports are never overwritten: pass another --out or move it away")
+    data = load_sessions(data_dir, design)
+    frame = data.frame
+    out.mkdir(parents=True, exist_ok=True)
+    n_part = len(data.participants)
+    models = fit_seed_models(frame, design)
+    boots = {}
+    if n_boot > 0:
+        mf = model_frame(frame, design)
+        for k, (name, res) in enumerate(models.items()):
+            boots[name] = parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(),
+                                               n_boot=n_boot, seed=seed + k, n_jobs=n_jobs,
+                                               progress=progress)
+    metamers = find_metamers(frame)
+    figures = {
+        "depth_matches.png": plot_depth_matches(frame, design),
+        "gloss_matches.png": plot_gloss_matches(frame, design),
+        "gloss_contours.png": plot_gloss_contours(frame, design, metamers),
+        "observers_gloss.png": plot_observers(frame, design, response="gloss"),
+        "observers_depth.png": plot_observers(frame, design, response="depth"),
+    }
+    for name, fig in figures.items():
+        save_figure(fig, out / name)
+    pattern = seed_pattern(models, frame)
+    created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+    results = {
+        "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
+        "design": design.source, "participants": data.participants, "n_trials": len(frame),
+        "warnings": list(data.warnings),
+        "models": {k: json.loads(v.to_json()) for k, v in models.items()},
+        "bootstrap": {k: asdict(v) for k, v in boots.items()}, "bootstrap_seed": seed,
+        "metamers": [m.to_dict() for m in metamers],
+        "seed_pattern": {k: {"holds": bool(v[0]), "detail": v[1]} for k, v in pattern.items()},
+        "versions": _versions(),
+    }
+    _write_atomic(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
+    page = _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed)
+    _write_new(index, page)
+    return index
+
+
+def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed) -> str:
+    esc = html.escape
+    warn = ("<ul class='warn'>" + "".join(f"<li>{esc(w)}</li>" for w in data.warnings) + "</ul>"
+            if data.warnings else "<p>None: every session is complete.</p>")
+    pat_rows = [[k, "yes" if ok else "NO", detail] for k, (ok, detail) in pattern.items()]
+    meta = (", ".join(esc(m.describe()) for m in metamers) if metamers
+            else "none found (no pair of stimuli with different gloss and depth looks equally "
+                 "glossy within 2 % and a 95 % CI containing 0)")
+    boot_note = (f"Parametric bootstrap: {n_boot} runs per model (seed {seed}; "
+                 + "; ".join(f"{k}: {b.seconds:.1f} s, {b.n_ok} refits, "
+                             f"{100 * b.singular_fraction:.0f} % singular" for k, b in boots.items())
+                 + "). CIs are percentile intervals; bootstrap p-values compare each term's Wald "
+                   "statistic with its bootstrap distribution centred at the estimate."
+                 if boots else "No bootstrap was run (--bootstrap 0).")
+    figs = "".join(f"<figure><img src='{name}' alt='{name}'></figure>" for name in figures)
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
+             "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;"
+             "padding:2px 8px;text-align:left}img{max-width:100%}figure{display:inline-block;"
+             "margin:4px}.warn li{color:#a40}.sentence{font-style:italic}")
+    return f"""<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>Gloss x depth: analysis report</title>
+<style>{style}</style></head><body>
+<h1>Gloss × depth matching: analysis report</h1>
+<p>{n_part} participants ({esc(', '.join(data.participants))}), {results['n_trials']} trials
+from {len(data.files)} session files in <code>{esc(results['data_dir'])}</code>; design
+<code>{esc(str(results['design']))}</code>. Created {results['created_utc']}.</p>
+<h2>Data warnings</h2>{warn}
+<h2>The seed's pattern</h2>
+{_table(['finding', 'holds here', 'numbers'], pat_rows)}
+<h2>Figures</h2>
+{figs}
+<p>Gloss metamers (equal perceived gloss, different true gloss and depth): {meta}.</p>
+<h2>Linear mixed models</h2>
+<p>Model: response ~ gloss × depth + (1 + gloss + depth | participant), maximum likelihood,
+fitted by lme4's profiled deviance (Bates et al. 2015) with BOBYQA from two starts. True gloss
+and depth are centred and scaled by the mean and SD of the design's rendered levels (Type II
+χ² do not depend on the scale). Type II Wald χ² as car::Anova(type = 2). {esc(boot_note)}</p>
+{''.join(_model_section(models[k], boots.get(k), n_part) for k in models)}
+<h2>Software</h2><p>{esc(', '.join(f'{k} {v}' for k, v in results['versions'].items()))}.
+All numbers: <a href="results.json">results.json</a>.</p>
+</body></html>
+"""
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w", encoding="utf-8") as fh:
+        fh.write(text)
+        fh.flush()
+        os.fsync(fh.fileno())
+    os.replace(tmp, path)
+
+
+def _write_new(path: Path, text: str) -> None:
+    """Write a file that must not exist yet: temp file, then os.link (fails if it exists)."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        try:
+            os.link(tmp, path)
+        except FileExistsError as exc:
+            raise ReportExistsError(f"{path} appeared while the report was built; kept it") from exc
+    finally:
+        os.unlink(tmp)

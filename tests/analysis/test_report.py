@@ -1,0 +1,79 @@
+"""The report end to end: a folder of sessions in, index.html with the seed's numbers out."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from analysis.report import ReportExistsError, build_report, chi2_sentence, format_p
+from analysis.typeii import WaldTest
+
+from .sessions import write_sessions
+
+
+def test_sentence_in_the_seeds_style():
+    t = WaldTest(term="depth", chi2=3716.0449, df=1, p=1e-300)
+    assert chi2_sentence(t, 11) == "χ²(1, N = 11) = 3716.04, p < 0.001"
+    assert format_p(0.0234) == "p = 0.023"
+    assert format_p(1 / 101, floor=1 / 101) == "p ≤ 0.0099"
+
+
+@pytest.fixture(scope="module")
+def data_dir(tmp_path_factory, design):
+    folder = tmp_path_factory.mktemp("data")
+    write_sessions(folder, design, np.random.default_rng(4), n_participants=4)
+    # One incomplete session: a warning in the report, not an error.
+    path = folder / "sessions" / "S02_s2.csv"
+    lines = path.read_text().splitlines(keepends=True)
+    path.write_text("".join(lines[:31]))
+    return folder
+
+
+def test_report_has_figures_tables_and_warnings(tmp_path, data_dir, design):
+    index = build_report(data_dir, tmp_path / "report", design, n_boot=30, progress=False)
+    text = index.read_text(encoding="utf-8")
+    assert "χ²(1, N = 4) = " in text
+    assert "S02_s2.csv: incomplete session, 30 of" in text
+    for png in ("depth_matches.png", "gloss_matches.png", "gloss_contours.png",
+                "observers_gloss.png", "observers_depth.png"):
+        assert f"src='{png}'" in text
+        assert (tmp_path / "report" / png).stat().st_size > 10_000
+    results = json.loads((tmp_path / "report" / "results.json").read_text(encoding="utf-8"))
+    assert results["bootstrap"]["gloss"]["n_boot"] == 30
+    assert set(results["models"]) == {"gloss", "depth"}
+    assert results["n_trials"] == 4 * design.n_stimuli - design.sessions.trials_per_session + 30
+
+
+def test_existing_report_is_never_overwritten(tmp_path, data_dir, design):
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "index.html").write_text("keep me")
+    with pytest.raises(ReportExistsError, match="never overwritten"):
+        build_report(data_dir, out, design, n_boot=0, progress=False)
+    assert (out / "index.html").read_text() == "keep me"
+
+
+def test_command_line(tmp_path, data_dir):
+    cmd = [sys.executable, "-m", "analysis", "report", str(data_dir), "--out",
+           str(tmp_path / "r"), "--bootstrap", "0", "--quiet"]
+    first = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert first.returncode == 0, first.stderr
+    assert "report: " in first.stdout
+    again = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert again.returncode == 1
+    assert "never overwritten" in again.stderr
+    bad = subprocess.run([sys.executable, "-m", "analysis", "report", str(tmp_path / "none"),
+                          "--out", str(tmp_path / "r2")], capture_output=True, text=True,
+                         timeout=300)
+    assert bad.returncode == 1 and "no session files" in bad.stderr
+
+
+def test_gap_is_passed_through():
+    out = subprocess.run([sys.executable, "-m", "analysis", "gap", "--help"],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0
+    assert "benchmark" in out.stdout and "diagnose" in out.stdout
