@@ -68,10 +68,12 @@ def seed_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> 
     """
     dm, gm = models["depth"], models["gloss"]
     p = {m: {t.term: t.p for t in models[m].tests} for m in models}
-    depth_bins = group_means(frame, "depth_match_cm", ["depth_bin"]).set_index("depth_bin")
-    true_bins = frame.groupby("depth_bin")["true_depth_cm"].mean()
-    over_low = depth_bins.loc["low", "mean"] - true_bins["low"]
-    over_high = depth_bins.loc["high", "mean"] - true_bins["high"]
+    # Depth error (perceived - true) per depth bin, mean and 95 % CI across observers.
+    err = frame.assign(depth_error_cm=frame["depth_match_cm"] - frame["true_depth_cm"])
+    depth_err = group_means(err, "depth_error_cm", ["depth_bin"]).set_index("depth_bin")
+    over_low = depth_err.loc["low", "mean"]
+    over_high = depth_err.loc["high", "mean"]
+    low_ci, high_ci = depth_err.loc["low", "ci"], depth_err.loc["high", "ci"]
     gloss_bins = group_means(frame, "gloss_match_pct", ["depth_bin"]).set_index("depth_bin")
     deeper = gloss_bins.loc["high", "mean"] - gloss_bins.loc["low", "mean"]
     return {
@@ -89,8 +91,9 @@ def seed_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> 
         "gloss × depth interaction on estimated gloss": (
             p["gloss"]["gloss:depth"] < alpha, f"{format_p(p['gloss']['gloss:depth'])}"),
         "depth compression (low depths overestimated, high underestimated)": (
-            over_low > 0 and over_high < 0,
-            f"low bin {over_low:+.2f} cm, high bin {over_high:+.2f} cm (perceived − true)"),
+            bool(over_low - low_ci > 0 and over_high + high_ci < 0),
+            (f"perceived − true: low bin {over_low:+.2f} ± {low_ci:.2f} cm, high bin "
+            f"{over_high:+.2f} ± {high_ci:.2f} cm (95 % CI across observers)")),
         "deeper looks glossier": (
             deeper > 0 and gm.fit.fixef["depth"] > 0 and p["gloss"]["depth"] < alpha,
             f"high − low depth bin: {deeper:+.1f} % perceived gloss"),
