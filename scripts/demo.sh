@@ -54,6 +54,13 @@ xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
 # --- end experiment ---
 
 # --- analysis report (issue 6) ---
+step "analysis report: figures, mixed models (lme4's formulation), bootstrap"
+# 2,000 bootstrap runs per model instead of the default 10,000, to keep the demo near a minute.
+if [ -d "$RUN/data/sessions" ]; then
+  "$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1
+else
+  echo "analysis report skipped: no sessions in \$RUN/data/sessions (the experiment step wrote none)"
+fi
 # --- end analysis report ---
 
 # --- image statistics (issue 9) ---
