@@ -369,24 +369,57 @@ def _deviance_shared3(theta, cp: CrossProducts) -> float:
         quad += (qa * qa * s00 + qb * qb * s11 + qc * qc * s22
                  + 2.0 * (qa * qb * s01 + qa * qc * s02 + qb * qc * s12))
     # Cholesky of M = [X y]'[X y] - sum_j R_j' R_j; its last diagonal element is r.
+    if len(R0) == 5:
+        pwrss = _schur5(cp.py_XtXy, R0, R1, R2, J, cp.yty - quad)
+    else:
+        pwrss = _schur_loop(cp.py_XtXy, R0, R1, R2, J, cp.yty - quad)
+    n = cp.n
+    ldL2 = 2.0 * J * math.log(l00 * l11 * l22)
+    return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
+
+
+def _schur_loop(XtXy, R0, R1, R2, J, m_yy) -> float:
+    """r^2: the square of the last diagonal element of chol(M), M = XtXy - J R'R (m_yy last)."""
     k = len(R0)
     C = []
     for c in range(k):
-        Xc = cp.py_XtXy[c]
+        Xc = XtXy[c]
         Cc = []
         for d in range(c + 1):
             v = Xc[d] - J * (R0[c] * R0[d] + R1[c] * R1[d] + R2[c] * R2[d])
             if d == k - 1:
-                v = cp.yty - quad
+                v = m_yy
             Cd = C[d] if d < c else Cc
             for e in range(d):
                 v -= Cc[e] * Cd[e]
             Cc.append(v / Cd[d] if d < c else math.sqrt(v))
         C.append(Cc)
-    pwrss = C[k - 1][k - 1] ** 2
-    n = cp.n
-    ldL2 = 2.0 * J * math.log(l00 * l11 * l22)
-    return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
+    return C[k - 1][k - 1] ** 2
+
+
+def _schur5(XtXy, R0, R1, R2, J, m_yy) -> float:
+    """`_schur_loop` unrolled for four fixed effects (the seed's model), about 3x faster."""
+    a0, a1, a2, a3, a4 = R0
+    b0, b1, b2, b3, b4 = R1
+    e0, e1, e2, e3, e4 = R2
+    x = XtXy
+    c00 = math.sqrt(x[0][0] - J * (a0 * a0 + b0 * b0 + e0 * e0))
+    c10 = (x[1][0] - J * (a1 * a0 + b1 * b0 + e1 * e0)) / c00
+    c11 = math.sqrt(x[1][1] - J * (a1 * a1 + b1 * b1 + e1 * e1) - c10 * c10)
+    c20 = (x[2][0] - J * (a2 * a0 + b2 * b0 + e2 * e0)) / c00
+    c21 = (x[2][1] - J * (a2 * a1 + b2 * b1 + e2 * e1) - c20 * c10) / c11
+    c22 = math.sqrt(x[2][2] - J * (a2 * a2 + b2 * b2 + e2 * e2) - c20 * c20 - c21 * c21)
+    c30 = (x[3][0] - J * (a3 * a0 + b3 * b0 + e3 * e0)) / c00
+    c31 = (x[3][1] - J * (a3 * a1 + b3 * b1 + e3 * e1) - c30 * c10) / c11
+    c32 = (x[3][2] - J * (a3 * a2 + b3 * b2 + e3 * e2) - c30 * c20 - c31 * c21) / c22
+    c33 = math.sqrt(x[3][3] - J * (a3 * a3 + b3 * b3 + e3 * e3)
+                    - c30 * c30 - c31 * c31 - c32 * c32)
+    c40 = (x[4][0] - J * (a4 * a0 + b4 * b0 + e4 * e0)) / c00
+    c41 = (x[4][1] - J * (a4 * a1 + b4 * b1 + e4 * e1) - c40 * c10) / c11
+    c42 = (x[4][2] - J * (a4 * a2 + b4 * b2 + e4 * e2) - c40 * c20 - c41 * c21) / c22
+    c43 = (x[4][3] - J * (a4 * a3 + b4 * b3 + e4 * e3) - c40 * c30 - c41 * c31
+           - c42 * c32) / c33
+    return m_yy - c40 * c40 - c41 * c41 - c42 * c42 - c43 * c43
 
 
 def profiled_deviance(theta, cp: CrossProducts) -> float:

@@ -191,3 +191,14 @@ def test_shared_block_shortcut_equals_per_participant_blocks():
     for theta in sample_thetas(np.random.default_rng(3)):
         assert profiled_deviance(theta, cp) == pytest.approx(
             profiled_deviance(theta, general), rel=1e-12)
+
+
+def test_unrolled_schur_complement_equals_the_loop():
+    from analysis.lmm import _schur5, _schur_loop
+
+    rng = np.random.default_rng(0)
+    A = rng.random((30, 5))
+    XtXy = (A.T @ A).tolist()
+    R = (0.1 * rng.random((3, 5))).tolist()
+    m_yy = XtXy[4][4] - 0.01
+    assert _schur5(XtXy, *R, 2, m_yy) == pytest.approx(_schur_loop(XtXy, *R, 2, m_yy), rel=1e-12)
