@@ -202,6 +202,7 @@ class CrossProducts:
     shared_S: np.ndarray = field(repr=False)
     py_G: list = field(repr=False)
     py_rhs: list = field(repr=False)
+    py_rhs_cols: list = field(repr=False)
     py_S: list = field(repr=False)
     py_XtXy: list = field(repr=False)
     n_groups: int = field(repr=False)
@@ -241,7 +242,7 @@ def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n) -> CrossProducts:
         ZtXy=np.concatenate([ZtX, Zty[:, :, None]], axis=2), XtXy=XtXy,
         tril=(upper[1], upper[0]), diag_q=np.arange(q), shared=shared,
         shared_rhs=shared_rhs, shared_S=shared_S, py_G=ZtZ[0].tolist(),
-        py_rhs=shared_rhs.tolist(), py_S=shared_S.tolist(), py_XtXy=XtXy.tolist(),
+        py_rhs=shared_rhs.tolist(), py_rhs_cols=shared_rhs.T.tolist(), py_S=shared_S.tolist(), py_XtXy=XtXy.tolist(),
         n_groups=int(Zty.shape[0]),
     )
 
@@ -355,19 +356,24 @@ def _deviance_shared3(theta, cp: CrossProducts) -> float:
     m21 = -l21 * m11 * m22
     m20 = -(l20 * m00 + l21 * m10) * m22
     # Q = L^-1 T'.
-    Q = (
-        (m00 * t0, m00 * t1, m00 * t2),
-        (m10 * t0, m10 * t1 + m11 * t3, m10 * t2 + m11 * t4),
-        (m20 * t0, m20 * t1 + m21 * t3, m20 * t2 + m21 * t4 + m22 * t5),
-    )
-    r0, r1, r2 = cp.py_rhs
-    R0, R1, R2 = ([qa * a + qb * b + qc * c for a, b, c in zip(r0, r1, r2)] for qa, qb, qc in Q)
+    q00, q01, q02 = m00 * t0, m00 * t1, m00 * t2
+    q10, q11, q12 = m10 * t0, m10 * t1 + m11 * t3, m10 * t2 + m11 * t4
+    q20, q21, q22 = m20 * t0, m20 * t1 + m21 * t3, m20 * t2 + m21 * t4 + m22 * t5
+    cols = cp.py_rhs_cols
+    R0 = [q00 * a + q01 * b + q02 * c for a, b, c in cols]
+    R1 = [q10 * a + q11 * b + q12 * c for a, b, c in cols]
+    R2 = [q20 * a + q21 * b + q22 * c for a, b, c in cols]
     J = cp.n_groups
     (s00, s01, s02), (_, s11, s12), (_, _, s22) = cp.py_S
-    quad = 0.0
-    for qa, qb, qc in Q:
-        quad += (qa * qa * s00 + qb * qb * s11 + qc * qc * s22
-                 + 2.0 * (qa * qb * s01 + qa * qc * s02 + qb * qc * s12))
+    # trace(Q S Q') = sum over rows q of q S q'.
+    quad = (
+        (q00 * q00 + q10 * q10 + q20 * q20) * s00
+        + (q01 * q01 + q11 * q11 + q21 * q21) * s11
+        + (q02 * q02 + q12 * q12 + q22 * q22) * s22
+        + 2.0 * ((q00 * q01 + q10 * q11 + q20 * q21) * s01
+                 + (q00 * q02 + q10 * q12 + q20 * q22) * s02
+                 + (q01 * q02 + q11 * q12 + q21 * q22) * s12)
+    )
     # Cholesky of M = [X y]'[X y] - sum_j R_j' R_j; its last diagonal element is r.
     if len(R0) == 5:
         pwrss = _schur5(cp.py_XtXy, R0, R1, R2, J, cp.yty - quad)
