@@ -31,9 +31,12 @@ from analysis.lmm import (
     moment_start,
     profiled_deviance,
 )
+from analysis.load import load_sessions
+from analysis.models import ModelResult, fit_seed_models
 from analysis.typeii import hypothesis_matrix, type2_wald
 
 from .lmmdata import CASES, sample_thetas, simulate_case
+from .sessions import write_sessions
 
 REF = Path(__file__).parent / "reference"
 ROOT = Path(__file__).resolve().parents[2]
@@ -202,3 +205,26 @@ def test_unrolled_schur_complement_equals_the_loop():
     R = (0.1 * rng.random((3, 5))).tolist()
     m_yy = XtXy[4][4] - 0.01
     assert _schur5(XtXy, *R, 2, m_yy) == pytest.approx(_schur_loop(XtXy, *R, 2, m_yy), rel=1e-12)
+
+
+def test_new_response_needs_only_its_cross_products():
+    from analysis.lmm import with_response
+
+    X, Z, y, groups, _ = model_matrices(_data("gloss"), "y")
+    base = crossproducts(X, Z, y, groups)
+    y2 = y[::-1].copy()
+    fresh = crossproducts(X, Z, y2, groups)
+    Zty = np.zeros_like(base.Zty)
+    np.add.at(Zty, groups, Z * y2[:, None])
+    swapped = with_response(base, Zty, X.T @ y2, y2 @ y2)
+    for theta in sample_thetas(np.random.default_rng(8)):
+        assert profiled_deviance(theta, swapped) == pytest.approx(
+            profiled_deviance(theta, fresh), rel=1e-12)
+
+
+def test_model_results_round_trip_through_json(design, tmp_path):
+    write_sessions(tmp_path, design, np.random.default_rng(3), n_participants=3)
+    models = fit_seed_models(load_sessions(tmp_path, design).frame, design)
+    for res in models.values():
+        assert ModelResult.from_json(res.to_json()) == res
+    assert models["depth"].boxcox_lambda == design.analysis.depth_boxcox_lambda
