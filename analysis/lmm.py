@@ -197,15 +197,9 @@ class CrossProducts:
     XtXy: np.ndarray = field(repr=False)
     tril: tuple = field(repr=False)
     diag_q: np.ndarray = field(repr=False)
-    shared: bool = field(repr=False)
-    shared_rhs: np.ndarray = field(repr=False)
-    shared_S: np.ndarray = field(repr=False)
-    py_G: list = field(repr=False)
-    py_rhs: list = field(repr=False)
-    py_rhs_cols: list = field(repr=False)
-    py_S: list = field(repr=False)
+    pattern_of: np.ndarray = field(repr=False)
+    patterns: tuple = field(repr=False)
     py_XtXy: list = field(repr=False)
-    n_groups: int = field(repr=False)
 
 
 def crossproducts(X, Z, y, groups) -> CrossProducts:
@@ -225,8 +219,8 @@ def crossproducts(X, Z, y, groups) -> CrossProducts:
     return _assemble(ZtZ, ZtX, Zty, X.T @ X, X.T @ y, float(y @ y), y.size)
 
 
-def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n) -> CrossProducts:
-    q, p = ZtX.shape[1:]
+def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n, pattern_of=None) -> CrossProducts:
+    J, q, p = ZtX.shape
     XtXy = np.empty((p + 1, p + 1))
     XtXy[:p, :p] = XtX
     XtXy[:p, p] = XtXy[p, :p] = Xty
@@ -234,22 +228,30 @@ def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n) -> CrossProducts:
     # theta fills the lower triangle column by column (lme4's Lind); numpy's tril_indices runs
     # row by row, so take the transposed upper triangle's indices.
     upper = np.triu_indices(q)
-    shared = bool(np.all(ZtZ == ZtZ[0]) and np.all(ZtX == ZtX[0]))
-    shared_rhs = np.concatenate([ZtX[0], Zty.sum(axis=0)[:, None] / Zty.shape[0]], axis=1)
-    shared_S = Zty.T @ Zty
+    if pattern_of is None:
+        # Participants who saw the same stimuli share Z_j'Z_j and Z_j'X_j (one "pattern"): a
+        # complete data set has one pattern, whatever the number of participants.
+        keys = np.concatenate([ZtZ.reshape(J, -1), ZtX.reshape(J, -1)], axis=1)
+        pattern_of = np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+    patterns = []
+    for k in range(int(pattern_of.max()) + 1):
+        members = np.flatnonzero(pattern_of == k)
+        zty = Zty[members]
+        # Per pattern: Z'Z, the columns of [Z'X | mean of Z'y], sum of Z'y y'Z, group count.
+        rhs = np.concatenate([ZtX[members[0]], zty.mean(axis=0)[:, None]], axis=1)
+        patterns.append((ZtZ[members[0]].tolist(), [tuple(c) for c in rhs.T.tolist()],
+                         (zty.T @ zty).tolist(), int(members.size)))
     return CrossProducts(
         ZtZ=ZtZ, ZtX=ZtX, Zty=Zty, XtX=XtX, Xty=Xty, yty=float(yty), n=int(n),
         ZtXy=np.concatenate([ZtX, Zty[:, :, None]], axis=2), XtXy=XtXy,
-        tril=(upper[1], upper[0]), diag_q=np.arange(q), shared=shared,
-        shared_rhs=shared_rhs, shared_S=shared_S, py_G=ZtZ[0].tolist(),
-        py_rhs=shared_rhs.tolist(), py_rhs_cols=shared_rhs.T.tolist(), py_S=shared_S.tolist(), py_XtXy=XtXy.tolist(),
-        n_groups=int(Zty.shape[0]),
+        tril=(upper[1], upper[0]), diag_q=np.arange(q), pattern_of=pattern_of,
+        patterns=tuple(patterns), py_XtXy=XtXy.tolist(),
     )
 
 
 def with_response(cp: CrossProducts, Zty, Xty, yty) -> CrossProducts:
     """The same model with a new response: only the y cross-products change."""
-    return _assemble(cp.ZtZ, cp.ZtX, Zty, cp.XtX, Xty, yty, cp.n)
+    return _assemble(cp.ZtZ, cp.ZtX, Zty, cp.XtX, Xty, yty, cp.n, cp.pattern_of)
 
 
 def _q(cp: CrossProducts) -> int:
@@ -284,59 +286,27 @@ def _solve_pls(theta, cp: CrossProducts):
     p = cp.XtX.shape[0]
     T = np.zeros((q, q))
     T[cp.tril] = theta
-    if cp.shared:
-        # Every participant saw the same stimuli: one block A = L L' serves them all. With
-        # Q = L^-1 T', sum_j |c_u,j|^2 = trace(Q S Q') where S = sum_j Z_j'y_j y_j'Z_j, so a refit
-        # needs only 3 x 3 and 5 x 5 products whatever the number of participants.
-        J = cp.Zty.shape[0]
-        A = T.T @ cp.ZtZ[0] @ T
-        Linv, ld = _chol_inv(A)
-        Q = Linv @ T.T
-        R = Q @ cp.shared_rhs
-        M = cp.XtXy - J * (R.T @ R)
-        M[p, p] = cp.yty - float(np.sum(Q * (Q @ cp.shared_S)))
-        ldL2 = 2.0 * J * ld
-    else:
-        A = T.T @ cp.ZtZ @ T
-        A += np.eye(q)
-        L = np.linalg.cholesky(A)
-        R = np.linalg.solve(L, T.T @ cp.ZtXy)
-        Rf = R.reshape(-1, p + 1)
-        M = cp.XtXy - Rf.T @ Rf
-        ldL2 = 2.0 * float(np.sum(np.log(L[:, cp.diag_q, cp.diag_q])))
+    A = T.T @ cp.ZtZ @ T
+    A += np.eye(q)
+    L = np.linalg.cholesky(A)
+    R = np.linalg.solve(L, T.T @ cp.ZtXy)
+    Rf = R.reshape(-1, p + 1)
+    M = cp.XtXy - Rf.T @ Rf
+    ldL2 = 2.0 * float(np.sum(np.log(L[:, cp.diag_q, cp.diag_q])))
     C = np.linalg.cholesky(M)
     return ldL2, C[:p, :p], C[p, :p], float(C[p, p]) ** 2
 
 
-def _chol_inv(A: np.ndarray):
-    """``(L^-1, log det L)`` of ``A + I = L L'`` (closed form for 3 x 3; numpy otherwise)."""
-    if A.shape[0] != 3:
-        L = np.linalg.cholesky(A + np.eye(A.shape[0]))
-        return np.linalg.inv(L), float(np.sum(np.log(np.diag(L))))
-    (a00, _, _), (a10, a11, _), (a20, a21, a22) = A.tolist()
-    l00 = math.sqrt(a00 + 1.0)
-    l10 = a10 / l00
-    l20 = a20 / l00
-    l11 = math.sqrt(a11 + 1.0 - l10 * l10)
-    l21 = (a21 - l20 * l10) / l11
-    l22 = math.sqrt(a22 + 1.0 - l20 * l20 - l21 * l21)
-    m00, m11, m22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
-    m10 = -l10 * m00 * m11
-    m21 = -l21 * m11 * m22
-    m20 = -(l20 * m00 + l21 * m10) * m22
-    Linv = np.array([[m00, 0.0, 0.0], [m10, m11, 0.0], [m20, m21, m22]])
-    return Linv, math.log(l00 * l11 * l22)
+def _pattern_terms(theta, G, cols, S):
+    """One pattern's share of the profiled deviance, in scalar arithmetic (q = 3).
 
-
-def _deviance_shared3(theta, cp: CrossProducts) -> float:
-    """`profiled_deviance` for the shared-block case with q = 3, in scalar arithmetic.
-
-    The same algebra as `_solve_pls`'s shared branch, written out so that one evaluation costs
-    a few microseconds of Python instead of a dozen numpy calls on 3 x 3 arrays (the optimiser
-    calls it ~250 times per bootstrap refit).
+    With ``A = T' G T + I = L L'`` and ``Q = L^-1 T'``: the rows of ``R = Q [Z'X | mean Z'y]``,
+    ``trace(Q S Q')`` (= sum over the pattern's groups of ``|c_u,j|^2``) and ``log det L``.
+    Written out so that one deviance costs a few microseconds of Python instead of a dozen
+    numpy calls on 3 x 3 arrays (the optimiser calls it ~250 times per bootstrap refit).
     """
     t0, t1, t2, t3, t4, t5 = theta
-    (g00, g01, g02), (_, g11, g12), (_, _, g22) = cp.py_G
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = G
     # GT = G T (T lower triangular, columns (t0, t1, t2), (0, t3, t4), (0, 0, t5)).
     gt00 = g00 * t0 + g01 * t1 + g02 * t2
     gt10 = g01 * t0 + g11 * t1 + g12 * t2
@@ -344,7 +314,7 @@ def _deviance_shared3(theta, cp: CrossProducts) -> float:
     gt11 = g11 * t3 + g12 * t4
     gt21 = g12 * t3 + g22 * t4
     gt22 = g22 * t5
-    # A = T' G T + I, lower triangle, and its Cholesky factor L.
+    # A = T' G T + I, lower triangle, and its Cholesky factor L; M = L^-1.
     l00 = math.sqrt(t0 * gt00 + t1 * gt10 + t2 * gt20 + 1.0)
     l10 = (t3 * gt10 + t4 * gt20) / l00
     l20 = t5 * gt20 / l00
@@ -359,12 +329,10 @@ def _deviance_shared3(theta, cp: CrossProducts) -> float:
     q00, q01, q02 = m00 * t0, m00 * t1, m00 * t2
     q10, q11, q12 = m10 * t0, m10 * t1 + m11 * t3, m10 * t2 + m11 * t4
     q20, q21, q22 = m20 * t0, m20 * t1 + m21 * t3, m20 * t2 + m21 * t4 + m22 * t5
-    cols = cp.py_rhs_cols
     R0 = [q00 * a + q01 * b + q02 * c for a, b, c in cols]
     R1 = [q10 * a + q11 * b + q12 * c for a, b, c in cols]
     R2 = [q20 * a + q21 * b + q22 * c for a, b, c in cols]
-    J = cp.n_groups
-    (s00, s01, s02), (_, s11, s12), (_, _, s22) = cp.py_S
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
     # trace(Q S Q') = sum over rows q of q S q'.
     quad = (
         (q00 * q00 + q10 * q10 + q20 * q20) * s00
@@ -374,27 +342,54 @@ def _deviance_shared3(theta, cp: CrossProducts) -> float:
                  + (q00 * q02 + q10 * q12 + q20 * q22) * s02
                  + (q01 * q02 + q11 * q12 + q21 * q22) * s12)
     )
-    # Cholesky of M = [X y]'[X y] - sum_j R_j' R_j; its last diagonal element is r.
-    if len(R0) == 5:
-        pwrss = _schur5(cp.py_XtXy, R0, R1, R2, J, cp.yty - quad)
+    return R0, R1, R2, quad, math.log(l00 * l11 * l22)
+
+
+def _deviance_fast(theta, cp: CrossProducts) -> float:
+    """`profiled_deviance` for q = 3 by patterns of identical participant blocks.
+
+    Per pattern k (``n_k`` participants with the same ``Z_j'Z_j`` and ``Z_j'X_j``), the
+    Schur complement loses ``n_k R_k' R_k`` (its y column through the pattern's mean ``Z'y``)
+    and its y-y element ``trace(Q_k S_k Q_k')``; ``log|L|^2`` gains ``2 n_k log det L_k``.
+    """
+    x = cp.py_XtXy
+    m_yy = cp.yty
+    if len(cp.patterns) == 1:
+        G, cols, S, J = cp.patterns[0]
+        R0, R1, R2, quad, ld = _pattern_terms(theta, G, cols, S)
+        if len(R0) == 5:
+            pwrss = _schur5(x, R0, R1, R2, J, m_yy - quad)
+        else:
+            pwrss = _schur_loop(x, [(R0, R1, R2, J)], m_yy - quad)
+        ldL2 = 2.0 * J * ld
     else:
-        pwrss = _schur_loop(cp.py_XtXy, R0, R1, R2, J, cp.yty - quad)
+        parts, ldL2 = [], 0.0
+        for G, cols, S, nk in cp.patterns:
+            R0, R1, R2, quad, ld = _pattern_terms(theta, G, cols, S)
+            parts.append((R0, R1, R2, nk))
+            m_yy -= quad
+            ldL2 += 2.0 * nk * ld
+        pwrss = _schur_loop(x, parts, m_yy)
     n = cp.n
-    ldL2 = 2.0 * J * math.log(l00 * l11 * l22)
     return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
 
 
-def _schur_loop(XtXy, R0, R1, R2, J, m_yy) -> float:
-    """r^2: the square of the last diagonal element of chol(M), M = XtXy - J R'R (m_yy last)."""
-    k = len(R0)
+def _schur_loop(XtXy, parts, m_yy) -> float:
+    """r^2: the last diagonal element of chol(M) squared, M = XtXy - sum n R'R, M[-1,-1] = m_yy.
+
+    ``parts`` holds ``(R0, R1, R2, n)`` per pattern.
+    """
+    k = len(XtXy)
     C = []
     for c in range(k):
         Xc = XtXy[c]
         Cc = []
         for d in range(c + 1):
-            v = Xc[d] - J * (R0[c] * R0[d] + R1[c] * R1[d] + R2[c] * R2[d])
             if d == k - 1:
                 v = m_yy
+            else:
+                v = Xc[d] - sum(nk * (R0[c] * R0[d] + R1[c] * R1[d] + R2[c] * R2[d])
+                                for R0, R1, R2, nk in parts)
             Cd = C[d] if d < c else Cc
             for e in range(d):
                 v -= Cc[e] * Cd[e]
@@ -445,8 +440,8 @@ def profiled_deviance(theta, cp: CrossProducts) -> float:
     float
         The deviance (what ``lmer(..., REML = FALSE, devFunOnly = TRUE)(theta)`` returns).
     """
-    if cp.shared and cp.ZtZ.shape[1] == 3:
-        return _deviance_shared3(np.asarray(theta, float).tolist(), cp)
+    if cp.ZtZ.shape[1] == 3:
+        return _deviance_fast(np.asarray(theta, float).tolist(), cp)
     ldL2, _, _, pwrss = _solve_pls(np.asarray(theta, float), cp)
     n = cp.n
     return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
@@ -520,12 +515,12 @@ def _optimise(cp: CrossProducts, start, step, ftol_abs, xtol_abs, maxeval):
     opt.set_lower_bounds(theta_lower_bounds(q))
     n_evals = [0]
 
-    fast = cp.shared and q == 3
+    fast = q == 3
 
     def objective(x, grad):
         n_evals[0] += 1
         if fast:
-            return _deviance_shared3(x.tolist(), cp)
+            return _deviance_fast(x.tolist(), cp)
         return profiled_deviance(x, cp)
 
     opt.set_min_objective(objective)

@@ -10,7 +10,6 @@ one kept), then ``car::Anova(type = 2)``.
 
 from __future__ import annotations
 
-import dataclasses
 import shutil
 import subprocess
 from pathlib import Path
@@ -186,14 +185,35 @@ def test_bad_model_frames_are_rejected(change, message):
         fit_lmm(change(_data("unbalanced_5")), response="y")
 
 
-def test_shared_block_shortcut_equals_per_participant_blocks():
-    X, Z, y, groups, _ = model_matrices(_data("gloss"), "y")
+@pytest.mark.parametrize("case", ["gloss", "unbalanced_5"])
+def test_scalar_deviance_equals_the_numpy_blocks(case):
+    """The fast scalar path (patterns of identical blocks) against per-participant numpy blocks."""
+    from analysis.lmm import _solve_pls
+
+    X, Z, y, groups, _ = model_matrices(_data(case), "y")
     cp = crossproducts(X, Z, y, groups)
-    assert cp.shared
-    general = dataclasses.replace(cp, shared=False)
+    # Complete data: one pattern; 20 % of trials dropped at random: one per participant.
+    assert len(cp.patterns) == (1 if case == "gloss" else 5)
     for theta in sample_thetas(np.random.default_rng(3)):
-        assert profiled_deviance(theta, cp) == pytest.approx(
-            profiled_deviance(theta, general), rel=1e-12)
+        ldL2, _, _, pwrss = _solve_pls(theta, cp)
+        slow = ldL2 + cp.n * (1 + np.log(2 * np.pi * pwrss / cp.n))
+        assert profiled_deviance(theta, cp) == pytest.approx(slow, rel=1e-12)
+
+
+def test_patterns_group_identical_participants(design):
+    frame = _data("gloss")
+    # Drop the same trial for two participants and another for a third: 3 patterns.
+    drop = frame.index[(frame["participant"].isin(["P01", "P02"]) & (frame.index % design.n_stimuli == 5))
+                       | ((frame["participant"] == "P03") & (frame.index % design.n_stimuli == 9))]
+    X, Z, y, groups, _ = model_matrices(frame.drop(index=drop), "y")
+    cp = crossproducts(X, Z, y, groups)
+    assert sorted(p[3] for p in cp.patterns) == [1, 2, 8]
+    from analysis.lmm import _solve_pls
+
+    theta = sample_thetas(np.random.default_rng(1))[4]
+    ldL2, _, _, pwrss = _solve_pls(theta, cp)
+    assert profiled_deviance(theta, cp) == pytest.approx(
+        ldL2 + cp.n * (1 + np.log(2 * np.pi * pwrss / cp.n)), rel=1e-12)
 
 
 def test_unrolled_schur_complement_equals_the_loop():
@@ -204,7 +224,8 @@ def test_unrolled_schur_complement_equals_the_loop():
     XtXy = (A.T @ A).tolist()
     R = (0.1 * rng.random((3, 5))).tolist()
     m_yy = XtXy[4][4] - 0.01
-    assert _schur5(XtXy, *R, 2, m_yy) == pytest.approx(_schur_loop(XtXy, *R, 2, m_yy), rel=1e-12)
+    assert _schur5(XtXy, *R, 2, m_yy) == pytest.approx(
+        _schur_loop(XtXy, [(*R, 2)], m_yy), rel=1e-12)
 
 
 def test_new_response_needs_only_its_cross_products():
