@@ -184,6 +184,12 @@ class CrossProducts:
     yty : float
     n : int
         Number of observations.
+    pattern_of : ndarray of int, shape (J,)
+        Pattern of each group: groups with identical ``Z_j'Z_j`` and ``Z_j'X_j`` (the same
+        stimuli) share one; a complete data set has one pattern.
+    patterns : tuple
+        Per pattern, as Python lists for the scalar deviance: ``(Z'Z, columns of [Z'X | mean
+        Z'y], sum of Z'y y'Z, number of groups)``.
     """
 
     ZtZ: np.ndarray
