@@ -201,7 +201,10 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             boots[name] = parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(),
                                                n_boot=n_boot, seed=seed + k, n_jobs=n_jobs,
                                                progress=progress)
-    metamers = find_metamers(frame)
+    # Metamers exist only if depth changes perceived gloss: without a significant depth effect
+    # in the gloss model, pairs that happen to match are noise (hundreds of pairs are tried).
+    depth_p = {t.term: t.p for t in models["gloss"].tests}["depth"]
+    metamers = find_metamers(frame) if depth_p < ALPHA else []
     figures = {
         "depth_matches.png": plot_depth_matches(frame, design),
         "gloss_matches.png": plot_gloss_matches(frame, design),
@@ -235,8 +238,9 @@ def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_bo
             if data.warnings else "<p>None: every session is complete.</p>")
     pat_rows = [[k, "yes" if ok else "NO", detail] for k, (ok, detail) in pattern.items()]
     meta = (", ".join(esc(m.describe()) for m in metamers) if metamers
-            else "none found (no pair of stimuli with different gloss and depth looks equally "
-                 "glossy within 2 % and a 95 % CI containing 0)")
+            else "none (depth has no significant effect on estimated gloss, or no pair of stimuli "
+                 "with different gloss and depth looks equally glossy within 2 % with a 95 % CI "
+                 "containing 0)")
     boot_note = (f"Parametric bootstrap: {n_boot} runs per model (seed {seed}; "
                  + "; ".join(f"{k}: {b.seconds:.1f} s, {b.n_ok} refits, "
                              f"{100 * b.singular_fraction:.0f} % singular" for k, b in boots.items())

@@ -77,3 +77,12 @@ def test_gap_is_passed_through():
                          capture_output=True, text=True, timeout=120, check=False)
     assert out.returncode == 0
     assert "benchmark" in out.stdout and "diagnose" in out.stdout
+
+
+def test_no_metamers_for_observers_without_a_depth_effect(tmp_path, design):
+    write_sessions(tmp_path / "data", design, np.random.default_rng(3), n_participants=11,
+                   kind="ideal")
+    build_report(tmp_path / "data", tmp_path / "r", design, n_boot=0, progress=False)
+    results = json.loads((tmp_path / "r" / "results.json").read_text(encoding="utf-8"))
+    assert results["metamers"] == []
+    assert not results["seed_pattern"]["depth effect on estimated gloss"]["holds"]
