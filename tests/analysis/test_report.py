@@ -86,3 +86,14 @@ def test_no_metamers_for_observers_without_a_depth_effect(tmp_path, design):
     results = json.loads((tmp_path / "r" / "results.json").read_text(encoding="utf-8"))
     assert results["metamers"] == []
     assert not results["seed_pattern"]["depth effect on estimated gloss"]["holds"]
+
+
+def test_imagestats_is_passed_through_or_named_as_missing():
+    import importlib.util
+
+    out = subprocess.run([sys.executable, "-m", "analysis", "imagestats", "--help"],
+                         capture_output=True, text=True, timeout=120, check=False)
+    if importlib.util.find_spec("analysis.imagestats") is None:
+        assert out.returncode == 2 and "not built yet" in out.stderr
+    else:
+        assert out.returncode == 0, out.stderr
