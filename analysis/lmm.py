@@ -226,7 +226,7 @@ def crossproducts(X, Z, y, groups) -> CrossProducts:
 
 
 def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n, pattern_of=None) -> CrossProducts:
-    J, q, p = ZtX.shape
+    _, q, p = ZtX.shape
     XtXy = np.empty((p + 1, p + 1))
     XtXy[:p, :p] = XtX
     XtXy[:p, p] = XtXy[p, :p] = Xty
@@ -235,10 +235,7 @@ def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n, pattern_of=None) -> CrossProducts
     # row by row, so take the transposed upper triangle's indices.
     upper = np.triu_indices(q)
     if pattern_of is None:
-        # Participants who saw the same stimuli share Z_j'Z_j and Z_j'X_j (one "pattern"): a
-        # complete data set has one pattern, whatever the number of participants.
-        keys = np.concatenate([ZtZ.reshape(J, -1), ZtX.reshape(J, -1)], axis=1)
-        pattern_of = np.unique(keys, axis=0, return_inverse=True)[1].reshape(-1)
+        pattern_of = _find_patterns(ZtZ, ZtX)
     patterns = []
     for k in range(int(pattern_of.max()) + 1):
         members = np.flatnonzero(pattern_of == k)
@@ -253,6 +250,28 @@ def _assemble(ZtZ, ZtX, Zty, XtX, Xty, yty, n, pattern_of=None) -> CrossProducts
         tril=(upper[1], upper[0]), diag_q=np.arange(q), pattern_of=pattern_of,
         patterns=tuple(patterns), py_XtXy=XtXy.tolist(),
     )
+
+
+def _find_patterns(ZtZ, ZtX) -> np.ndarray:
+    """Pattern index of each group: groups whose Z'Z and Z'X agree to 1e-12 share one.
+
+    Participants who saw the same stimuli have the same blocks (a complete data set has one
+    pattern, whatever the number of participants); their sums differ only by rounding, as the
+    trials come in another order.
+    """
+    J = ZtZ.shape[0]
+    keys = np.concatenate([ZtZ.reshape(J, -1), ZtX.reshape(J, -1)], axis=1)
+    tol = 1e-12 * max(float(np.abs(keys).max()), 1.0)
+    reps, out = [], np.empty(J, dtype=int)
+    for j in range(J):
+        for k, rep in enumerate(reps):
+            if np.all(np.abs(keys[j] - rep) <= tol):
+                out[j] = k
+                break
+        else:
+            reps.append(keys[j])
+            out[j] = len(reps) - 1
+    return out
 
 
 def with_response(cp: CrossProducts, Zty, Xty, yty) -> CrossProducts:
@@ -386,17 +405,20 @@ def _schur_loop(XtXy, parts, m_yy) -> float:
     ``parts`` holds ``(R0, R1, R2, n)`` per pattern.
     """
     k = len(XtXy)
+    M = [list(row[: c + 1]) for c, row in enumerate(XtXy)]
+    for R0, R1, R2, nk in parts:
+        for c in range(k):
+            a, b, e = R0[c], R1[c], R2[c]
+            Mc = M[c]
+            for d in range(c + 1):
+                Mc[d] -= nk * (a * R0[d] + b * R1[d] + e * R2[d])
+    M[k - 1][k - 1] = m_yy
     C = []
     for c in range(k):
-        Xc = XtXy[c]
         Cc = []
         for d in range(c + 1):
-            if d == k - 1:
-                v = m_yy
-            else:
-                v = Xc[d] - sum(nk * (R0[c] * R0[d] + R1[c] * R1[d] + R2[c] * R2[d])
-                                for R0, R1, R2, nk in parts)
             Cd = C[d] if d < c else Cc
+            v = M[c][d]
             for e in range(d):
                 v -= Cc[e] * Cd[e]
             Cc.append(v / Cd[d] if d < c else math.sqrt(v))
