@@ -29,15 +29,14 @@ import pandas as pd
 from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
+from analysis.deviance import crossproducts, with_response
 from analysis.lmm import (
     FIXED_TERMS,
     RANDOM_TERMS,
     LmmFit,
-    crossproducts,
     fit_crossproducts,
     model_matrices,
     summarise_fit,
-    with_response,
 )
 from analysis.typeii import hypothesis_matrix, wald_chi2
 

@@ -188,7 +188,7 @@ def test_bad_model_frames_are_rejected(change, message):
 @pytest.mark.parametrize("case", ["gloss", "unbalanced_5"])
 def test_scalar_deviance_equals_the_numpy_blocks(case):
     """The fast scalar path (patterns of identical blocks) against per-participant numpy blocks."""
-    from analysis.lmm import _solve_pls
+    from analysis.deviance import _solve_pls
 
     X, Z, y, groups, _ = model_matrices(_data(case), "y")
     cp = crossproducts(X, Z, y, groups)
@@ -208,7 +208,7 @@ def test_patterns_group_identical_participants(design):
     X, Z, y, groups, _ = model_matrices(frame.drop(index=drop), "y")
     cp = crossproducts(X, Z, y, groups)
     assert sorted(p[3] for p in cp.patterns) == [1, 2, 8]
-    from analysis.lmm import _solve_pls
+    from analysis.deviance import _solve_pls
 
     theta = sample_thetas(np.random.default_rng(1))[4]
     ldL2, _, _, pwrss = _solve_pls(theta, cp)
@@ -217,7 +217,7 @@ def test_patterns_group_identical_participants(design):
 
 
 def test_unrolled_schur_complement_equals_the_loop():
-    from analysis.lmm import _schur5, _schur_loop
+    from analysis.deviance import _schur5, _schur_loop
 
     rng = np.random.default_rng(0)
     A = rng.random((30, 5))
@@ -229,7 +229,7 @@ def test_unrolled_schur_complement_equals_the_loop():
 
 
 def test_new_response_needs_only_its_cross_products():
-    from analysis.lmm import with_response
+    from analysis.deviance import with_response
 
     X, Z, y, groups, _ = model_matrices(_data("gloss"), "y")
     base = crossproducts(X, Z, y, groups)
