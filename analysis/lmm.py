@@ -175,6 +175,11 @@ def model_matrices(frame: pd.DataFrame, response: str, group: str = "participant
     one = np.ones_like(g)
     X = np.column_stack([one, g, d, g * d])
     Z = np.column_stack([one, g, d])
+    if np.linalg.matrix_rank(X) < X.shape[1]:
+        raise LmmError(
+            "the fixed effects cannot be estimated: the data need at least two gloss and two "
+            f"depth levels (got gloss {np.unique(g).size}, depth {np.unique(d).size} distinct)"
+        )
     return X, Z, y, groups, levels
 
 

@@ -178,6 +178,7 @@ def test_fit_round_trips_through_json():
         (lambda f: f.drop(columns="depth"), "missing"),
         (lambda f: f.assign(y=np.where(f.index == 3, np.nan, f["y"])), "non-finite"),
         (lambda f: f.assign(participant="P01"), ">= 2"),
+        (lambda f: f.assign(depth=0.5), "at least two gloss and two depth levels"),
     ],
 )
 def test_bad_model_frames_are_rejected(change, message):
