@@ -132,8 +132,10 @@ def standardise_predictors(frame: pd.DataFrame, design: StudyDesign) -> pd.DataF
     out = frame.copy()
     gloss_levels = np.asarray(design.gloss.rendered_pct, dtype=float)
     depth_levels = np.asarray(design.depth.rendered_cm, dtype=float)
-    out["gloss"] = (frame["true_gloss_pct"].to_numpy(float) - gloss_levels.mean()) / gloss_levels.std()
-    out["depth"] = (frame["true_depth_cm"].to_numpy(float) - depth_levels.mean()) / depth_levels.std()
+    gloss_pct = frame["true_gloss_pct"].to_numpy(float)
+    depth_cm = frame["true_depth_cm"].to_numpy(float)
+    out["gloss"] = (gloss_pct - gloss_levels.mean()) / gloss_levels.std()
+    out["depth"] = (depth_cm - depth_levels.mean()) / depth_levels.std()
     return out
 
 

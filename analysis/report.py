@@ -243,15 +243,29 @@ def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_bo
                  "containing 0)")
     boot_note = (f"Parametric bootstrap: {n_boot} runs per model (seed {seed}; "
                  + "; ".join(f"{k}: {b.seconds:.1f} s, {b.n_ok} refits, "
-                             f"{100 * b.singular_fraction:.0f} % singular" for k, b in boots.items())
+                             f"{100 * b.singular_fraction:.0f} % singular"
+                             for k, b in boots.items())
                  + "). CIs are percentile intervals; bootstrap p-values compare each term's Wald "
                    "statistic with its bootstrap distribution centred at the estimate."
                  if boots else "No bootstrap was run (--bootstrap 0).")
-    figs = "".join(f"<figure><img src='{name}' alt='{name}'></figure>" for name in figures)
+    captions = {
+        "depth_matches.png": "(a) Perceived vs true depth; hue = depth bin, saturation = gloss "
+                             "bin; mean of observer means ± 95 % CI across observers.",
+        "gloss_matches.png": "(b) Perceived vs true gloss per depth bin, ± 95 % CI across "
+                             "observers.",
+        "gloss_contours.png": "(c) Mean perceived gloss over true gloss × true depth; gloss "
+                              "metamers joined by dashed lines.",
+        "observers_gloss.png": "(d) Gloss matches of each observer.",
+        "observers_depth.png": "(d) Depth matches of each observer.",
+    }
+    figs = "".join(
+        f"<figure><img src='{name}' alt='{name}'><figcaption>{esc(captions.get(name, name))}"
+        "</figcaption></figure>" for name in figures)
     style = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;line-height:1.4}"
              "table{border-collapse:collapse;margin:0.5em 0}td,th{border:1px solid #bbb;"
              "padding:2px 8px;text-align:left}img{max-width:100%}figure{display:inline-block;"
-             "margin:4px}.warn li{color:#a40}.sentence{font-style:italic}")
+             "margin:4px;max-width:540px;vertical-align:top}figcaption{font-size:90%}"
+             ".warn li{color:#a40}.sentence{font-style:italic}")
     return f"""<!DOCTYPE html>
 <html lang="en"><head><meta charset="utf-8"><title>Gloss x depth: analysis report</title>
 <style>{style}</style></head><body>

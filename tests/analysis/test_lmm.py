@@ -204,8 +204,9 @@ def test_scalar_deviance_equals_the_numpy_blocks(case):
 def test_patterns_group_identical_participants(design):
     frame = _data("gloss")
     # Drop the same trial for two participants and another for a third: 3 patterns.
-    drop = frame.index[(frame["participant"].isin(["P01", "P02"]) & (frame.index % design.n_stimuli == 5))
-                       | ((frame["participant"] == "P03") & (frame.index % design.n_stimuli == 9))]
+    trial = frame.index % design.n_stimuli
+    drop = frame.index[(frame["participant"].isin(["P01", "P02"]) & (trial == 5))
+                       | ((frame["participant"] == "P03") & (trial == 9))]
     X, Z, y, groups, _ = model_matrices(frame.drop(index=drop), "y")
     cp = crossproducts(X, Z, y, groups)
     assert sorted(p[3] for p in cp.patterns) == [1, 2, 8]
