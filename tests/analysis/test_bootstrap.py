@@ -67,3 +67,17 @@ def test_bad_arguments(fitted):
         parametric_bootstrap(frame, fit, observed_chi2=chi2, n_boot=0)
     with pytest.raises(ValueError, match="unknown terms"):
         parametric_bootstrap(frame, fit, observed_chi2={"shape": 1.0}, n_boot=10)
+
+
+@pytest.mark.r
+def test_bench_against_bootmer_runs(repo_root):
+    """The bench script end to end on a few runs (the claim itself is measured by `make bench`)."""
+    import subprocess
+    import sys
+
+    out = subprocess.run(
+        [sys.executable, str(repo_root / "bench/analysis_bootstrap_vs_bootmer.py"), "--n", "40",
+         "--n-r", "6"], capture_output=True, text=True, timeout=300, check=False)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert "ratio (bootMer / ours, per refit):" in out.stdout
+    assert out.stdout.count("[") >= 8
