@@ -31,7 +31,9 @@ def matches_to_physical(frame: pd.DataFrame, design: StudyDesign) -> pd.DataFram
     """
     missing = [c for c in ("gloss_match", "depth_match") if c not in frame.columns]
     if missing:
-        raise ValueError(f"columns {missing} missing; session CSVs carry gloss_match and depth_match")
+        raise ValueError(
+            f"columns {missing} missing; session CSVs carry gloss_match and depth_match"
+        )
     out = frame.copy()
     out["gloss_match_pct"] = design.slider.to_gloss_pct(frame["gloss_match"].to_numpy())
     out["depth_match_cm"] = design.slider.to_depth_cm(frame["depth_match"].to_numpy())

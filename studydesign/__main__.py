@@ -13,23 +13,40 @@ def _summary(design) -> str:
     g, d, a = design.gloss, design.depth, design.array
     lines = [
         f"design file: {design.source}",
-        f"gloss: {g.n_levels} physical levels {g.physical_pct[0]:g}-{g.physical_pct[-1]:g} % "
-        f"(labels 1-{g.n_levels}); rendered labels {g.rendered_levels[0]}-{g.rendered_levels[-1]} "
-        f"({g.rendered_pct[0]:g}-{g.rendered_pct[-1]:g} %)",
-        f"depth: d_i = {d.step_cm:g} * i cm, i = 1..{d.n_levels} "
-        f"({d.physical_cm[0]:g}-{d.physical_cm[-1]:g} cm); rendered levels "
-        f"{d.rendered_levels[0]}-{d.rendered_levels[-1]} "
-        f"({d.rendered_cm[0]:g}-{d.rendered_cm[-1]:g} cm)",
-        f"array: {a.n_x}x{a.n_y} half-ellipsoids over {a.extent_cm:g} cm, pitch {a.pitch_cm:g} cm, "
-        f"x/y radius {a.radius_xy_cm:g} cm, jitter +-{a.jitter_cm:g} cm",
-        "illuminations: "
-        + ", ".join(f"{il.name} ({il.kind}, {il.envmap})" for il in design.illuminations),
-        f"stimuli: {design.n_stimuli} in {design.sessions.n_sessions} sessions of "
-        f"{design.sessions.trials_per_session} trials",
-        f"display: {design.display.resolution_px[0]}x{design.display.resolution_px[1]} px at "
-        f"{design.display.viewing_distance_cm:g} cm",
-        f"slider: {design.slider.min:g}-{design.slider.max:g}; depth_cm = "
-        f"{design.slider.depth_cm_per_unit:g} v, gloss_pct = {design.slider.gloss_pct_per_unit:g} (v - 1)",
+        (
+            f"gloss: {g.n_levels} physical levels "
+            f"{g.physical_pct[0]:g}-{g.physical_pct[-1]:g} % (labels 1-{g.n_levels}); "
+            f"rendered labels {g.rendered_levels[0]}-{g.rendered_levels[-1]} "
+            f"({g.rendered_pct[0]:g}-{g.rendered_pct[-1]:g} %)"
+        ),
+        (
+            f"depth: d_i = {d.step_cm:g} * i cm, i = 1..{d.n_levels} "
+            f"({d.physical_cm[0]:g}-{d.physical_cm[-1]:g} cm); rendered levels "
+            f"{d.rendered_levels[0]}-{d.rendered_levels[-1]} "
+            f"({d.rendered_cm[0]:g}-{d.rendered_cm[-1]:g} cm)"
+        ),
+        (
+            f"array: {a.n_x}x{a.n_y} half-ellipsoids over {a.extent_cm:g} cm, "
+            f"pitch {a.pitch_cm:g} cm, "
+            f"x/y radius {a.radius_xy_cm:g} cm, jitter +-{a.jitter_cm:g} cm"
+        ),
+        (
+            "illuminations: "
+            + ", ".join(f"{il.name} ({il.kind}, {il.envmap})" for il in design.illuminations)
+        ),
+        (
+            f"stimuli: {design.n_stimuli} in {design.sessions.n_sessions} sessions of "
+            f"{design.sessions.trials_per_session} trials"
+        ),
+        (
+            f"display: {design.display.resolution_px[0]}x{design.display.resolution_px[1]} px at "
+            f"{design.display.viewing_distance_cm:g} cm"
+        ),
+        (
+            f"slider: {design.slider.min:g}-{design.slider.max:g}; depth_cm = "
+            f"{design.slider.depth_cm_per_unit:g} v, "
+            f"gloss_pct = {design.slider.gloss_pct_per_unit:g} (v - 1)"
+        ),
     ]
     return "\n".join(lines)
 

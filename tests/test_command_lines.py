@@ -20,7 +20,7 @@ import pytest
 )
 def test_package_help_lists_subcommands(package, subcommand):
     out = subprocess.run(
-        [sys.executable, "-m", package, "--help"], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", package, "--help"], capture_output=True, text=True, check=False, timeout=120
     )
     assert out.returncode == 0, out.stderr
     assert subcommand in out.stdout
@@ -31,7 +31,7 @@ def test_studydesign_check_reports_bad_file(tmp_path):
     bad.write_text("[gloss]\n")
     out = subprocess.run(
         [sys.executable, "-m", "studydesign", "--design", str(bad), "check"],
-        capture_output=True, text=True, timeout=60,
+        capture_output=True, text=True, check=False, timeout=60,
     )
     assert out.returncode == 1
     assert "missing" in out.stderr

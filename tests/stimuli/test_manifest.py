@@ -2,7 +2,14 @@
 
 import pytest
 
-from stimuli import MANIFEST_COLUMNS, ManifestError, append_manifest_row, load_manifest, sha256_file, verify_manifest
+from stimuli import (
+    MANIFEST_COLUMNS,
+    ManifestError,
+    append_manifest_row,
+    load_manifest,
+    sha256_file,
+    verify_manifest,
+)
 
 
 def _row(tmp_path, sid):

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -87,7 +89,7 @@ def test_slider_labels_land_on_reference_objects(design):
 
 def _write_variant(tmp_path, old, new):
     src = load_design().source
-    text = open(src).read()
+    text = Path(src).read_text()
     assert old in text, f"test set-up: {old!r} not in design.toml"
     path = tmp_path / "design.toml"
     path.write_text(text.replace(old, new, 1))
@@ -119,7 +121,7 @@ def test_missing_design_file_names_the_path(tmp_path):
 
 
 def test_design_is_frozen(design):
-    with pytest.raises(Exception):
+    with pytest.raises(dataclasses.FrozenInstanceError):
         design.gloss.step_pct = 5.0  # type: ignore[misc]
 
 
