@@ -3,8 +3,33 @@
 Public API
 ----------
 check_participant_id, make_plan, load_or_create_plan, plan_path, participant_seed, PLAN_COLUMNS
+    Participant ids and trial plans.
+SESSION_COLUMNS, SessionWriter, read_session, session_path, sliders_path, app_version
+    Session data files (one CSV row per trial, appended and fsynced).
+Observer, make_observer, simulate_dataset, write_simulated_sessions, load_observer_params,
+OBSERVER_KINDS
+    Simulated observers (``ideal``, ``humanlike``; parameters in ``observers.toml``).
+
+Importing this package opens no window and imports no PsychoPy.
 """
 
+from experiment.datafile import (
+    SESSION_COLUMNS,
+    DataFileError,
+    SessionWriter,
+    app_version,
+    read_session,
+    session_path,
+    sliders_path,
+)
+from experiment.observers import (
+    OBSERVER_KINDS,
+    Observer,
+    load_observer_params,
+    make_observer,
+    simulate_dataset,
+    write_simulated_sessions,
+)
 from experiment.participants import check_participant_id
 from experiment.plan import (
     PLAN_COLUMNS,
@@ -16,11 +41,24 @@ from experiment.plan import (
 )
 
 __all__ = [
+    "OBSERVER_KINDS",
     "PLAN_COLUMNS",
+    "SESSION_COLUMNS",
+    "DataFileError",
+    "Observer",
     "PlanError",
+    "SessionWriter",
+    "app_version",
     "check_participant_id",
+    "load_observer_params",
     "load_or_create_plan",
+    "make_observer",
     "make_plan",
     "participant_seed",
     "plan_path",
+    "read_session",
+    "session_path",
+    "simulate_dataset",
+    "sliders_path",
+    "write_simulated_sessions",
 ]

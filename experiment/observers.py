@@ -1,0 +1,291 @@
+"""Simulated observers of the matching task: the same objects drive the app, the analysis checks
+and the sim-to-real diagnosis.
+
+Two kinds, parameters in ``experiment/observers.toml`` (or a table passed as ``params``):
+
+``ideal``
+    Truth plus trial noise: ``depth_hat = depth + e_d``, ``gloss_hat = gloss + e_g``.
+``humanlike``
+    The seed's pattern. Each observer draws its own intercepts and slopes once (random effects);
+    depth is compressed towards the middle of the scale and depth leaks into gloss (deeper arrays
+    look glossier), gloss does not leak into depth::
+
+        depth_hat = m_d + b_d (depth - m_d) + a_d + e_d
+        gloss_hat = m_g + b_g (gloss - m_g) + c (depth - m_d) + k (gloss - m_g)(depth - m_d)
+                    + a_g + e_g
+
+    with ``m_d`` (cm) and ``m_g`` (%) the slider's middle in physical units, ``b_d < 1`` the depth
+    compression, ``c`` the crosstalk (% per cm) and ``k`` the interaction (per cm).
+
+Answers are slider positions (the inverse of the design's slider mapping), clipped to the
+slider's range as a real slider clips them.
+"""
+
+from __future__ import annotations
+
+import copy
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from experiment.datafile import SESSION_COLUMNS, app_version, session_path
+from experiment.plan import make_plan, participant_seed
+from studydesign import SliderSpec, StudyDesign, load_design
+
+__all__ = [
+    "OBSERVER_KINDS",
+    "Observer",
+    "default_observers_path",
+    "load_observer_params",
+    "make_observer",
+    "simulate_dataset",
+    "write_simulated_sessions",
+]
+
+OBSERVER_KINDS = ("ideal", "humanlike")
+#: The pause between a response and the next onset in simulated data (s); the app's is measured.
+_SIMULATED_ITI_S = 0.5
+
+
+def default_observers_path() -> Path:
+    """The shipped parameter file, ``experiment/observers.toml``."""
+    return Path(__file__).with_name("observers.toml")
+
+
+def load_observer_params(path=None) -> dict:
+    """Read an observers parameter file (default: the shipped one) -> ``{kind: table}``."""
+    path = Path(path) if path is not None else default_observers_path()
+    try:
+        with open(path, "rb") as fh:
+            raw = tomllib.load(fh)
+    except FileNotFoundError as exc:
+        raise ValueError(f"observer parameter file {path} does not exist") from exc
+    except tomllib.TOMLDecodeError as exc:
+        raise ValueError(f"observer parameter file {path} is not valid TOML: {exc}") from exc
+    missing = [k for k in OBSERVER_KINDS if k not in raw]
+    if missing:
+        raise ValueError(f"observer parameter file {path} lacks the tables {missing}")
+    return raw
+
+
+def _draw(spec, name: str, rng: np.random.Generator) -> float:
+    """A fixed number, or one draw from ``{mean, sd}`` (a per-observer random effect)."""
+    if isinstance(spec, Mapping):
+        if set(spec) != {"mean", "sd"} or spec["sd"] < 0:
+            raise ValueError(f"observer parameter {name} = {dict(spec)}; give a number or "
+                             "{ mean = ..., sd = ... } with sd >= 0")
+        return float(rng.normal(spec["mean"], spec["sd"]))
+    if not isinstance(spec, (int, float)):
+        raise TypeError(f"observer parameter {name} = {spec!r} is not a number")
+    return float(spec)
+
+
+_REQUIRED = {
+    "ideal": ("depth_noise_cm", "gloss_noise_pct", "rt_median_s", "rt_log_sd"),
+    "humanlike": ("depth_slope", "depth_intercept_cm", "depth_noise_cm", "gloss_slope",
+                  "gloss_intercept_pct", "crosstalk_pct_per_cm", "interaction_per_cm",
+                  "gloss_noise_pct", "rt_median_s", "rt_log_sd"),
+}
+
+
+@dataclass(frozen=True)
+class Observer:
+    """One simulated participant: its kind and its own drawn parameters.
+
+    Attributes
+    ----------
+    kind : {"ideal", "humanlike"}
+    participant : str
+    params : dict of str to float
+        This observer's parameters (after drawing its random effects), units in the names.
+    slider : SliderSpec
+        The design's slider, to convert physical estimates into slider positions.
+    """
+
+    kind: str
+    participant: str
+    params: dict
+    slider: SliderSpec = field(repr=False)
+
+    def _mid(self) -> tuple[float, float]:
+        mid = 0.5 * (self.slider.min + self.slider.max)
+        return float(self.slider.to_depth_cm(mid)), float(self.slider.to_gloss_pct(mid))
+
+    def estimate(self, true_gloss_pct, true_depth_cm, rng: np.random.Generator):
+        """Perceived gloss (%) and depth (cm), before the slider (arrays of one shape)."""
+        gloss = np.asarray(true_gloss_pct, dtype=float)
+        depth = np.asarray(true_depth_cm, dtype=float)
+        p = self.params
+        e_d = rng.normal(0.0, p["depth_noise_cm"], depth.shape)
+        e_g = rng.normal(0.0, p["gloss_noise_pct"], gloss.shape)
+        if self.kind == "ideal":
+            return gloss + e_g, depth + e_d
+        m_d, m_g = self._mid()
+        depth_hat = m_d + p["depth_slope"] * (depth - m_d) + p["depth_intercept_cm"] + e_d
+        gloss_hat = (m_g + p["gloss_slope"] * (gloss - m_g)
+                     + p["crosstalk_pct_per_cm"] * (depth - m_d)
+                     + p["interaction_per_cm"] * (gloss - m_g) * (depth - m_d)
+                     + p["gloss_intercept_pct"] + e_g)
+        return gloss_hat, depth_hat
+
+    def to_slider(self, gloss_pct, depth_cm):
+        """Physical estimates -> slider positions clipped to [slider.min, slider.max]."""
+        s = self.slider
+        g0 = float(s.to_gloss_pct(s.min))
+        gloss_v = s.min + (np.asarray(gloss_pct, float) - g0) / s.gloss_pct_per_unit
+        depth_v = np.asarray(depth_cm, float) / s.depth_cm_per_unit
+        return np.clip(gloss_v, s.min, s.max), np.clip(depth_v, s.min, s.max)
+
+    def respond(self, trial_row, rng: np.random.Generator) -> tuple[float, float]:
+        """Answer one trial.
+
+        Parameters
+        ----------
+        trial_row : mapping
+            A plan row; uses ``true_gloss_pct`` (%) and ``true_depth_cm`` (cm).
+        rng : numpy.random.Generator
+
+        Returns
+        -------
+        (gloss_match, depth_match) : tuple of float
+            Slider positions in [slider.min, slider.max] (1-11 in the shipped design).
+        """
+        g, d = self.estimate(trial_row["true_gloss_pct"], trial_row["true_depth_cm"], rng)
+        gv, dv = self.to_slider(g, d)
+        return float(gv), float(dv)
+
+    def respond_all(self, plan: pd.DataFrame, rng: np.random.Generator):
+        """Vectorised :meth:`respond` over a plan -> (gloss_match, depth_match) arrays."""
+        g, d = self.estimate(plan["true_gloss_pct"].to_numpy(), plan["true_depth_cm"].to_numpy(),
+                             rng)
+        return self.to_slider(g, d)
+
+    def response_time_s(self, rng: np.random.Generator, size=None):
+        """Log-normal response times (s) around this observer's median."""
+        median = max(self.params["rt_median_s"], 0.2)
+        return median * np.exp(rng.normal(0.0, self.params["rt_log_sd"], size))
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "participant": self.participant, "params": dict(self.params)}
+
+
+def make_observer(kind: str, participant: str, rng: np.random.Generator, params=None, *,
+                  design: StudyDesign | None = None) -> Observer:
+    """Make one simulated observer, drawing its own random effects from ``rng``.
+
+    Parameters
+    ----------
+    kind : {"ideal", "humanlike"}
+    participant : str
+        Participant id (used to name its plan and files).
+    rng : numpy.random.Generator
+        Draws the observer-specific parameters.
+    params : dict, optional
+        The kind's parameter table (as in ``observers.toml``); default: the shipped file's.
+        A number is fixed; ``{mean, sd}`` is drawn per observer.
+    design : StudyDesign, optional
+        Supplies the slider mapping; default: the shipped design.
+
+    Raises
+    ------
+    ValueError
+        Unknown kind, bad participant id, or a parameter table missing names or with bad values.
+    """
+    from experiment.participants import check_participant_id
+
+    check_participant_id(participant)
+    if kind not in OBSERVER_KINDS:
+        raise ValueError(f"unknown observer kind {kind!r}; use one of {OBSERVER_KINDS}")
+    table = copy.deepcopy(params if params is not None else load_observer_params()[kind])
+    missing = [k for k in _REQUIRED[kind] if k not in table]
+    if missing:
+        raise ValueError(f"{kind} observer parameters lack {missing}")
+    drawn = {name: _draw(table[name], name, rng) for name in _REQUIRED[kind]}
+    for name in ("depth_noise_cm", "gloss_noise_pct", "rt_log_sd"):
+        if drawn[name] < 0:
+            raise ValueError(f"{kind} observer parameter {name} = {drawn[name]} must be >= 0")
+    design = design if design is not None else load_design()
+    return Observer(kind=kind, participant=participant, params=drawn, slider=design.slider)
+
+
+def _plan(design: StudyDesign, participant: str) -> pd.DataFrame:
+    """The plan the app would make for this participant (seeded by the participant id)."""
+    seed = participant_seed(participant)
+    return make_plan(design, participant, np.random.default_rng(seed), seed=seed)
+
+
+def simulate_dataset(design: StudyDesign, observers, rng: np.random.Generator, *,
+                     calibration_id: str = "simulated") -> pd.DataFrame:
+    """Every observer answers its whole plan (all sessions), without the app.
+
+    Each observer's plan is the one ``python -m experiment run`` makes for that participant id
+    (``make_plan`` seeded with ``participant_seed``), so simulated and app-run sessions show the
+    same stimuli in the same order.
+
+    Parameters
+    ----------
+    design : StudyDesign
+    observers : sequence of Observer
+        Participant ids must be distinct.
+    rng : numpy.random.Generator
+        Trial noise and response times.
+    calibration_id : str
+
+    Returns
+    -------
+    DataFrame
+        ``SESSION_COLUMNS``; one row per participant and stimulus, sorted by participant,
+        session and trial. ``onset_s`` is each session's cumulative time (rt + 0.5 s pause),
+        ``dropped_frames`` 0, ``app_version`` marks the rows as simulated.
+    """
+    ids = [o.participant for o in observers]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"observer participant ids repeat: {ids}")
+    start = datetime.now(UTC).replace(microsecond=0)
+    frames = []
+    for obs in observers:
+        if obs.slider != design.slider:
+            raise ValueError(f"observer {obs.participant} was made for another slider "
+                             f"({obs.slider}); pass design= to make_observer")
+        plan = _plan(design, obs.participant).drop(columns="seed")
+        gloss, depth = obs.respond_all(plan, rng)
+        plan["gloss_match"] = gloss
+        plan["depth_match"] = depth
+        plan["rt_s"] = obs.response_time_s(rng, len(plan))
+        onset = np.zeros(len(plan))
+        for idx in plan.groupby("session").indices.values():
+            gaps = plan["rt_s"].to_numpy()[idx] + _SIMULATED_ITI_S
+            onset[idx] = np.concatenate([[0.0], np.cumsum(gaps)[:-1]])
+        plan["onset_s"] = onset
+        plan["dropped_frames"] = 0
+        plan["timestamp_utc"] = [
+            (start + timedelta(seconds=float(t + r))).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
+            for t, r in zip(onset, plan["rt_s"])
+        ]
+        plan["app_version"] = f"{app_version()} simulate_dataset:{obs.kind}"
+        plan["calibration_id"] = calibration_id
+        frames.append(plan[list(SESSION_COLUMNS)])
+    out = pd.concat(frames, ignore_index=True)
+    return out.sort_values(["participant", "session", "trial"], ignore_index=True)
+
+
+def write_simulated_sessions(folder, design: StudyDesign, observers, rng: np.random.Generator,
+                             **kwargs) -> list[Path]:
+    """Simulate (see :func:`simulate_dataset`) and write ``folder/sessions/<p>_s<n>.csv``.
+
+    Existing session files are never overwritten: ``FileExistsError`` names the first one.
+    """
+    frame = simulate_dataset(design, observers, rng, **kwargs)
+    paths = []
+    for (who, session), rows in frame.groupby(["participant", "session"]):
+        path = session_path(folder, who, int(session))
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with open(path, "x", newline="", encoding="utf-8") as fh:
+            rows.to_csv(fh, index=False)
+        paths.append(path)
+    return paths
