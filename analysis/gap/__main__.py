@@ -33,7 +33,8 @@ def main(argv=None) -> int:
             print(f"observer: top-1 {r['top1']:.3f} (n={r['n_in']}), false attributions "
                   f"{r['false_attribution']:.3f} (n={r['n_none']}), unexplained for "
                   f"out-of-catalogue {r['unexplained_out']:.3f} (n={r['n_out']}), median shrinkage error "
-                  f"{100 * r['shrink_error']:.1f} % of the gap, seed {args.seed}")
+                  f"{100 * r['shrink_error']:.1f} % of the gap (90th percentile "
+                  f"{100 * r['shrink_error_p90']:.1f} %), seed {args.seed}")
             if args.layer == "all":
                 print("display, render: not built yet")
             return 0

@@ -14,6 +14,7 @@ from analysis.gap.observer import (
     observer_floor,
     observer_frame,
     observer_loss,
+    observer_unit_ids,
     split_observer,
 )
 
@@ -28,7 +29,7 @@ def diagnose_observer(real, sim, design, *, rng: np.random.Generator, seed: int,
     train, test = split_observer(real_u, rng)
     diag = diagnose_losses("observer", OBSERVER_CANDIDATES, train, test, observer_loss(train),
                            lambda d: observer_floor(d, sim_u), rng=rng, seed=seed,
-                           n_boot=n_boot)
+                           n_boot=n_boot, unit_ids=observer_unit_ids)
     return diag, localise_observer(real_u, design, rng, n_boot=min(n_boot, 500))
 
 

@@ -23,6 +23,8 @@ __all__ = [
     "observer_floor",
     "observer_frame",
     "observer_loss",
+    "observer_nll",
+    "observer_unit_ids",
     "split_observer",
 ]
 
@@ -114,6 +116,19 @@ def _nll(data: pd.DataFrame, fitted: list, sigma: dict | None = None) -> np.ndar
             dens = (1 - lam) * dens + lam / (hi - lo)
         total += -np.log(np.maximum(dens, 1e-300))
     return total
+
+
+def observer_nll(data: pd.DataFrame, fitted: list, sigma: dict) -> np.ndarray:
+    """Per-trial NLL (nats) of the simulation extended by ``fitted`` (a list of
+    ``(candidate name, params)``) at fixed noise SDs ``sigma`` ({'gloss', 'depth'}, slider
+    units), on a frame from :func:`observer_frame`."""
+    return _nll(data, fitted, sigma)
+
+
+def observer_unit_ids(data: pd.DataFrame) -> list[str]:
+    """Trial names ``participant|session|order`` (the held-out units of the diagnosis)."""
+    return [f"{p}|{s}|{o}" for p, s, o in
+            zip(data["participant"], data["session"], data["order"])]
 
 
 def _sigma(data: pd.DataFrame, fitted: list) -> dict:

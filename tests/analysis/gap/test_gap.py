@@ -103,3 +103,4 @@ def test_benchmark_targets():
     r = run_observer_benchmark(DESIGN, trials=24, seed=3, n_boot=400)
     assert r["false_attribution"] <= 0.34
     assert r["top1"] >= 0.8
+    assert r["shrink_error"] <= 0.10
