@@ -1,0 +1,294 @@
+"""HDR light probes: lat-long OpenEXR maps -> checked float32 arrays -> Mitsuba ``envmap`` emitters.
+
+EXRs are decoded with the OpenEXR package, never with Mitsuba's bundled decoder (which read some
+DWAB-compressed maps differently when tried). A probe is a linear-RGB equirectangular map, rows
+from the zenith (top) to the nadir, columns covering 360 deg of azimuth; Mitsuba's ``envmap``
+takes the same layout with +y up, which is the stimulus's up (the array hangs fronto-parallel like a
+picture on a wall, the sky above it).
+
+The two shipped probes (``stimuli/probes``, CC0 Poly Haven, see ``probes/LICENSE.txt``) are the
+design's default conditions; any lab probe (e.g. SYNS) is accepted by path.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from stimuli.errors import IlluminationError
+from stimuli.manifest import sha256_file
+
+__all__ = [
+    "NORMALISE_MODES",
+    "REC709_Y",
+    "SHIPPED_PROBES",
+    "LightProbe",
+    "load_light_probe",
+    "luminance",
+    "probe_path",
+    "read_exr",
+    "rotate_latlong",
+    "solid_angle_weights",
+    "write_exr",
+]
+
+#: Folder of the light probes shipped with the package.
+SHIPPED_PROBES = Path(__file__).resolve().parent / "probes"
+#: CIE Y from linear Rec. 709 / sRGB primaries (D65), ITU-R BT.709-6 item 3.2.
+REC709_Y = (0.2126, 0.7152, 0.0722)
+#: Intensity normalisations: none, or scale so the solid-angle-weighted mean luminance = target.
+NORMALISE_MODES = ("none", "mean_luminance")
+#: Negative values down to this fraction of the mean |value| are compression ringing, set to 0.
+NEGATIVE_TOLERANCE = 1e-3
+
+
+def probe_path(name_or_path: str | os.PathLike) -> Path:
+    """Resolve a probe given by path, or by file name among :data:`SHIPPED_PROBES`.
+
+    Raises
+    ------
+    IlluminationError
+        If neither exists; the message lists the shipped probes.
+    """
+    p = Path(name_or_path)
+    if p.is_file():
+        return p
+    shipped = SHIPPED_PROBES / p.name
+    if not p.parent.parts and shipped.is_file():
+        return shipped
+    have = sorted(f.name for f in SHIPPED_PROBES.glob("*.exr"))
+    raise IlluminationError(
+        f"light probe {str(name_or_path)!r} not found (neither a file nor one of the shipped probes "
+        f"{have} in {SHIPPED_PROBES}); give the path of a lat-long OpenEXR file"
+    )
+
+
+def read_exr(path: str | os.PathLike) -> np.ndarray:
+    """Read an OpenEXR image with the OpenEXR package.
+
+    Parameters
+    ----------
+    path : path-like
+        An RGB (or single-channel Y) OpenEXR file.
+
+    Returns
+    -------
+    ndarray, shape (height, width, 3) or (height, width), float32
+        Linear values as stored (RGB when the file has R, G, B; else its single channel).
+
+    Raises
+    ------
+    IlluminationError
+        If the file is missing, not an OpenEXR file, truncated/corrupt, or lacks RGB/Y channels.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    if not path.is_file():
+        raise IlluminationError(f"EXR file {path} does not exist; check the path")
+    with open(path, "rb") as fh:
+        magic = fh.read(4)
+    if magic != b"\x76\x2f\x31\x01":
+        raise IlluminationError(
+            f"{path} is not an OpenEXR file (bad magic number); convert it to OpenEXR "
+            "(e.g. `oiiotool in.hdr -o out.exr`)")
+    try:
+        with OpenEXR.File(str(path), separate_channels=True) as f:
+            channels = {name: np.asarray(ch.pixels) for name, ch in f.channels().items()}
+    except Exception as exc:  # the OpenEXR binding raises RuntimeError/ValueError with C++ text
+        raise IlluminationError(
+            f"cannot decode EXR {path} ({exc}); the file is truncated or corrupt: re-copy or "
+            "re-export it") from exc
+    names = set(channels)
+    if {"R", "G", "B"} <= names:
+        out = np.stack([channels[c] for c in ("R", "G", "B")], axis=-1)
+    elif "Y" in names:
+        out = channels["Y"]
+    elif len(names) == 1:
+        out = next(iter(channels.values()))
+    else:
+        raise IlluminationError(
+            f"EXR {path} has channels {sorted(names)}; expected R, G, B (or a single Y channel)")
+    return np.ascontiguousarray(out, dtype=np.float32)
+
+
+def write_exr(path: str | os.PathLike, image: np.ndarray) -> Path:
+    """Write a float32 OpenEXR (ZIP, lossless) atomically: a temporary file, then ``os.replace``.
+
+    Parameters
+    ----------
+    path : path-like
+        Destination ``.exr``.
+    image : ndarray, shape (h, w) or (h, w, 3)
+        Linear values; (h, w) is written as channel Y, (h, w, 3) as R, G, B.
+
+    Returns
+    -------
+    Path
+        ``path``. An interrupted write leaves at most a ``*.tmp-*.exr`` file, never ``path``.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    image = np.ascontiguousarray(image, dtype=np.float32)
+    if image.ndim == 2:
+        channels = {"Y": image}
+    elif image.ndim == 3 and image.shape[2] == 3:
+        channels = {c: np.ascontiguousarray(image[..., i]) for i, c in enumerate("RGB")}
+    else:
+        raise ValueError(f"write_exr needs shape (h, w) or (h, w, 3), got {image.shape}")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.exr")
+    try:
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(tmp))
+        with open(tmp, "rb") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+    return path
+
+
+def luminance(rgb: np.ndarray) -> np.ndarray:
+    """CIE Y of linear Rec. 709 RGB, shape (..., 3) -> (...); same units as the input."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim < 1 or rgb.shape[-1] != 3:
+        raise ValueError(f"luminance needs a last axis of 3 (R, G, B), got shape {rgb.shape}")
+    return rgb @ np.asarray(REC709_Y, dtype=rgb.dtype if rgb.dtype.kind == "f" else float)
+
+
+def solid_angle_weights(height: int, width: int) -> np.ndarray:
+    """Solid angle (sr) of each pixel of a lat-long map, shape (height, width); sums to 4 pi."""
+    theta_edges = np.linspace(0.0, np.pi, height + 1)
+    band = np.cos(theta_edges[:-1]) - np.cos(theta_edges[1:])
+    return np.repeat((band * 2 * np.pi / width)[:, None], width, axis=1)
+
+
+def rotate_latlong(image: np.ndarray, degrees: float) -> np.ndarray:
+    """Rotate a lat-long map about the vertical axis by ``degrees`` of azimuth (new array).
+
+    Whole-pixel shifts are exact (a column roll); fractional shifts interpolate linearly between
+    neighbouring columns with wrap-around.
+    """
+    w = image.shape[1]
+    shift = (float(degrees) / 360.0) * w
+    k = int(np.floor(shift))
+    frac = shift - k
+    a = np.roll(image, k, axis=1)
+    if frac < 1e-9:
+        return a.copy()
+    b = np.roll(image, k + 1, axis=1)
+    return ((1.0 - frac) * a + frac * b).astype(image.dtype)
+
+
+@dataclass(frozen=True)
+class LightProbe:
+    """A checked light probe ready to light a scene.
+
+    Attributes
+    ----------
+    name : str
+        File name of the probe (e.g. ``interior.exr``).
+    path : str
+        Where it was read from.
+    sha256 : str
+        Checksum of the file, recorded with the renders.
+    rgb : ndarray, shape (h, w, 3), float32
+        Linear RGB radiance after rotation and scaling (relative units).
+    rotation_deg : float
+        Azimuthal rotation applied, degrees.
+    scale : float
+        Factor applied to the file's values.
+    n_clamped : int
+        Values within rounding of 0 but negative (compression ringing) that were set to 0.
+    """
+
+    name: str
+    path: str
+    sha256: str
+    rgb: np.ndarray
+    rotation_deg: float
+    scale: float
+    n_clamped: int = 0
+
+    @property
+    def luminance(self) -> np.ndarray:
+        """CIE Y of the map, shape (h, w)."""
+        return luminance(self.rgb)
+
+    def emitter(self) -> dict:
+        """A Mitsuba ``envmap`` emitter dict built from the in-memory bitmap (needs a variant set)."""
+        import mitsuba as mi
+
+        return {"type": "envmap", "bitmap": mi.Bitmap(self.rgb)}
+
+
+def load_light_probe(
+    name_or_path: str | os.PathLike,
+    *,
+    rotation_deg: float = 0.0,
+    normalise: str = "mean_luminance",
+    target: float = 1.0,
+) -> LightProbe:
+    """Read, check, rotate and scale a lat-long HDR light probe.
+
+    Parameters
+    ----------
+    name_or_path : str or path-like
+        A file, or the name of a shipped probe (``interior.exr``).
+    rotation_deg : float
+        Azimuthal rotation about the vertical axis, degrees.
+    normalise : {"none", "mean_luminance"}
+        "mean_luminance" scales the map so its solid-angle-weighted mean CIE Y equals ``target``
+        (probes of different exposure then light the stimulus comparably; the per-condition tone
+        map sets the final display range anyway).
+    target : float
+        Mean luminance after normalisation (relative units), > 0.
+
+    Raises
+    ------
+    IlluminationError
+        Missing/corrupt file, not 2:1 lat-long, NaN/Inf/negative radiance, all-black map.
+    """
+    if normalise not in NORMALISE_MODES:
+        raise ValueError(f"normalise={normalise!r}; choose one of {list(NORMALISE_MODES)}")
+    if not target > 0:
+        raise ValueError(f"target mean luminance must be > 0, got {target}")
+    path = probe_path(name_or_path)
+    img = read_exr(path)
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    h, w = img.shape[:2]
+    if w != 2 * h:
+        raise IlluminationError(
+            f"light probe {path} is {w} x {h} px; a lat-long map is twice as wide as high "
+            "(convert cube maps or mirror-ball images to equirectangular first)")
+    bad = ~np.isfinite(img)
+    if bad.any():
+        raise IlluminationError(
+            f"light probe {path} holds {int(bad.any(axis=-1).sum())} pixels of NaN/Inf radiance; "
+            "fill or clamp them (e.g. `oiiotool in.exr --fixnan box3 -o out.exr`)")
+    # Lossy-compressed probes ring slightly below 0 near dark edges: values within
+    # NEGATIVE_TOLERANCE of the mean are set to 0 (counted in LightProbe.n_clamped); larger
+    # negatives mean a broken file.
+    tol = NEGATIVE_TOLERANCE * float(np.mean(np.abs(img)))
+    if (img < -tol).any():
+        raise IlluminationError(
+            f"light probe {path} holds negative radiance (min {img.min():.3g}); clamp at 0 "
+            "(`oiiotool in.exr --clamp:min=0 -o out.exr`)")
+    n_clamped = int((img < 0).sum())
+    img = np.maximum(img, 0.0)
+    y = luminance(img)
+    mean_y = float(np.sum(y * solid_angle_weights(h, w)) / (4 * np.pi))
+    if not mean_y > 0:
+        raise IlluminationError(f"light probe {path} is black (mean luminance 0); check the file")
+    scale = target / mean_y if normalise == "mean_luminance" else 1.0
+    rgb = (rotate_latlong(img, rotation_deg) if rotation_deg else img) * np.float32(scale)
+    return LightProbe(name=path.name, path=str(path), sha256=sha256_file(path),
+                      rgb=rgb.astype(np.float32), rotation_deg=float(rotation_deg), scale=scale,
+                      n_clamped=n_clamped)

@@ -1,0 +1,179 @@
+"""Mitsuba 3 set-up: the LLVM variant, the libLLVM it needs, and a smoke-test render.
+
+Mitsuba's LLVM variants JIT-compile every render into one vectorised CPU kernel; the Python Ward
+BSDF (:mod:`stimuli.ward`) is traced into that kernel, so it runs as fast as the built-in C++ BSDFs.
+Dr.Jit loads libLLVM at run time. libLLVM 15 and 16 let the variant load and then abort the whole
+process at the first kernel that uses ``dr.maximum`` ("LLVM ERROR: Cannot select: fmaximum"), which
+no ``try`` can catch. So :func:`setup_mitsuba` checks the library's version *before* Dr.Jit loads it
+(from ``DRJIT_LIBLLVM_PATH``, or the newest libLLVM >= 17 found in the system library folders) and
+then renders a tiny scene with the Ward BSDF; any failure raises :class:`MitsubaSetupError` naming
+the fix (``apt-get install libllvm19`` and ``export DRJIT_LIBLLVM_PATH=...``).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from stimuli.errors import MitsubaSetupError
+
+__all__ = [
+    "LLVM_VARIANTS",
+    "MIN_LLVM_MAJOR",
+    "find_libllvm",
+    "libllvm_major",
+    "setup_mitsuba",
+]
+
+#: Variants tried in order: spectral (as the seed rendered), then RGB.
+LLVM_VARIANTS = ("llvm_ad_spectral", "llvm_ad_rgb")
+#: Oldest libLLVM that compiles Dr.Jit's kernels (15 and 16 abort at ``dr.maximum``).
+MIN_LLVM_MAJOR = 17
+_LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
+             "/usr/local/lib")
+_FIX = ("install LLVM >= 17 (Debian/Ubuntu: `sudo apt-get install libllvm19`, which `make` does) "
+        "and point Dr.Jit at it: `export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1`")
+
+_state: dict = {}
+
+
+def libllvm_major(path: str | Path) -> int | None:
+    """LLVM major version from a library file name (``libLLVM.so.19.1``, ``libLLVM-15.so``).
+
+    Follows symbolic links first. Returns None when the name carries no version.
+    """
+    real = Path(os.path.realpath(path)).name
+    for name in (real, Path(path).name):
+        m = re.search(r"libLLVM[-.](?:so\.)?(\d+)", name)
+        if m:
+            return int(m.group(1))
+    return None
+
+
+def find_libllvm() -> Path | None:
+    """The newest ``libLLVM`` >= :data:`MIN_LLVM_MAJOR` in the system library folders, or None."""
+    best: tuple[int, Path] | None = None
+    for d in _LIB_DIRS:
+        folder = Path(d)
+        if not folder.is_dir():
+            continue
+        for f in folder.glob("libLLVM*.so*"):
+            major = libllvm_major(f)
+            if major is not None and major >= MIN_LLVM_MAJOR and (best is None or major > best[0]):
+                best = (major, f)
+    return None if best is None else best[1]
+
+
+def _check_llvm_path() -> str:
+    """Make ``DRJIT_LIBLLVM_PATH`` point at a libLLVM >= 17 before Dr.Jit loads one."""
+    path = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if path:
+        if not Path(path).is_file():
+            raise MitsubaSetupError(f"DRJIT_LIBLLVM_PATH={path} is not a file; {_FIX}")
+        major = libllvm_major(path)
+        if major is not None and major < MIN_LLVM_MAJOR:
+            raise MitsubaSetupError(
+                f"DRJIT_LIBLLVM_PATH={path} is LLVM {major}; Mitsuba's LLVM variants abort with "
+                f"'Cannot select: fmaximum' on LLVM < {MIN_LLVM_MAJOR}; {_FIX}"
+            )
+        return path
+    found = find_libllvm()
+    if found is None:
+        raise MitsubaSetupError(
+            f"no libLLVM >= {MIN_LLVM_MAJOR} found in {list(_LIB_DIRS)} and DRJIT_LIBLLVM_PATH is "
+            f"unset (the system default libLLVM 15/16 aborts Mitsuba's kernels); {_FIX}"
+        )
+    os.environ["DRJIT_LIBLLVM_PATH"] = str(found)
+    return str(found)
+
+
+def _smoke_test() -> None:
+    """Render an 8 x 8 image of a Ward sphere under a constant sky; it must be finite and > 0."""
+    import drjit as dr
+    import mitsuba as mi
+    import numpy as np
+
+    scene = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": 3},
+        "sensor": {"type": "perspective", "fov": 30.0,
+                   "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0],
+                                                               up=[0, 1, 0]),
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "pixel_format": "rgb"},
+                   "sampler": {"type": "multijitter", "sample_count": 4}},
+        "emitter": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
+        "shape": {"type": "sphere", "bsdf": {"type": "ward", "rho_d": 0.3, "rho_s": 0.2,
+                                              "alpha": 0.1}},
+    })
+    img = np.asarray(mi.render(scene))
+    dr.sync_thread()
+    if img.shape != (8, 8, 3) or not np.all(np.isfinite(img)) or not img.max() > 0:
+        raise MitsubaSetupError(
+            f"Mitsuba smoke-test render gave an image of shape {img.shape}, max "
+            f"{np.nanmax(img) if img.size else 'n/a'} (expected finite, > 0); {_FIX}"
+        )
+
+
+def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str:
+    """Select a Mitsuba LLVM variant, register the Ward BSDF, and smoke-test a tiny render.
+
+    Idempotent within a process (a Dask worker calls it once per process).
+
+    Parameters
+    ----------
+    variant : str, optional
+        One of :data:`LLVM_VARIANTS` (or any Mitsuba variant, e.g. ``"scalar_rgb"`` for tests);
+        default: the first of :data:`LLVM_VARIANTS` that this Mitsuba build has.
+    smoke_test : bool
+        Render an 8 x 8 test image the first time (about a second).
+
+    Returns
+    -------
+    str
+        The variant in use; record it with every render.
+
+    Raises
+    ------
+    MitsubaSetupError
+        If Mitsuba is not installed, libLLVM is older than 17 or absent, the variant is missing, or
+        the smoke-test render fails; the message names the fix.
+    """
+    if _state.get("variant") and (variant is None or variant == _state["variant"]):
+        if smoke_test and not _state.get("smoke_tested"):
+            _smoke_test()
+            _state["smoke_tested"] = True
+        return _state["variant"]
+    try:
+        import mitsuba as mi
+    except ImportError as exc:
+        raise MitsubaSetupError(
+            f"cannot import mitsuba ({exc}); install the project (`make venv`)") from exc
+    wanted = [variant] if variant else list(LLVM_VARIANTS)
+    if any(v.startswith("llvm") for v in wanted):
+        _check_llvm_path()
+    available = mi.variants()
+    chosen = next((v for v in wanted if v in available), None)
+    if chosen is None:
+        raise MitsubaSetupError(
+            f"Mitsuba {mi.__version__} has none of the variants {wanted} (it has {available}); "
+            "install the PyPI `mitsuba` wheel, which ships the LLVM variants"
+        )
+    try:
+        mi.set_variant(chosen)
+    except Exception as exc:  # Dr.Jit raises a plain RuntimeError when libLLVM will not load
+        raise MitsubaSetupError(f"Mitsuba variant {chosen} failed to load: {exc}; {_FIX}") from exc
+    from stimuli.ward import register_ward
+
+    register_ward()
+    _state.clear()
+    _state["variant"] = chosen
+    if smoke_test:
+        try:
+            _smoke_test()
+        except MitsubaSetupError:
+            raise
+        except Exception as exc:
+            raise MitsubaSetupError(f"Mitsuba smoke-test render failed: {exc}; {_FIX}") from exc
+        _state["smoke_tested"] = True
+    return chosen
