@@ -1,0 +1,111 @@
+"""``python -m analysis imagestats``: image statistics of a render folder, and their relation to
+perceived gloss.
+
+    python -m analysis imagestats RENDER_DIR --out stats.parquet [--workers N | --scheduler ADDR]
+    python -m analysis imagestats relate stats.parquet --sessions DATA_DIR --out REPORT_DIR
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+from studydesign import DesignError, load_design
+
+_USAGE = __doc__.split("\n\n", 1)[1]
+
+
+def _compute_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m analysis imagestats",
+        description="Per-image statistics (mean luminance, RMS contrast, skewness, kurtosis, "
+        "highlight coverage, Portilla-Simoncelli) of every image a render folder's manifest "
+        "lists, on the array square of the EXR luminance, into one Parquet table. Resumable: "
+        "images already in --out are skipped. Second form: `imagestats relate --help`.",
+        epilog=_USAGE, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("render_dir", help="folder with manifest.csv (python -m stimuli render)")
+    p.add_argument("--out", required=True, help="the Parquet table (created or resumed)")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=2,
+                       help="worker processes of a local Dask cluster (default 2)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="use an existing Dask cluster (tcp://host:8786)")
+    p.add_argument("--batch-size", type=int, default=64, metavar="B",
+                   help="images per Dask task and per saved part (default 64)")
+    p.add_argument("--no-ps", action="store_true",
+                   help="pixel statistics only, no Portilla-Simoncelli statistics")
+    p.add_argument("--highlight-factor", type=float, default=2.0,
+                   help="highlight threshold as a multiple of the diffuse (median) level "
+                   "(default 2)")
+    p.add_argument("--design", help="a design.toml (default: the shipped one)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def _relate_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m analysis imagestats relate",
+        description="Which statistics change with depth at fixed gloss, regression of perceived "
+        "gloss on the statistics, the image-statistics observer model, figures over the "
+        "gloss x depth grid; an HTML report in --out (never overwritten).")
+    p.add_argument("stats", help="a table from `python -m analysis imagestats`")
+    p.add_argument("--sessions", metavar="DATA_DIR",
+                   help="data folder with sessions/*.csv (without it: no perception analyses)")
+    p.add_argument("--out", required=True, help="report folder (must not hold an index.html)")
+    p.add_argument("--n-boot", type=int, default=1000, help="bootstrap resamples for CIs")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
+    p.add_argument("--design", help="a design.toml (default: the shipped one)")
+    return p
+
+
+def _compute(argv: list[str]) -> int:
+    from analysis.imagestats.config import StatsConfig
+    from analysis.imagestats.images import ImageStatsError
+    from analysis.imagestats.run import compute_stats, problems_path
+
+    args = _compute_parser().parse_args(argv)
+    try:
+        config = StatsConfig(highlight_factor=args.highlight_factor, ps=not args.no_ps)
+        run = compute_stats(args.render_dir, args.out, design=load_design(args.design),
+                            config=config, workers=args.workers, scheduler=args.scheduler,
+                            batch_size=args.batch_size, progress=not args.quiet)
+    except (ImageStatsError, DesignError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"{run.path}: {run.n_images} images in the manifest, {run.n_skipped} already done, "
+          f"{run.n_computed} computed on {run.workers} workers in {run.seconds:.1f} s")
+    if run.problems:
+        print(f"error: {len(run.problems)} problems (also in {problems_path(run.path)}):",
+              file=sys.stderr)
+        for item, message in run.problems:
+            print(f"  {item}: {message}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _relate(argv: list[str]) -> int:
+    from analysis.imagestats.images import ImageStatsError
+    from analysis.imagestats.report import ReportExistsError, build_relate_report
+    from analysis.load import SessionDataError
+
+    args = _relate_parser().parse_args(argv)
+    try:
+        index = build_relate_report(args.stats, args.out, load_design(args.design),
+                                    data_dir=args.sessions, n_boot=args.n_boot, seed=args.seed)
+    except (ImageStatsError, ReportExistsError, SessionDataError, DesignError,
+            ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"report: {index}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] == "relate":
+        return _relate(argv[1:])
+    return _compute(argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

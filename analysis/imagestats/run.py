@@ -1,0 +1,235 @@
+"""Compute the statistics of every image of a render folder on Dask, resumably.
+
+`compute_stats` reads the folder's manifest, checks it against the files, skips images already in
+the output, sends the rest in batches to Dask (a ``LocalCluster`` by default, or an existing
+cluster's scheduler) and writes each finished batch at once (see `analysis.imagestats.store`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from analysis.imagestats.config import StatsConfig
+from analysis.imagestats.images import ImageStatsError
+from analysis.imagestats.measure import measure_batch
+from analysis.imagestats.store import consolidate, discard_parts, read_done, start, write_part
+from stimuli import MANIFEST_COLUMNS, ManifestError, load_manifest
+from studydesign import StudyDesign
+
+__all__ = ["StatsRun", "compute_stats", "dask_client", "problems_path"]
+
+
+@dataclass(frozen=True)
+class StatsRun:
+    """What a `compute_stats` call did.
+
+    Attributes
+    ----------
+    path : Path
+        The statistics table (absent when no image could be measured).
+    n_images : int
+        Images in the manifest.
+    n_skipped : int
+        Images already in the table before this run (not recomputed).
+    n_computed : int
+        Images measured by this run.
+    problems : tuple of (str, str)
+        ``(stimulus_id or file, message)`` for every image that could not be measured and every
+        file the manifest does not list; also written to `problems_path`.
+    seconds : float
+        Wall time of the run.
+    workers : int
+        Dask workers used (0 when nothing was left to compute).
+    """
+
+    path: Path
+    n_images: int
+    n_skipped: int
+    n_computed: int
+    problems: tuple
+    seconds: float
+    workers: int
+
+    @property
+    def ok(self) -> bool:
+        return not self.problems
+
+
+def problems_path(out: Path) -> Path:
+    """Where a run lists the images it could not measure: ``<out>.problems.csv``."""
+    return out.with_name(out.name + ".problems.csv")
+
+
+@contextlib.contextmanager
+def dask_client(*, workers: int = 2, scheduler: str | None = None):
+    """A Dask client: on an existing scheduler, or on a new ``LocalCluster`` closed on exit.
+
+    The local cluster runs ``workers`` processes of one thread each (PyTorch and NumPy hold the
+    GIL for parts of the work, so processes scale where threads would not).
+    """
+    from distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise ImageStatsError(
+                f"cannot reach the Dask scheduler at {scheduler} ({exc}); start one "
+                "(`dask scheduler`, then `dask worker ADDRESS`) or leave out --scheduler"
+            ) from exc
+        with client:
+            yield client
+        return
+    if workers < 1:
+        raise ImageStatsError(f"--workers {workers}: use at least 1")
+    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+            Client(cluster) as client:
+        yield client
+
+
+def _folder_problems(manifest: pd.DataFrame, root: Path) -> list[tuple[str, str]]:
+    """Files the manifest and the folder disagree on (missing EXRs are found when read)."""
+    problems = []
+    listed = {os.path.normpath(root / str(p)) for p in manifest["exr_path"]}
+    listed |= {os.path.normpath(root / str(p)) for p in manifest["png_path"]}
+    for path in sorted(root.rglob("*.exr")):
+        if not any(part.startswith(".") for part in path.relative_to(root).parts) and \
+                os.path.normpath(path) not in listed:
+            message = (f"{path} is in the render folder but not in its manifest; re-render "
+                       "the set or move the file out")
+            problems.append((str(path.relative_to(root)), message))
+    for row in manifest.itertuples(index=False):
+        png = root / str(row.png_path)
+        if not png.is_file():
+            message = f"{png} (listed in the manifest) is missing; re-render it"
+            problems.append((row.stimulus_id, message))
+    return problems
+
+
+def _check_done(done: pd.DataFrame, manifest: pd.DataFrame, out: Path) -> None:
+    if not len(done):
+        return
+    known = manifest.set_index("stimulus_id")["exr_sha256"]
+    stray = sorted(set(done["stimulus_id"]) - set(known.index))
+    if stray:
+        raise ImageStatsError(
+            f"{out} holds statistics of {len(stray)} images not in this manifest ({stray[:3]}); "
+            "it belongs to another render folder: write to a new --out"
+        )
+    changed = done["exr_sha256"].astype(str).to_numpy() != \
+        known.loc[done["stimulus_id"]].astype(str).to_numpy()
+    if changed.any():
+        ids = done["stimulus_id"][changed].tolist()
+        raise ImageStatsError(
+            f"{out} holds statistics of {len(ids)} images computed from other files than the "
+            f"manifest now lists ({ids[:3]}; the EXR checksums differ): write to a new --out"
+        )
+
+
+def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesign,
+                  config: StatsConfig | None = None, workers: int = 2,
+                  scheduler: str | None = None, batch_size: int = 64,
+                  progress: bool = True) -> StatsRun:
+    """Statistics of every image a render folder's manifest lists, into one Parquet table.
+
+    Parameters
+    ----------
+    render_dir : path-like
+        Folder holding ``manifest.csv`` and the files it lists (``python -m stimuli render``).
+    out : path-like
+        The Parquet table. If it exists (or an interrupted run left ``<out>.partial``), images
+        already in it are skipped; it must have been made with the same options.
+    design : StudyDesign
+        Gives the array square (``array.extent_cm``) the statistics are computed on.
+    config : StatsConfig, optional
+        Highlight threshold and Portilla-Simoncelli options.
+    workers : int
+        Worker processes of the local Dask cluster (ignored with ``scheduler``).
+    scheduler : str, optional
+        Address of an existing Dask scheduler (``tcp://host:8786``); its workers must see
+        ``render_dir`` and ``out`` at the same paths.
+    batch_size : int
+        Images per Dask task and per part file (a kill loses at most the batches in flight).
+    progress : bool
+        Show a progress bar (tqdm) on stderr.
+
+    Returns
+    -------
+    StatsRun
+        Counts, timing, and every problem per image (also in `problems_path`).
+
+    Raises
+    ------
+    ImageStatsError
+        If the manifest is missing or malformed, or ``out`` was made with other options or from
+        other files.
+    """
+    from tqdm import tqdm
+
+    t0 = time.perf_counter()
+    config = StatsConfig() if config is None else config
+    root = Path(render_dir).resolve()
+    out = Path(out).resolve()
+    if batch_size < 1:
+        raise ImageStatsError(f"--batch-size {batch_size}: use at least 1")
+    try:
+        manifest = load_manifest(root)
+    except ManifestError as exc:
+        raise ImageStatsError(str(exc)) from exc
+    meta = {"config": asdict(config), "extent_cm": float(design.array.extent_cm),
+            "image": "exr_luminance", "region": "array_square"}
+    start(out, meta)
+    done = read_done(out)
+    _check_done(done, manifest, out)
+    problems = _folder_problems(manifest, root)
+    todo = manifest[~manifest["stimulus_id"].isin(set(done["stimulus_id"]))]
+    records = [
+        {k: (None if pd.isna(v) else v) for k, v in row.items()}
+        for row in todo[list(MANIFEST_COLUMNS)].to_dict(orient="records")
+    ]
+    batches = [records[i:i + batch_size] for i in range(0, len(records), batch_size)]
+    n_computed, n_workers = 0, 0
+    if batches:
+        from distributed import as_completed
+
+        with dask_client(workers=workers, scheduler=scheduler) as client, \
+                tqdm(total=len(records), unit="img", desc="image statistics",
+                     disable=not progress) as bar:
+            n_workers = len(client.scheduler_info(n_workers=-1)["workers"])
+            futures = [client.submit(measure_batch, batch, str(root),
+                                     float(design.array.extent_cm), config.to_json(),
+                                     pure=False) for batch in batches]
+            for future in as_completed(futures):
+                batch_records, batch_problems = future.result()
+                if batch_records:
+                    write_part(out, batch_records)
+                n_computed += len(batch_records)
+                problems += batch_problems
+                bar.update(len(batch_records) + len(batch_problems))
+                future.release()
+    stats_columns = list(MANIFEST_COLUMNS)
+    if len(done) + n_computed:
+        consolidate(out, meta, stats_columns)
+    else:
+        discard_parts(out)
+    _write_problems(problems_path(out), problems)
+    return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),
+                    n_computed=n_computed, problems=tuple(problems),
+                    seconds=time.perf_counter() - t0, workers=n_workers)
+
+
+def _write_problems(path: Path, problems: list[tuple[str, str]]) -> None:
+    if not problems:
+        path.unlink(missing_ok=True)
+        return
+    tmp = path.with_name(f".{path.name}.tmp")
+    pd.DataFrame(problems, columns=["item", "problem"]).to_csv(tmp, index=False)
+    os.replace(tmp, path)

@@ -1,0 +1,144 @@
+"""`python -m analysis imagestats RENDER_DIR --out FILE` on real EXR/PNG files and manifests:
+known statistics, bad input listed per image, a kill and a resume, 1 vs 2 Dask workers."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from analysis.imagestats import compute_stats, load_stats, problems_path
+from analysis.imagestats.__main__ import main
+from stimuli import MANIFEST_COLUMNS, load_manifest, sha256_file
+from tests.analysis.imagestats.renders import expected_stats, write_exr, write_render_set
+
+REPO = Path(__file__).resolve().parents[3]
+
+
+def _check_known(frame: pd.DataFrame, params: dict) -> None:
+    assert sorted(frame["stimulus_id"]) == sorted(params)
+    for row in frame.itertuples(index=False):
+        for name, value in expected_stats(*params[row.stimulus_id]).items():
+            assert getattr(row, name) == pytest.approx(value, rel=1e-6), (row.stimulus_id, name)
+
+
+def test_cli_computes_known_statistics_keyed_by_the_manifest(tmp_path, rng, capsys):
+    params = write_render_set(tmp_path / "r", rng, n_images=5)
+    out = tmp_path / "stats.parquet"
+    args = [str(tmp_path / "r"), "--out", str(out), "--workers", "1", "--batch-size", "2",
+            "--quiet"]
+    assert main(args) == 0
+    frame = load_stats(out)
+    _check_known(frame, params)
+    manifest = load_manifest(tmp_path / "r").set_index("stimulus_id")
+    keyed = frame.set_index("stimulus_id").loc[manifest.index]
+    for col in MANIFEST_COLUMNS[1:]:
+        assert (keyed[col].astype(str) == manifest[col].astype(str)).all(), col
+    assert sum(c.startswith("ps_") for c in frame.columns) == 710
+    assert frame.attrs["imagestats"]["config"]["highlight_factor"] == 2.0
+    assert not (tmp_path / "stats.parquet.partial").exists()
+    # a second run finds everything done and changes nothing
+    before = sha256_file(out)
+    assert main(args) == 0
+    assert "5 already done, 0 computed" in capsys.readouterr().out
+    assert sha256_file(out) == before
+    # other options on the same table are refused
+    assert main(args + ["--no-ps"]) == 1
+    assert "other options" in capsys.readouterr().err
+
+
+def _rewrite_manifest(folder: Path, sid: str, **changes) -> None:
+    manifest = pd.read_csv(folder / "manifest.csv", dtype=str)
+    for col, value in changes.items():
+        manifest.loc[manifest["stimulus_id"] == sid, col] = value
+    manifest.to_csv(folder / "manifest.csv", index=False)
+
+
+def test_bad_input_is_listed_per_image_never_skipped(tmp_path, rng, capsys):
+    folder = tmp_path / "r"
+    params = write_render_set(folder, rng, n_images=7)
+    sids = sorted(params)
+    nan_img = np.ones((144, 160), np.float32)
+    nan_img[70, 80] = np.nan
+    write_exr(folder / "exr" / f"{sids[0]}.exr", nan_img)
+    _rewrite_manifest(folder, sids[0], exr_sha256=sha256_file(folder / "exr" / f"{sids[0]}.exr"))
+    (folder / "exr" / f"{sids[1]}.exr").write_bytes(b"not an exr")
+    _rewrite_manifest(folder, sids[1], exr_sha256=sha256_file(folder / "exr" / f"{sids[1]}.exr"))
+    (folder / "exr" / f"{sids[2]}.exr").unlink()
+    with open(folder / "exr" / f"{sids[3]}.exr", "ab") as fh:
+        fh.write(b"\0")
+    write_exr(folder / "exr" / "stray.exr", np.ones((144, 160), np.float32))
+    (folder / "png" / f"{sids[4]}.png").unlink()
+    expected = {
+        sids[0]: "NaN or Inf", sids[1]: "not a readable OpenEXR", sids[2]: "is missing",
+        sids[3]: "does not match its checksum", "exr/stray.exr": "not in its manifest",
+        sids[4]: "png is missing" if False else "is missing",
+    }
+    out = tmp_path / "stats.parquet"
+    args = [str(folder), "--out", str(out), "--workers", "1", "--quiet", "--no-ps"]
+    for attempt in range(2):  # the second run lists the same problems again
+        assert main(args) == 1
+        err = capsys.readouterr().err
+        listed = pd.read_csv(problems_path(out))
+        for item, message in expected.items():
+            assert any(message in line for line in err.splitlines() if item in line), item
+            assert listed["problem"][listed["item"] == item].str.contains(message).any(), item
+        assert f"{len(listed)} problems" in err and len(listed) == len(expected)
+    # the images that could be measured are in the table (sids[4] lacks only its PNG)
+    _check_known(load_stats(out), {s: params[s] for s in sids[4:]})
+
+
+def test_missing_manifest_is_a_clear_error(tmp_path, capsys):
+    assert main([str(tmp_path), "--out", str(tmp_path / "s.parquet"), "--quiet"]) == 1
+    assert "manifest" in capsys.readouterr().err
+
+
+def test_a_killed_run_resumes_without_losing_finished_batches(tmp_path, rng):
+    folder = tmp_path / "r"
+    params = write_render_set(folder, rng, n_images=40)
+    out = tmp_path / "stats.parquet"
+    parts = tmp_path / "stats.parquet.partial"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
+         "--workers", "1", "--batch-size", "2", "--quiet"],
+        cwd=REPO, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE)
+    deadline = time.monotonic() + 120
+    while not list(parts.glob("part-*.parquet")):
+        assert proc.poll() is None, proc.stderr.read().decode()
+        assert time.monotonic() < deadline, "no batch was written within 120 s"
+        time.sleep(0.005)
+    os.killpg(proc.pid, signal.SIGKILL)  # the CLI and its Dask workers
+    proc.wait()
+    assert not out.exists(), "the run finished before the kill; the test proves nothing"
+    survived = pd.concat([pd.read_parquet(p) for p in parts.glob("part-*.parquet")])
+    assert len(survived) >= 2 and len(survived) % 2 == 0
+    run = compute_stats(folder, out, design=_design(), workers=1, batch_size=8, progress=False)
+    assert run.ok and run.n_skipped == len(survived) and run.n_computed == 40 - len(survived)
+    frame = load_stats(out)
+    assert frame["stimulus_id"].is_unique
+    _check_known(frame, params)
+    assert not parts.exists()
+
+
+def _design():
+    from studydesign import load_design
+
+    return load_design()
+
+
+def test_one_and_two_dask_workers_give_the_same_table(tmp_path, rng, design):
+    write_render_set(tmp_path / "r", rng, n_images=6)
+    runs = [compute_stats(tmp_path / "r", tmp_path / f"w{n}.parquet", design=design, workers=n,
+                          batch_size=2, progress=False) for n in (1, 2)]
+    assert [r.workers for r in runs] == [1, 2]
+    one, two = (load_stats(r.path).drop(columns="stats_s") for r in runs)
+    pd.testing.assert_frame_equal(one, two, check_exact=True)
