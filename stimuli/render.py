@@ -1,0 +1,194 @@
+"""Rendering one stimulus: camera geometry, the Mitsuba scene (built once), luminance images.
+
+Camera (protocol.md, "Stimuli"): the array lies in the plane z = 0, bumps towards the viewer, and a
+pinhole camera sits on the z axis at the viewing distance ``D`` (the calibration's, 55 cm by
+design) looking at the array centre, +y up. The image covers ``image_width_cm`` of the z = 0 plane
+(the largest possible array footprint plus a margin), so its horizontal field of view is
+``2 atan(image_width_cm / (2 D))``. Shown on the CRT at ``image_width_cm`` wide (native size
+``image_width_cm / (width_cm / width_px)`` px, 237 px on the default 32 cm, 1024 px wide screen),
+the image subtends at the eye exactly the angle the physical array would subtend in the screen
+plane: the stimulus has its physical size. ``--size`` renders the same view at another pixel count
+(previews); the manifest records ``image_width_cm``, so the experiment can always display it at its
+physical size.
+
+The scene is built once per (array, light probe) and re-rendered for each gloss level by updating
+the Ward parameters in place with ``mi.traverse`` (no re-load, and the compiled kernel is reused
+because the parameters are opaque). Sampler: ``multijitter``. In the spectral variant the film
+integrates the spectrum against the CIE 1931 Y matching function (``pixel_format = "luminance"``);
+in the RGB variant Y is formed from linear RGB.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from stimuli.geometry import ArrayGeometry, render_mesh
+from stimuli.illumination import LightProbe
+from stimuli.ward import check_ward_params
+
+__all__ = [
+    "CameraGeometry",
+    "StimulusRenderer",
+    "camera_geometry",
+]
+
+#: Border around the largest possible array footprint, cm (each side).
+MARGIN_CM = 0.5
+
+
+@dataclass(frozen=True)
+class CameraGeometry:
+    """Where the camera is and what it sees (cm, degrees).
+
+    Attributes
+    ----------
+    image_width_cm : float
+        Width (= height) of the z = 0 plane the square image covers.
+    distance_cm : float
+        Camera (eye) to array plane.
+    fov_deg : float
+        Horizontal field of view.
+    native_px : int
+        Image width in pixels at the display's pixel pitch.
+    backing_half_cm : float
+        Half-width of the backing square (well beyond the view, so no edge shows).
+    """
+
+    image_width_cm: float
+    distance_cm: float
+    fov_deg: float
+    native_px: int
+    backing_half_cm: float
+
+
+def camera_geometry(design, calibration, *, margin_cm: float = MARGIN_CM) -> CameraGeometry:
+    """Camera that shows the array at its physical size on the calibrated display.
+
+    Parameters
+    ----------
+    design : StudyDesign
+        Supplies the array's grid, radii and jitter.
+    calibration : calibration.Calibration
+        Supplies the screen's visible width (cm), resolution (px) and viewing distance (cm).
+    margin_cm : float
+        Border around the largest possible footprint, each side.
+    """
+    spec = design.array
+    grid_half = float(np.max(np.abs(spec.grid_centres_cm())))
+    half = grid_half + spec.jitter_cm + spec.radius_xy_cm + margin_cm
+    width = 2.0 * half
+    distance = float(calibration.distance_cm)
+    fov = float(np.degrees(2.0 * np.arctan(width / (2.0 * distance))))
+    pitch_cm = float(calibration.width_cm) / float(calibration.resolution_px[0])
+    return CameraGeometry(image_width_cm=width, distance_cm=distance, fov_deg=fov,
+                          native_px=round(width / pitch_cm), backing_half_cm=4.0 * half)
+
+
+def _mitsuba_mesh(mesh, bsdf):
+    import mitsuba as mi
+
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    m = mi.Mesh("ellipsoid_array", len(mesh.vertices), len(mesh.faces), props,
+                has_vertex_normals=True)
+    params = mi.traverse(m)
+    params["vertex_positions"] = mi.Float(np.ravel(mesh.vertices).astype(np.float32))
+    params["faces"] = mi.UInt32(np.ravel(mesh.faces).astype(np.uint32))
+    params["vertex_normals"] = mi.Float(np.ravel(mesh.normals).astype(np.float32))
+    params.update()
+    return m
+
+
+class StimulusRenderer:
+    """A Mitsuba scene of one array under one light probe, re-rendered per Ward material.
+
+    Use :meth:`load` to (re)build the scene for an array and probe (a no-op when they are the
+    ones already loaded) and :meth:`render` for each material. Needs :func:`stimuli.setup_mitsuba`.
+
+    Parameters
+    ----------
+    camera : CameraGeometry
+    size_px : int
+        Image width = height, px.
+    spp : int
+        Samples per pixel (multijitter).
+    max_depth : int
+        Path length limit (5: light bounces between neighbouring bumps are kept).
+    """
+
+    def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5):
+        if size_px < 8 or spp < 1:
+            raise ValueError(f"size_px must be >= 8 and spp >= 1, got {size_px}, {spp}")
+        self.camera = camera
+        self.size_px = int(size_px)
+        self.spp = int(spp)
+        self.max_depth = int(max_depth)
+        self.scene = None
+        self.params = None
+        self._key = None
+        self._keys = {}
+        self.n_loads = 0
+
+    def load(self, geometry: ArrayGeometry, probe: LightProbe) -> None:
+        """Build the scene for ``geometry`` lit by ``probe`` (skipped when already loaded)."""
+        import mitsuba as mi
+
+        key = (geometry.seed, geometry.depth_cm, probe.sha256, probe.rotation_deg, probe.scale)
+        if key == self._key:
+            return
+        cam = self.camera
+        bsdf = mi.load_dict({"type": "ward", "id": "ward"})
+        mesh = _mitsuba_mesh(render_mesh(geometry, backing_half_cm=cam.backing_half_cm), bsdf)
+        film_format = "luminance"
+        self.scene = mi.load_dict({
+            "type": "scene",
+            "integrator": {"type": "path", "max_depth": self.max_depth},
+            "sensor": {
+                "type": "perspective",
+                "fov": cam.fov_deg,
+                "fov_axis": "x",
+                "near_clip": 1.0,
+                "to_world": mi.ScalarTransform4f().look_at(
+                    origin=[0.0, 0.0, cam.distance_cm], target=[0.0, 0.0, 0.0], up=[0.0, 1.0, 0.0]),
+                "film": {"type": "hdrfilm", "width": self.size_px, "height": self.size_px,
+                         "pixel_format": film_format, "rfilter": {"type": "gaussian"}},
+                "sampler": {"type": "multijitter", "sample_count": self.spp},
+            },
+            "emitter": probe.emitter(),
+            "array": mesh,
+        })
+        self.params = mi.traverse(self.scene)
+        self._keys = {name: next(k for k in self.params.properties if k.endswith("." + name))
+                      for name in ("rho_d", "rho_s", "alpha")}
+        self._key = key
+        self.n_loads += 1
+
+    def render(self, rho_d: float, rho_s: float, alpha: float, *, seed: int = 0) -> np.ndarray:
+        """Render the loaded scene with these Ward parameters.
+
+        Returns
+        -------
+        ndarray, shape (size_px, size_px), float32
+            Luminance (CIE Y) in the probe's relative radiance units.
+
+        Raises
+        ------
+        ValueError
+            Bad Ward parameters, or a render holding NaN/Inf.
+        """
+        import mitsuba as mi
+
+        if self.scene is None:
+            raise RuntimeError("StimulusRenderer.render before load(geometry, probe)")
+        check_ward_params(rho_d, rho_s, alpha)
+        self.params[self._keys["rho_d"]] = mi.Float(float(rho_d))
+        self.params[self._keys["rho_s"]] = mi.Float(float(rho_s))
+        self.params[self._keys["alpha"]] = mi.Float(float(alpha))
+        self.params.update()
+        img = np.asarray(mi.render(self.scene, spp=self.spp, seed=int(seed) & 0x7FFFFFFF))
+        img = img[..., 0] if img.ndim == 3 else img
+        if not np.all(np.isfinite(img)):
+            raise ValueError("the render holds NaN/Inf luminance; check the light probe and mesh")
+        return np.ascontiguousarray(img, dtype=np.float32)
