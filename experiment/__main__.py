@@ -1,4 +1,9 @@
-"""``python -m experiment``: the session app's command line."""
+"""``python -m experiment``: the session app's command line.
+
+``run``   run (or resume) a session at the CRT, or with a simulated observer under Xvfb;
+``plan``  make or show a participant's trial plan;
+``simulate``  write simulated session files without the app (observer model only).
+"""
 
 from __future__ import annotations
 
@@ -23,14 +28,118 @@ def _cmd_plan(args) -> int:
     return 0
 
 
+def _ask(participant, session):
+    """PsychoPy's dialog for what the command line left out; None when cancelled."""
+    from psychopy import gui
+
+    info = {"participant": participant or "", "session": session or ""}
+    dlg = gui.DlgFromDict(info, title="glossdepth session", order=["participant", "session"],
+                          tip={"participant": "e.g. P01 (letters, digits, - or _)",
+                               "session": "1 or 2"})
+    if not dlg.OK:
+        return None
+    return str(info["participant"]).strip(), str(info["session"]).strip()
+
+
+def _cmd_run(args) -> int:
+    from experiment.session import SessionRequest, main_run
+
+    design = load_design(args.design)
+    participant, session = args.participant, args.session
+    if participant is None or session is None:
+        if args.simulate:
+            print("error: --participant and --session are required with --simulate",
+                  file=sys.stderr)
+            return 2
+        answer = _ask(participant, session)
+        if answer is None:
+            print("cancelled: no session run", file=sys.stderr)
+            return 1
+        participant, session = answer
+    req = SessionRequest(
+        design=design, participant=participant, session=session, manifest=args.stimuli,
+        calibration=args.calibration, data_dir=args.data,
+        max_calibration_age_days=args.max_calibration_age_days, simulate=args.simulate,
+        observer_params=args.observer_params, seed=args.seed, fast=args.fast,
+        fullscr=args.fullscr, accept_calibration_mismatch=args.accept_calibration_mismatch,
+        screenshot=args.screenshot, quit_at_trial=args.simulate_quit_at,
+        early_space_probability=args.simulate_early_space,
+    )
+    return main_run(req)
+
+
+def _cmd_simulate(args) -> int:
+    import numpy as np
+
+    from experiment.observers import (
+        load_observer_params,
+        make_observer,
+        write_simulated_sessions,
+    )
+
+    design = load_design(args.design)
+    rng = np.random.default_rng(args.seed)
+    params = load_observer_params(args.observer_params)[args.observer]
+    observers = [make_observer(args.observer, p, rng, params, design=design)
+                 for p in args.participants]
+    try:
+        paths = write_simulated_sessions(args.data, design, observers, rng)
+    except FileExistsError as exc:
+        print(f"error: {exc.filename} exists; session files are never overwritten",
+              file=sys.stderr)
+        return 1
+    print(f"{len(paths)} session files ({args.observer} observers, seed {args.seed}) in "
+          f"{paths[0].parent}")
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiment", description="The gloss x depth session app.")
+    parser = argparse.ArgumentParser(prog="python -m experiment",
+                                     description="The gloss x depth session app.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
     sub = parser.add_subparsers(dest="command", required=True)
+
     p = sub.add_parser("plan", help="make (or show) a participant's trial plan")
     p.add_argument("--participant", required=True, help="participant id, e.g. P01")
     p.add_argument("--data-dir", default="data", help="data folder (default: data)")
     p.set_defaults(func=_cmd_plan)
+
+    r = sub.add_parser("run", help="run or resume a session (a dialog asks for what is missing)")
+    r.add_argument("--participant", help="participant id, e.g. P01")
+    r.add_argument("--session", help="session number (1..n_sessions of the design)")
+    r.add_argument("--stimuli", help="the stimulus manifest.csv (python -m stimuli render)")
+    r.add_argument("--calibration", help="calibration.json (python -m calibration run)")
+    r.add_argument("--data", default="data", help="data folder (default: data)")
+    r.add_argument("--max-calibration-age-days", type=float, default=30.0,
+                   help="refuse a calibration older than this (default 30 days)")
+    r.add_argument("--accept-calibration-mismatch", action="store_true",
+                   help="run although the stimuli were corrected for another calibration "
+                        "(recorded in the log)")
+    r.add_argument("--fullscr", action="store_true",
+                   help="full screen (the lab CRT; the screen must be at the design's resolution)")
+    r.add_argument("--fast", action="store_true",
+                   help="do not wait for the vertical blank (headless runs only)")
+    r.add_argument("--simulate", choices=["ideal", "humanlike"],
+                   help="a simulated observer answers through X11 input events (XTEST)")
+    r.add_argument("--observer-params", help="observers.toml to use with --simulate")
+    r.add_argument("--seed", type=int, help="seed of the simulated observer (default: from "
+                                            "the participant id)")
+    r.add_argument("--screenshot", help="save the first answered trial screen (back buffer) as "
+                                        "this PNG")
+    r.add_argument("--simulate-quit-at", type=int, metavar="TRIAL",
+                   help="(tests) the simulated observer presses Esc twice at this trial")
+    r.add_argument("--simulate-early-space", type=float, default=0.0, metavar="P",
+                   help="(tests) chance per trial of pressing space with one slider set")
+    r.set_defaults(func=_cmd_run)
+
+    s = sub.add_parser("simulate", help="write simulated session CSVs (observer model, no app)")
+    s.add_argument("--observer", choices=["ideal", "humanlike"], required=True)
+    s.add_argument("--participants", nargs="+", required=True, help="participant ids")
+    s.add_argument("--data", required=True, help="data folder (writes DATA/sessions/)")
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
+    s.set_defaults(func=_cmd_simulate)
+
     args = parser.parse_args(argv)
     try:
         return args.func(args)

@@ -1,0 +1,232 @@
+"""Pre-flight checks: everything that can be wrong is found before a window opens.
+
+Each check raises :class:`PreflightError` with a message that names the input, what is wrong and
+the fix. None of them opens a window or imports ``psychopy.visual`` (which needs a display);
+:func:`check_screen` asks the X server directly.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from calibration import Calibration, CalibrationError, load_calibration
+from experiment.participants import check_participant_id
+from stimuli import ManifestError, load_manifest, verify_manifest
+from studydesign import StudyDesign
+
+__all__ = [
+    "PreflightError",
+    "SessionStimuli",
+    "check_calibration",
+    "check_participant",
+    "check_screen",
+    "check_session_number",
+    "check_stimuli",
+]
+
+#: Refresh rates further apart than this (relative) make a calibration not match the design's CRT.
+_REFRESH_TOLERANCE = 0.05
+
+
+class PreflightError(ValueError):
+    """A session cannot start: the message says what to fix."""
+
+
+def check_participant(participant: str) -> str:
+    try:
+        return check_participant_id(participant)
+    except ValueError as exc:
+        raise PreflightError(str(exc)) from exc
+
+
+def check_session_number(design: StudyDesign, session) -> int:
+    """``session`` as an int in 1..design.sessions.n_sessions."""
+    n = design.sessions.n_sessions
+    try:
+        value = int(session)
+    except (TypeError, ValueError):
+        value = None
+    if value is None or str(session).strip() != str(value) or not 1 <= value <= n:
+        raise PreflightError(f"session {session!r} is not valid; the design has sessions 1-{n}")
+    return value
+
+
+@dataclass(frozen=True)
+class SessionStimuli:
+    """The verified stimuli of one session.
+
+    Attributes
+    ----------
+    manifest_path : Path
+    frame : DataFrame
+        One row per stimulus id: ``stimulus_id``, ``png`` (absolute path), ``image_width_cm``,
+        ``width_px``, ``height_px``, ``calibration_id`` (the calibration the PNG was gamma-corrected
+        for), ``png_sha256``.
+    """
+
+    manifest_path: Path
+    frame: pd.DataFrame
+
+    @property
+    def calibration_ids(self) -> list[str]:
+        return sorted(set(self.frame["calibration_id"].astype(str)))
+
+
+def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
+    """Check the manifest holds every stimulus of ``plan_rows``, present and unchanged.
+
+    Parameters
+    ----------
+    manifest : path-like
+        ``manifest.csv`` written by ``python -m stimuli render`` (or its folder).
+    plan_rows : DataFrame
+        The session's plan rows (``stimulus_id`` and the design levels).
+
+    Raises
+    ------
+    PreflightError
+        Manifest missing or malformed; a stimulus absent, its PNG missing or changed since
+        rendering (SHA-256); a manifest row whose levels disagree with the design; a bad
+        ``image_width_cm``.
+    """
+    if manifest is None:
+        raise PreflightError(
+            "no stimulus manifest given; pass --stimuli DIR/manifest.csv (written by "
+            "`python -m stimuli render --set experiment --out DIR`)"
+        )
+    ids = list(plan_rows["stimulus_id"])
+    try:
+        frame = load_manifest(manifest)
+        problems = verify_manifest(manifest, kinds=("png",), stimulus_ids=ids)
+    except ManifestError as exc:
+        raise PreflightError(str(exc)) from exc
+    if problems:
+        more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
+        raise PreflightError(
+            f"stimulus manifest {frame.attrs['manifest_path']}: {len(problems)} problem(s) with "
+            f"this session's stimuli{more}:\n  " + "\n  ".join(problems[:10])
+        )
+    path = Path(frame.attrs["manifest_path"])
+    rows = frame.set_index("stimulus_id").loc[ids].reset_index()
+    for col in ("illumination", "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm"):
+        a, b = rows[col].to_numpy(), plan_rows[col].to_numpy()
+        same = a == b if col == "illumination" else np.isclose(a.astype(float), b.astype(float))
+        if not np.all(same):
+            i = int(np.flatnonzero(~same)[0])
+            raise PreflightError(
+                f"stimulus manifest {path}: {ids[i]} has {col} = {a[i]!r} but the design says "
+                f"{b[i]!r}; the stimuli were rendered for another design. Re-render them"
+            )
+    width = pd.to_numeric(rows["image_width_cm"], errors="coerce").to_numpy()
+    if not np.all(np.isfinite(width) & (width > 0)):
+        i = int(np.flatnonzero(~(np.isfinite(width) & (width > 0)))[0])
+        raise PreflightError(f"stimulus manifest {path}: {ids[i]} has image_width_cm = "
+                             f"{rows['image_width_cm'].iloc[i]!r}; it must be a positive size in cm")
+    out = pd.DataFrame({
+        "stimulus_id": ids,
+        "png": [str((path.parent / str(p)).resolve()) for p in rows["png_path"]],
+        "image_width_cm": width,
+        "width_px": rows["width_px"].astype(int).to_numpy(),
+        "height_px": rows["height_px"].astype(int).to_numpy(),
+        "calibration_id": rows["calibration_id"].astype(str).to_numpy(),
+        "png_sha256": rows["png_sha256"].to_numpy(),
+    })
+    return SessionStimuli(manifest_path=path, frame=out)
+
+
+def check_calibration(path, design: StudyDesign, *, max_age_days: float) -> Calibration:
+    """Load the calibration and check it is recent and describes the design's CRT.
+
+    Raises
+    ------
+    PreflightError
+        No path; file missing or invalid; older than ``max_age_days``; resolution, viewing
+        distance or refresh rate different from the design's display.
+    """
+    if path is None:
+        raise PreflightError(
+            "no calibration given; pass --calibration DIR/calibration.json (written by "
+            "`python -m calibration run`)"
+        )
+    try:
+        cal = load_calibration(path)
+    except CalibrationError as exc:
+        raise PreflightError(str(exc)) from exc
+    age = cal.age_days()
+    if age > max_age_days:
+        raise PreflightError(
+            f"calibration {path} ({cal.calibration_id}, made {cal.created_utc}) is {age:.1f} days "
+            f"old, more than the allowed {max_age_days:g}; recalibrate the CRT "
+            "(`python -m calibration run`) or raise --max-calibration-age-days if you are sure"
+        )
+    disp = design.display
+    if tuple(cal.resolution_px) != tuple(disp.resolution_px):
+        raise PreflightError(
+            f"calibration {path} was made at {cal.resolution_px[0]}x{cal.resolution_px[1]} px, "
+            f"but the design's CRT runs at {disp.resolution_px[0]}x{disp.resolution_px[1]}; "
+            "calibrate the CRT at the design's resolution"
+        )
+    if not np.isclose(cal.distance_cm, disp.viewing_distance_cm):
+        raise PreflightError(
+            f"calibration {path} assumes a viewing distance of {cal.distance_cm:g} cm, the design "
+            f"{disp.viewing_distance_cm:g} cm; fix the chin rest and recalibrate with that distance"
+        )
+    if abs(cal.refresh_hz / disp.nominal_refresh_hz - 1) > _REFRESH_TOLERANCE:
+        raise PreflightError(
+            f"calibration {path} measured {cal.refresh_hz:.1f} Hz, the design's CRT runs at "
+            f"{disp.nominal_refresh_hz:g} Hz; set the refresh rate and recalibrate"
+        )
+    return cal
+
+
+def check_screen(design: StudyDesign, *, fullscr: bool, display_name: str | None = None):
+    """Ask the X server for the screen size and check the session window fits the design.
+
+    A full-screen session needs the screen at exactly the design's resolution (set the CRT's
+    mode first); a windowed one (tests, demos) needs a screen at least that large.
+
+    Returns
+    -------
+    (int, int)
+        The screen's width and height in pixels.
+
+    Raises
+    ------
+    PreflightError
+        No X display, or a screen of the wrong size.
+    """
+    from Xlib import display as xdisplay
+    from Xlib.error import DisplayError
+
+    name = display_name or os.environ.get("DISPLAY")
+    if not name:
+        raise PreflightError(
+            "no X display (DISPLAY is not set); run the session at the lab computer's desktop, "
+            "or under `xvfb-run -a -s \"-screen 0 1280x1024x24\"` for a simulated run"
+        )
+    try:
+        d = xdisplay.Display(name)
+    except (DisplayError, OSError) as exc:
+        raise PreflightError(f"cannot connect to X display {name!r} ({exc})") from exc
+    try:
+        screen = d.screen()
+        size = (int(screen.width_in_pixels), int(screen.height_in_pixels))
+    finally:
+        d.close()
+    want = tuple(design.display.resolution_px)
+    if fullscr and size != want:
+        raise PreflightError(
+            f"the screen is {size[0]}x{size[1]} px but the design's CRT runs at "
+            f"{want[0]}x{want[1]}; set the display mode (e.g. `xrandr -s {want[0]}x{want[1]}`)"
+        )
+    if size[0] < want[0] or size[1] < want[1]:
+        raise PreflightError(
+            f"the screen is {size[0]}x{size[1]} px, smaller than the design's "
+            f"{want[0]}x{want[1]} window; use a larger screen or the CRT at its design mode"
+        )
+    return size
