@@ -46,6 +46,10 @@ MANIFEST_COLUMNS = [
     "png_path",
     "exr_sha256",
     "png_sha256",
+    "envmap_sha256",
+    "rotation_deg",
+    "tonemap_lmax",
+    "distance_cm",
 ]
 
 

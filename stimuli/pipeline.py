@@ -1,0 +1,321 @@
+"""Render a stimulus set into a folder: EXRs on Dask workers, then tone mapping, PNGs, manifest.
+
+Folder layout (paths in the manifest are relative to it)::
+
+    OUT/manifest.csv            one row per finished stimulus (MANIFEST_COLUMNS), fsynced per row
+    OUT/renders.csv             one row per finished EXR (pass 1 record, fsynced per row)
+    OUT/exr/<light_field>/<stimulus_id>.exr   float32 luminance (CIE Y), channel "Y"
+    OUT/png/<light_field>/<stimulus_id>.png   8-bit grey, tone-mapped and gamma-corrected
+
+Pass 1 renders EXRs. Stimuli are grouped by (light field, array) so a worker builds each scene once
+and renders all gloss levels of the group by updating the Ward parameters in place. Pass 2 waits
+for every EXR of a light field (its tone-mapping condition), computes the condition's L_max, and
+writes PNGs and manifest rows. Every file is written to a hidden temporary name and renamed, so an
+interrupted run (Ctrl-C, kill, disk full) leaves no half-written file under a real name; re-running
+the same command skips every EXR whose logged checksum and settings verify and every manifest row
+whose files verify, and finishes the rest.
+"""
+
+from __future__ import annotations
+
+import csv
+import os
+import sys
+import time
+import zlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from stimuli.errors import StimuliError
+from stimuli.geometry import draw_array
+from stimuli.glosstable import ward_params_for_gloss
+from stimuli.illumination import load_light_probe, probe_path, read_exr, write_exr
+from stimuli.manifest import append_manifest_row, load_manifest, sha256_file
+from stimuli.render import CameraGeometry, StimulusRenderer
+from stimuli.tonemap import (
+    display_fraction,
+    gamma_encode,
+    luminance_range,
+    tone_curve,
+    write_png,
+)
+
+__all__ = ["RENDER_LOG_COLUMNS", "RenderJob", "render_group", "render_set"]
+
+RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px", "rho_d", "rho_s",
+                      "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
+
+
+@dataclass(frozen=True)
+class RenderJob:
+    """Settings shared by every image of a run (shipped to the workers)."""
+
+    camera: CameraGeometry
+    size_px: int
+    spp: int
+    variant: str
+    design_path: str
+    threads: int = 0
+
+
+# --- worker side ---------------------------------------------------------------------------------
+_worker: dict = {}
+
+
+def render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
+    """Render one group of stimuli that share a light field and an array (runs on a worker).
+
+    Builds the scene once and re-renders it per Ward material. Returns one render-log record per
+    EXR written (:data:`RENDER_LOG_COLUMNS`).
+    """
+    from stimuli.mitsuba_env import setup_mitsuba
+    from studydesign import load_design
+
+    variant = setup_mitsuba(job.variant)
+    if job.threads:
+        import drjit as dr
+
+        dr.set_thread_count(job.threads)
+    key = (job.camera, job.size_px, job.spp)
+    if _worker.get("key") != key:
+        _worker["renderer"] = StimulusRenderer(job.camera, size_px=job.size_px, spp=job.spp)
+        _worker["key"] = key
+    renderer = _worker["renderer"]
+    design = _worker.get("design") if _worker.get("design_path") == job.design_path else None
+    if design is None:
+        design = load_design(job.design_path or None)
+        _worker["design"], _worker["design_path"] = design, job.design_path
+    first = rows[0]
+    probe_key = (first["envmap"], first["rotation_deg"])
+    if _worker.get("probe_key") != probe_key:
+        _worker["probe"] = load_light_probe(first["envmap"], rotation_deg=first["rotation_deg"])
+        _worker["probe_key"] = probe_key
+    probe = _worker["probe"]
+    geometry = draw_array(design, first["true_depth_cm"], int(first["seed"]))
+    renderer.load(geometry, probe)
+    records = []
+    for row in rows:
+        t0 = time.perf_counter()
+        img = renderer.render(row["rho_d"], row["rho_s"], row["alpha"],
+                              seed=zlib.crc32(row["stimulus_id"].encode()))
+        path = Path(out_dir) / row["exr_path"]
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_exr(path, img)
+        records.append({
+            "stimulus_id": row["stimulus_id"], "exr_path": row["exr_path"],
+            "exr_sha256": sha256_file(path), "spp": job.spp, "width_px": job.size_px,
+            "rho_d": row["rho_d"], "rho_s": row["rho_s"], "alpha": row["alpha"],
+            "seed": int(row["seed"]), "variant": variant, "envmap_sha256": probe.sha256,
+            "rotation_deg": row["rotation_deg"], "render_s": round(time.perf_counter() - t0, 4),
+        })
+    return records
+
+
+# --- driver side ---------------------------------------------------------------------------------
+def _append_csv(path: Path, columns: list[str], row: dict) -> None:
+    new = not path.exists() or path.stat().st_size == 0
+    with open(path, "a", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
+        if new:
+            w.writeheader()
+        w.writerow(row)
+        fh.flush()
+        os.fsync(fh.fileno())
+
+
+def _remove_stale_temporaries(out: Path) -> int:
+    n = 0
+    for sub in ("exr", "png"):
+        for f in (out / sub).rglob(".*.tmp-*"):
+            f.unlink()
+            n += 1
+    return n
+
+
+def _plan_rows(table: pd.DataFrame, gloss_table: pd.DataFrame) -> pd.DataFrame:
+    t = table.copy()
+    rho_d, rho_s, alpha = ward_params_for_gloss(gloss_table, t["true_gloss_pct"].to_numpy())
+    t["rho_d"], t["rho_s"], t["alpha"] = rho_d, rho_s, alpha
+    t["exr_path"] = [f"exr/{lf}/{sid}.exr" for lf, sid in zip(t["light_field"], t["stimulus_id"])]
+    t["png_path"] = [f"png/{lf}/{sid}.png" for lf, sid in zip(t["light_field"], t["stimulus_id"])]
+    return t
+
+
+def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
+    """Stimuli whose EXR is logged with these settings and still matches its checksum."""
+    log = out / "renders.csv"
+    if not log.is_file():
+        return set()
+    try:
+        done = pd.read_csv(log, dtype={"stimulus_id": str, "exr_sha256": str})
+    except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
+        raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
+                           "(finished EXRs will be rendered again)") from exc
+    done = done.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
+    ok = set()
+    for row in plan.itertuples(index=False):
+        if row.stimulus_id not in done.index:
+            continue
+        rec = done.loc[row.stimulus_id]
+        same = (int(rec["spp"]) == job.spp and int(rec["width_px"]) == job.size_px
+                and np.isclose(rec["rho_d"], row.rho_d) and np.isclose(rec["rho_s"], row.rho_s)
+                and np.isclose(rec["alpha"], row.alpha) and int(rec["seed"]) == int(row.seed))
+        f = out / row.exr_path
+        if same and f.is_file() and sha256_file(f) == rec["exr_sha256"]:
+            ok.add(row.stimulus_id)
+    return ok
+
+
+def _progress(total: int, desc: str, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit="img", disable=not enabled or total == 0,
+                file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+
+
+def render_set(
+    table: pd.DataFrame,
+    out_dir: str | os.PathLike,
+    *,
+    job: RenderJob,
+    gloss_table: pd.DataFrame,
+    calibration,
+    tonemap_spec,
+    client=None,
+    progress: bool = True,
+    gloss_table_name: str = "",
+) -> dict:
+    """Render ``table`` (rows of a stimulus set) into ``out_dir`` (see the module docstring).
+
+    Parameters
+    ----------
+    table : DataFrame
+        Rows of :func:`stimuli.stimulus_set` (possibly filtered).
+    out_dir : path-like
+        Output folder (created).
+    job : RenderJob
+        Camera, size, spp, variant.
+    gloss_table : DataFrame
+        Validated gloss table (gloss % -> Ward parameters).
+    calibration : calibration.Calibration
+        Inverse gamma for the PNGs; its id goes into the manifest.
+    tonemap_spec : studydesign.ToneMapSpec
+        The design's tone-map numbers.
+    client : dask.distributed.Client, optional
+        Where to run pass 1; None renders in this process.
+    progress : bool
+        Show a progress bar with ETA on stderr.
+    gloss_table_name : str
+        Recorded in the run summary.
+
+    Returns
+    -------
+    dict
+        Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
+    """
+    out = Path(out_dir)
+    for sub in ("exr", "png"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    stale = _remove_stale_temporaries(out)
+    plan = _plan_rows(table, gloss_table)
+    for env in plan["envmap"].unique():
+        probe_path(env)  # fail early, naming the file, before any worker starts
+    t0 = time.perf_counter()
+
+    # pass 1: EXRs
+    done = _done_exrs(out, plan, job)
+    todo = plan[~plan["stimulus_id"].isin(done)]
+    groups = [g.to_dict("records") for _, g in todo.groupby(["light_field", "seed"], sort=False)]
+    log = out / "renders.csv"
+    bar = _progress(len(todo), "render EXR", progress)
+    n_rendered = 0
+    try:
+        if client is None:
+            for rows in groups:
+                for rec in render_group(job, rows, str(out)):
+                    _append_csv(log, RENDER_LOG_COLUMNS, rec)
+                    n_rendered += 1
+                    bar.update(1)
+        else:
+            from dask.distributed import as_completed
+
+            futures = [client.submit(render_group, job, rows, str(out), pure=False)
+                       for rows in groups]
+            for fut in as_completed(futures):
+                for rec in fut.result():
+                    _append_csv(log, RENDER_LOG_COLUMNS, rec)
+                    n_rendered += 1
+                    bar.update(1)
+    finally:
+        bar.close()
+    t_render = time.perf_counter() - t0
+
+    # pass 2: tone map per light field, PNG, manifest
+    records = pd.read_csv(log, dtype={"stimulus_id": str, "exr_sha256": str})
+    records = records.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
+    manifest_path = out / "manifest.csv"
+    existing = load_manifest(manifest_path) if manifest_path.exists() else None
+    have = {} if existing is None else existing.set_index("stimulus_id").to_dict("index")
+    bar = _progress(len(plan), "tone map PNG", progress)
+    n_png = n_png_skipped = 0
+    try:
+        for lf, group in plan.groupby("light_field", sort=False):
+            images = {sid: read_exr(out / p) for sid, p in zip(group["stimulus_id"],
+                                                                  group["exr_path"])}
+            lmax = luminance_range(images.values())
+            curve = tone_curve(tonemap_spec, lmax)
+            for row in group.itertuples(index=False):
+                rec = records.loc[row.stimulus_id]
+                prior = have.get(row.stimulus_id)
+                if prior is not None:
+                    if (not np.isclose(prior["tonemap_lmax"], lmax, rtol=1e-6)
+                            or prior["exr_sha256"] != rec["exr_sha256"]):
+                        raise StimuliError(
+                            f"{manifest_path} already lists {row.stimulus_id} rendered or "
+                            f"tone-mapped differently (L_max {prior['tonemap_lmax']:.6g} vs "
+                            f"{lmax:.6g}); recorded data are never overwritten: render into a new "
+                            "--out folder")
+                    png = out / row.png_path
+                    if png.is_file() and sha256_file(png) == prior["png_sha256"]:
+                        n_png_skipped += 1
+                        bar.update(1)
+                        continue
+                    raise StimuliError(
+                        f"{png} is missing or changed but {manifest_path} lists it; recorded data "
+                        "are never overwritten: render into a new --out folder")
+                u8 = gamma_encode(display_fraction(images[row.stimulus_id], curve), calibration)
+                png = out / row.png_path
+                png.parent.mkdir(parents=True, exist_ok=True)
+                write_png(png, u8)
+                append_manifest_row(manifest_path, {
+                    "stimulus_id": row.stimulus_id, "illumination": row.illumination,
+                    "gloss_level": int(row.gloss_level), "depth_level": int(row.depth_level),
+                    "true_gloss_pct": row.true_gloss_pct, "true_depth_cm": row.true_depth_cm,
+                    "light_field": row.light_field, "array_index": int(row.array_index),
+                    "seed": int(row.seed), "rho_d": row.rho_d, "rho_s": row.rho_s,
+                    "alpha": row.alpha, "spp": job.spp, "width_px": job.size_px,
+                    "height_px": job.size_px, "image_width_cm": job.camera.image_width_cm,
+                    "variant": rec["variant"], "envmap": row.envmap,
+                    "calibration_id": calibration.calibration_id, "exr_path": row.exr_path,
+                    "png_path": row.png_path, "exr_sha256": rec["exr_sha256"],
+                    "png_sha256": sha256_file(png), "envmap_sha256": rec["envmap_sha256"],
+                    "rotation_deg": row.rotation_deg, "tonemap_lmax": lmax,
+                    "distance_cm": job.camera.distance_cm,
+                })
+                n_png += 1
+                bar.update(1)
+    finally:
+        bar.close()
+    wall = time.perf_counter() - t0
+    return {
+        "n_stimuli": len(plan), "rendered": n_rendered, "render_skipped": len(done),
+        "png_written": n_png, "png_skipped": n_png_skipped, "stale_temporaries_removed": stale,
+        "render_s": round(t_render, 2), "wall_s": round(wall, 2),
+        "images_per_hour": round(3600 * n_rendered / t_render, 1) if n_rendered else None,
+        "gloss_table": gloss_table_name, "job": {k: v for k, v in asdict(job).items()
+                                                 if k != "camera"},
+        "camera": asdict(job.camera), "manifest": str(manifest_path),
+    }
