@@ -1,4 +1,4 @@
-"""``python -m analysis.gap benchmark|diagnose``."""
+"""``python -m analysis.gap benchmark|diagnose`` (also ``python -m analysis gap ...``)."""
 
 from __future__ import annotations
 
@@ -8,45 +8,62 @@ import sys
 from analysis.gap.engine import GapError
 from studydesign import load_design
 
+LAYERS = ("observer", "display", "render")
+
+
+def _benchmark(args, design) -> int:
+    from analysis.gap.benchmark import format_scores, run_benchmark, run_thresholds
+
+    layers = LAYERS if args.layer == "all" else (args.layer,)
+    for layer in layers:
+        log = None if args.quiet else print
+        r = run_benchmark(design, layer, trials=args.trials, seed=args.seed, log=log)
+        thr = (run_thresholds(design, layer, reps=args.threshold_reps, seed=args.seed + 1,
+                              log=log) if args.threshold_reps > 0 else None)
+        print(format_scores(layer, r, thr), flush=True)
+    print(f"seed {args.seed}, {args.trials} trials per layer")
+    return 0
+
+
+def _diagnose(args, design) -> int:
+    from analysis.gap.diagnose import diagnose_files
+    from analysis.gap.report import write_report
+
+    diag, local = diagnose_files(args.layer, args.real, args.sim, design, seed=args.seed)
+    path = write_report(diag, local, args.out)
+    print(f"{diag.layer}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
+          f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %); report {path}")
+    return 0
+
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="python -m analysis.gap")
     sub = ap.add_subparsers(dest="cmd", required=True)
     b = sub.add_parser("benchmark", help="blind benchmark with injected effects")
-    b.add_argument("--layer", choices=["observer", "display", "render", "all"], default="all")
-    b.add_argument("--trials", type=int, default=20)
+    b.add_argument("--layer", choices=[*LAYERS, "all"], default="all")
+    b.add_argument("--trials", type=int, default=20, help="runs per layer")
     b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--threshold-reps", type=int, default=0,
+                   help="runs per effect and strength for the detection thresholds (0: skip)")
+    b.add_argument("--quiet", action="store_true", help="print only the scores")
     d = sub.add_parser("diagnose", help="diagnose real data against the simulation")
-    d.add_argument("--layer", choices=["observer", "display", "render"], required=True)
-    d.add_argument("--real", required=True)
-    d.add_argument("--sim", required=True)
+    d.add_argument("--layer", choices=[*LAYERS, "all"], required=True)
+    d.add_argument("--real", required=True,
+                   help="observer: session CSV folder; display: readings.csv or its folder; "
+                        "render: the gloss-fit output folder; all: LAYER=PATH,... ")
+    d.add_argument("--sim", required=True,
+                   help="observer: simulated session CSV folder; display: calibration.json or "
+                        "its folder; render: the gloss-fit output folder; all: LAYER=PATH,...")
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     design = load_design()
     try:
         if args.cmd == "benchmark":
-            if args.layer in ("display", "render"):
-                raise GapError(f"layer {args.layer!r} is not built yet; use --layer observer")
-            from analysis.gap.benchmark import run_observer_benchmark
-            r = run_observer_benchmark(design, trials=args.trials, seed=args.seed)
-            print(f"observer: top-1 {r['top1']:.3f} (n={r['n_in']}), false attributions "
-                  f"{r['false_attribution']:.3f} (n={r['n_none']}), unexplained for "
-                  f"out-of-catalogue {r['unexplained_out']:.3f} (n={r['n_out']}), median shrinkage error "
-                  f"{100 * r['shrink_error']:.1f} % of the gap (90th percentile "
-                  f"{100 * r['shrink_error_p90']:.1f} %), seed {args.seed}")
-            if args.layer == "all":
-                print("display, render: not built yet")
-            return 0
-        if args.layer != "observer":
-            raise GapError(f"layer {args.layer!r} is not built yet; use --layer observer")
-        from analysis.gap.diagnose import diagnose_observer_files
-        from analysis.gap.report import write_report
-        diag, local = diagnose_observer_files(args.real, args.sim, design, seed=args.seed)
-        path = write_report(diag, local, args.out)
-        print(f"verdict: {diag.verdict}; gap {diag.gap_before:.4f} -> {diag.gap_after:.4f} "
-              f"({diag.shrink_pct:.1f} %); report {path}")
-        return 0
+            if args.trials < 1:
+                raise GapError(f"--trials {args.trials}: use at least 1")
+            return _benchmark(args, design)
+        return _diagnose(args, design)
     except GapError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -6,6 +6,17 @@ from pathlib import Path
 
 import numpy as np
 
+from analysis.gap.display import (
+    DISPLAY_CANDIDATES,
+    DISPLAY_MIN_SHARE,
+    display_floor,
+    display_frame,
+    display_loss,
+    display_unit_ids,
+    load_display,
+    localise_display,
+    split_display,
+)
 from analysis.gap.engine import Diagnosis, GapError, diagnose_losses
 from analysis.gap.observer import (
     OBSERVER_CANDIDATES,
@@ -18,7 +29,8 @@ from analysis.gap.observer import (
     split_observer,
 )
 
-__all__ = ["diagnose_observer", "diagnose_observer_files"]
+__all__ = ["diagnose_display", "diagnose_display_files", "diagnose_files", "diagnose_observer",
+           "diagnose_observer_files"]
 
 
 def diagnose_observer(real, sim, design, *, rng: np.random.Generator, seed: int,
@@ -40,3 +52,33 @@ def diagnose_observer_files(real_path: str | Path, sim_path: str | Path, design,
         raise GapError(f"--real and --sim are the same path ({real_path}); pass the simulation")
     return diagnose_observer(load_sessions(real_path), load_sessions(sim_path), design,
                              rng=np.random.default_rng(seed), seed=seed, n_boot=n_boot)
+
+
+def diagnose_display(readings, cal, *, rng: np.random.Generator, seed: int,
+                     n_boot: int = 1000) -> tuple[Diagnosis, object]:
+    """Display layer on a readings frame (``readings.csv`` format) and a Calibration."""
+    data = display_frame(readings, cal)
+    train, test = split_display(data, rng)
+    diag = diagnose_losses("display", DISPLAY_CANDIDATES, train, test, display_loss,
+                           display_floor, rng=rng, seed=seed, n_boot=n_boot,
+                           unit_ids=display_unit_ids, min_share=DISPLAY_MIN_SHARE,
+                           loss_info={"noise_abs_cd_m2": data.attrs["noise"]["abs"],
+                                      "noise_rel": data.attrs["noise"]["rel"]})
+    return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
+
+
+def diagnose_display_files(real_path: str | Path, sim_path: str | Path, *, seed: int,
+                           n_boot: int = 1000):
+    """Read ``readings.csv`` (REAL) and ``calibration.json`` (SIM); diagnose the display."""
+    readings, cal = load_display(real_path, sim_path)
+    return diagnose_display(readings, cal, rng=np.random.default_rng(seed), seed=seed,
+                            n_boot=n_boot)
+
+
+def diagnose_files(layer: str, real_path, sim_path, design, *, seed: int, n_boot: int = 1000):
+    """Diagnose one layer from its files (see ``python -m analysis.gap diagnose --help``)."""
+    if layer == "observer":
+        return diagnose_observer_files(real_path, sim_path, design, seed=seed, n_boot=n_boot)
+    if layer == "display":
+        return diagnose_display_files(real_path, sim_path, seed=seed, n_boot=n_boot)
+    raise GapError(f"layer {layer!r} is not built; use observer or display")

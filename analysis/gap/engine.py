@@ -62,6 +62,9 @@ class Diagnosis:
     loss_before: float = float("nan")
     loss_after: float = float("nan")
     heldout: tuple = ()
+    explained_share: float = float("nan")
+    min_share: float = 0.0
+    loss_info: dict | None = None
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -101,6 +104,8 @@ def diagnose_losses(
     n_boot: int = 2000,
     max_steps: int = 3,
     unit_ids: Callable | None = None,
+    min_share: float = 0.0,
+    loss_info: dict | None = None,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, and measure the held-out gap before and after.
 
@@ -114,6 +119,12 @@ def diagnose_losses(
     unit_ids : callable ``unit_ids(test) -> sequence of str``, optional
         Names of the held-out units, recorded in ``Diagnosis.heldout`` so a reader (or the
         benchmark's scorer) can evaluate other models on exactly the same units.
+    min_share : float
+        An attribution needs the chosen candidates to remove at least this share of the
+        held-out gap; below it the verdict is 'unexplained' (the partial steps are kept). 0:
+        any significant gain attributes.
+    loss_info : dict, optional
+        Parameters of the loss itself (e.g. the noise model), recorded as given.
     """
     if not candidates:
         raise GapError(f"layer {layer!r}: empty candidate catalogue; pass at least one candidate")
@@ -167,7 +178,9 @@ def diagnose_losses(
     shrink_b = d[idx].mean(axis=1)
     pct_b = 100 * shrink_b / np.maximum(gap_b[idx].mean(axis=1), 1e-12)
     gb, ga = float(gap_b.mean()), float(gap_a.mean())
-    verdict = "unexplained" if not steps else " + ".join(s["added"] for s in steps)
+    share = (gb - ga) / gb if gb > 0 else 0.0
+    explained = bool(steps) and share >= min_share
+    verdict = " + ".join(s["added"] for s in steps) if explained else "unexplained"
     return Diagnosis(
         layer=layer,
         ranking=tuple(asdict(s) for s in ranking),
@@ -183,6 +196,9 @@ def diagnose_losses(
         loss_before=float(base.mean()),
         loss_after=float(current.mean()),
         heldout=tuple(str(u) for u in unit_ids(test)) if unit_ids is not None else (),
+        explained_share=float(share),
+        min_share=float(min_share),
+        loss_info=loss_info,
     )
 
 

@@ -15,40 +15,63 @@ import matplotlib.pyplot as plt
 
 from analysis.gap.engine import Diagnosis, GapError
 
-__all__ = ["write_report"]
+__all__ = ["verdict_text", "write_report"]
 
 
-def _verdict_text(d: Diagnosis) -> str:
+def verdict_text(d: Diagnosis) -> str:
+    """Plain-language verdict (HTML)."""
     if not d.steps:
         return ("No candidate in the catalogue reduces the held-out gap significantly "
                 "(Holm-corrected, alpha 0.05): the gap is <b>unexplained</b> by the catalogue.")
+    if d.verdict == "unexplained":
+        names = " + ".join(s["added"] for s in d.steps)
+        return (f"{html.escape(names)} reduce(s) the held-out gap significantly but remove(s) "
+                f"only {100 * d.explained_share:.0f} % of it (an attribution needs "
+                f"{100 * d.min_share:.0f} %): the gap is <b>unexplained</b> by the catalogue; "
+                "something outside it dominates.")
     return (f"The gap is best explained by <b>{html.escape(d.verdict)}</b>; adding it shrinks the "
-            f"held-out gap by {d.shrink_abs:.3f} nats/trial ({d.shrink_pct:.0f} %, 95 % CI "
-            f"{d.shrink_pct_ci[0]:.0f} to {d.shrink_pct_ci[1]:.0f} %).")
+            f"held-out gap by {d.shrink_abs:.3f} nats per held-out unit ({d.shrink_pct:.0f} %, "
+            f"95 % CI {d.shrink_pct_ci[0]:.0f} to {d.shrink_pct_ci[1]:.0f} %).")
 
 
-def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
-    """Write ``out_dir/index.html`` (+ figure, JSON). Refuses an existing report."""
-    out = Path(out_dir)
-    if (out / "index.html").exists():
-        raise GapError(f"report {out / 'index.html'} exists; pass a new --out folder")
-    out.mkdir(parents=True, exist_ok=True)
+def _errorbars(ax, sub, labels):
+    x = range(len(sub))
+    ax.errorbar(x, sub["mean_residual"], yerr=[sub["mean_residual"] - sub["ci_low"],
+                sub["ci_high"] - sub["mean_residual"]], fmt="o")
+    ax.axhline(0, color="k", lw=0.5)
+    ax.set_xticks(list(x))
+    ax.set_xticklabels(labels, rotation=90, fontsize=6)
+
+
+def _plot_observer(local, path) -> None:
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     for ax, resp in zip(axes, ("gloss", "depth")):
         sub = local[local["response"] == resp].reset_index(drop=True)
-        x = range(len(sub))
-        ax.errorbar(x, sub["mean_residual"], yerr=[sub["mean_residual"] - sub["ci_low"],
-                    sub["ci_high"] - sub["mean_residual"]], fmt="o")
-        ax.axhline(0, color="k", lw=0.5)
-        ax.set_xticks(list(x))
-        ax.set_xticklabels([f"{g}/{d}/{i}" for g, d, i in
-                            zip(sub["gloss_bin"], sub["depth_bin"], sub["illumination"])],
-                           rotation=90, fontsize=6)
+        _errorbars(ax, sub, [f"{g}/{d}/{i}" for g, d, i in
+                             zip(sub["gloss_bin"], sub["depth_bin"], sub["illumination"])])
         ax.set_title(f"{resp} response - truth (slider units), 95 % CI")
         ax.set_xlabel("gloss bin / depth bin / illumination")
     fig.tight_layout()
-    fig.savefig(out / "localisation.png", dpi=100)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def _plot_generic(local, path) -> None:
+    """One panel per localisation axis: mean residual per cell with its 95 % CI."""
+    names = list(dict.fromkeys(local["axis"]))
+    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        sub = local[local["axis"] == name].reset_index(drop=True)
+        _errorbars(ax, sub, list(sub["cell"]))
+        ax.set_xlabel(name)
+        ax.set_ylabel(f"residual ({sub['unit'].iloc[0]}), 95 % CI")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png") -> str:
+    """The body of one layer's report section."""
     rows = "".join(
         f"<tr><td>{html.escape(s['name'])}</td><td>{s['gain']:.4f}</td>"
         f"<td>[{s['ci_low']:.4f}, {s['ci_high']:.4f}]</td><td>{s['p_holm']:.4f}</td>"
@@ -56,22 +79,19 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
     steps = "".join(f"<li>+ {html.escape(s['added'])}: held-out gain {s['gain']:.4f} "
                     f"(p={s['p']:.4f}), parameters {html.escape(json.dumps(s['params']))}</li>"
                     for s in diag.steps) or "<li>none</li>"
-    page = f"""<!doctype html><html><head><meta charset="utf-8">
-<title>Sim-to-real gap: {html.escape(diag.layer)}</title></head><body>
-<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
-<p>{_verdict_text(diag)}</p>
-<h2>Before / after (held-out, mean NLL above the simulation's own noise, nats/trial)</h2>
+    img = f'<h3>Where</h3><img src="{figure}" alt="localisation">' if figure else ""
+    return f"""<p>{verdict_text(diag)}</p>
+<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats per unit)</h3>
 <p>before {diag.gap_before:.4f}; after {diag.gap_after:.4f}; shrink {diag.shrink_abs:.4f}
 (95 % CI {diag.shrink_abs_ci[0]:.4f} to {diag.shrink_abs_ci[1]:.4f}),
 {diag.shrink_pct:.1f} % (95 % CI {diag.shrink_pct_ci[0]:.1f} to {diag.shrink_pct_ci[1]:.1f} %)</p>
-<h2>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h2>
+<h3>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h3>
 <table border="1"><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>
 <th>significant</th></tr>{rows}</table>
-<h2>Greedy combination</h2><ol>{steps}</ol>
-<h2>Where</h2><img src="localisation.png" alt="localisation">
-<p>seed {diag.seed}</p></body></html>"""
-    (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
-    local.to_csv(out / "localisation.csv", index=False)
+<h3>Greedy combination</h3><ol>{steps}</ol>{img}"""
+
+
+def _atomic_page(out: Path, page: str) -> Path:
     fd, tmp = tempfile.mkstemp(dir=out, suffix=".html")
     with os.fdopen(fd, "w") as fh:
         fh.write(page)
@@ -80,3 +100,28 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
     os.link(tmp, out / "index.html")  # never replaces an existing report
     os.unlink(tmp)
     return out / "index.html"
+
+
+def _check_new(out: Path) -> None:
+    if (out / "index.html").exists():
+        raise GapError(f"report {out / 'index.html'} exists; pass a new --out folder")
+    out.mkdir(parents=True, exist_ok=True)
+
+
+def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
+    """Write ``out_dir/index.html`` (+ figure, JSON, localisation CSV). Refuses an existing
+    report."""
+    out = Path(out_dir)
+    _check_new(out)
+    if "axis" in local.columns:
+        _plot_generic(local, out / "localisation.png")
+    else:
+        _plot_observer(local, out / "localisation.png")
+    page = f"""<!doctype html><html><head><meta charset="utf-8">
+<title>Sim-to-real gap: {html.escape(diag.layer)}</title></head><body>
+<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
+{diagnosis_html(diag)}
+<p>seed {diag.seed}</p></body></html>"""
+    (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
+    local.to_csv(out / "localisation.csv", index=False)
+    return _atomic_page(out, page)

@@ -66,6 +66,8 @@ def test_diagnosis_never_imports_injectors():
         names += [f"{n.module}.{a.name}" for n in ast.walk(tree)
                   if isinstance(n, ast.ImportFrom) for a in n.names]
         assert not any("inject" in n or "benchmark" in n for n in names), path
+        # Nor the simulators the injectors generate pseudo-real data with.
+        assert not any(n.endswith(("SimulatedCRT", "load_crt")) for n in names), path
 
 
 def test_cli_diagnose_writes_report_and_refuses_overwrite(tmp_path, capsys):

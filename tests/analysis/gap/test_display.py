@@ -1,0 +1,66 @@
+"""Display-layer gap diagnosis: identification, null, out of catalogue, CLI, bad input."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.gap import GapError, inject
+from analysis.gap.__main__ import main
+from analysis.gap.benchmark import run_benchmark
+from analysis.gap.diagnose import diagnose_display_files
+from studydesign import load_design
+
+
+def _diag(tmp_path, effect, strength, seed):
+    rng = np.random.default_rng(seed)
+    inject.write_calibration(rng, tmp_path / "sim")
+    inject.write_readings(inject.simulate_readings(rng, effect, strength), tmp_path / "real")
+    return diagnose_display_files(tmp_path / "real", tmp_path / "sim", seed=seed, n_boot=300)
+
+
+@pytest.mark.parametrize("effect", inject.DISPLAY_EFFECTS)
+def test_injected_display_effect_is_identified(tmp_path, effect):
+    diag, local = _diag(tmp_path, effect, inject.DISPLAY_STRENGTH[effect], 4)
+    assert diag.verdict.split(" + ")[0] == effect
+    assert diag.shrink_pct > 50
+    assert {"luminance fraction", "screen position (x, y norm)"} == set(local["axis"])
+
+
+def test_black_offset_recovered(tmp_path):
+    diag, _ = _diag(tmp_path, "black_offset", 0.05, 6)
+    assert diag.steps[0]["params"]["c"] == pytest.approx(0.05, abs=0.01)
+
+
+@pytest.mark.parametrize("effect,verdict", [("none", "unexplained"),
+                                            ("gamma_change", "unexplained")])
+def test_nothing_or_out_of_catalogue_is_unexplained(tmp_path, effect, verdict):
+    diag, _ = _diag(tmp_path, effect, inject.DISPLAY_STRENGTH.get(effect, 0.0), 8)
+    assert diag.verdict == verdict
+
+
+def test_cli_display_report(tmp_path, capsys):
+    rng = np.random.default_rng(3)
+    inject.write_calibration(rng, tmp_path / "cal")
+    inject.write_readings(inject.simulate_readings(rng, "warmup_drift", 0.03), tmp_path / "r")
+    args = ["diagnose", "--layer", "display", "--real", str(tmp_path / "r"), "--sim",
+            str(tmp_path / "cal" / "calibration.json"), "--out", str(tmp_path / "rep")]
+    assert main(args) == 0
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "warmup_drift" in page and (tmp_path / "rep" / "localisation.png").stat().st_size
+    assert "warmup_drift" in capsys.readouterr().out
+
+
+def test_display_needs_repeats(tmp_path):
+    rng = np.random.default_rng(1)
+    inject.write_calibration(rng, tmp_path / "cal")
+    inject.write_readings(inject.simulate_readings(rng, repeats=1), tmp_path / "r")
+    with pytest.raises(GapError, match="repeat"):
+        diagnose_display_files(tmp_path / "r", tmp_path / "cal", seed=0)
+    with pytest.raises(GapError, match="calibration.json"):
+        diagnose_display_files(tmp_path / "r", tmp_path / "nothing", seed=0)
+
+
+def test_display_benchmark_small():
+    r = run_benchmark(load_design(), "display", trials=3, seed=2, n_boot=200, log=None)
+    assert len(r["records"]) == 3 and all(x["layer"] == "display" for x in r["records"])
