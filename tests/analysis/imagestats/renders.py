@@ -18,7 +18,7 @@ import numpy as np
 import OpenEXR
 from PIL import Image
 
-from stimuli import append_manifest_row, sha256_file
+from stimuli import MANIFEST_COLUMNS, append_manifest_row, sha256_file
 
 BORDER = 50.0
 EXTENT_CM = 5.0  # the shipped design's array.extent_cm (checked by the tests)
@@ -83,7 +83,8 @@ def write_render_set(folder: Path, rng, *, n_images: int, side_px: int = 128,
         png = folder / "png" / f"{sid}.png"
         write_exr(exr, img)
         Image.fromarray(np.clip(img / img.max() * 255, 0, 255).astype(np.uint8)).save(png)
-        append_manifest_row(folder / "manifest.csv", {
+        # columns the renderer may add beyond these stay empty
+        append_manifest_row(folder / "manifest.csv", dict.fromkeys(MANIFEST_COLUMNS, "") | {
             "stimulus_id": sid, "illumination": illumination, "gloss_level": gloss,
             "depth_level": depth, "true_gloss_pct": 10.0 * (gloss - 1),
             "true_depth_cm": 0.4 * depth, "light_field": 0, "array_index": k, "seed": 1000 + k,
