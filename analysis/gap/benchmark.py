@@ -59,7 +59,8 @@ def _observer_truth(effect: str, strength: float, ills: list[str]) -> list:
 
 
 def _observer_trial(design, effect, strength, rng, tmp: Path, n_boot, n_participants=4):
-    real = inject.simulate_sessions(design, n_participants, rng, effect, strength)
+    real = inject.simulate_sessions(design, n_participants, rng, effect, strength,
+                                    lab_files=True)
     sim = inject.simulate_sessions(design, n_participants, rng)
     inject.write_sessions(real, tmp / "real")
     inject.write_sessions(sim, tmp / "sim")
@@ -72,8 +73,9 @@ def _observer_trial(design, effect, strength, rng, tmp: Path, n_boot, n_particip
                                              frame["order"])]
     test = frame[np.isin(ids, list(diag.heldout))].copy()
     test.attrs = dict(frame.attrs)
-    truth = _observer_truth(effect, strength, [i.name for i in design.illuminations])
-    sigma = {"gloss": inject.NOISE_SD, "depth": inject.NOISE_SD}
+    names = inject.lab_names(design)
+    truth = _observer_truth(effect, strength, [names[i.name] for i in design.illuminations])
+    sigma = inject.ideal_noise_sd(design)
     return diag, float(diag.loss_before - observer_nll(test, truth, sigma).mean())
 
 

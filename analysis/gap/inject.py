@@ -1,5 +1,7 @@
-"""Benchmark injectors: pseudo-real observer data with a hidden effect. The diagnosis never
-imports this module (tests/analysis/gap/test_blind.py checks the import graph)."""
+"""Benchmark injectors: pseudo-real data with a hidden effect (observer, display, render).
+
+The diagnosis never imports this module, nor the simulators used here (the experiment's
+observers, calibration.SimulatedCRT); tests/analysis/gap/test_gap.py checks the import graph."""
 
 from __future__ import annotations
 
@@ -9,72 +11,105 @@ import numpy as np
 import pandas as pd
 
 __all__ = ["DISPLAY_EFFECTS", "DISPLAY_OUT_OF_CATALOGUE", "DISPLAY_STRENGTH", "OBSERVER_EFFECTS",
-           "OUT_OF_CATALOGUE", "display_truth", "simulate_readings", "simulate_sessions",
+           "OUT_OF_CATALOGUE", "display_truth", "ideal_noise_sd", "lab_names",
+           "simulate_readings", "simulate_sessions",
            "write_calibration", "write_readings", "write_sessions"]
 
 OBSERVER_EFFECTS = ("crosstalk", "central_tendency", "illumination_gain", "label_rounding",
                     "lapses", "serial_dependence")
 # Out of catalogue: heteroscedastic noise growing with depth, and a gloss bias on odd stimuli.
 OUT_OF_CATALOGUE = ("depth_noise_scaling", "stimulus_bias")
-NOISE_SD = 0.8  # slider units, the benchmark's ideal observer
+
+
+def ideal_noise_sd(design) -> dict:
+    """The experiment's ideal observer's trial noise in slider units ({'gloss', 'depth'})."""
+    from experiment import load_observer_params
+
+    p = load_observer_params()["ideal"]
+    return {"gloss": float(p["gloss_noise_pct"]) / design.slider.gloss_pct_per_unit,
+            "depth": float(p["depth_noise_cm"]) / design.slider.depth_cm_per_unit}
+
+
+def lab_names(design) -> dict:
+    """Illumination names the benchmark's pseudo-real files use (not the design's)."""
+    return {i.name: f"lab_probe_{k + 1}" for k, i in enumerate(design.illuminations)}
 
 
 def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
-                      effect: str = "none", strength: float = 0.0) -> pd.DataFrame:
-    """Ideal observer (truth + noise) over the design's rendered stimuli, plus one effect."""
+                      effect: str = "none", strength: float = 0.0, *,
+                      lab_files: bool = False) -> pd.DataFrame:
+    """Session rows (experiment.SESSION_COLUMNS) of the experiment's ``ideal`` observers
+    (experiment.make_observer / simulate_dataset: the app's plans, noise and file format),
+    with one effect added in slider units before the slider's clipping.
+
+    ``lab_files``: rename illuminations (:func:`lab_names`) and stimulus ids as a lab's own
+    files might, so the diagnosis cannot rely on the design's names.
+    """
+    from experiment import make_observer, simulate_dataset
+
     s = design.slider
-    gl = np.array(design.gloss.rendered_levels)
-    dl = np.array(design.depth.rendered_levels)
+    mid = 0.5 * (s.min + s.max)
     ills = [i.name for i in design.illuminations]
-    rows = []
+    frames = []
     for p in range(n_participants):
-        stim = [(g, d, i) for g in gl for d in dl for i in ills]
-        order = rng.permutation(len(stim))
-        prev = {"gloss": None, "depth": None}
-        for k, j in enumerate(order):
-            g, d, ill = stim[j]
-            gu = float(g)
-            du = float(d)
-            mid = 0.5 * (s.min + s.max)
-            mu = {"gloss": gu, "depth": du}
-            sd = {"gloss": NOISE_SD, "depth": NOISE_SD}
+        obs = make_observer("ideal", f"B{p:02d}", rng, design=design)
+        frame = simulate_dataset(design, [obs], rng, calibration_id="bench")
+        frame = frame.sort_values(["session", "trial"], ignore_index=True)
+        tg = frame["true_gloss_pct"].to_numpy(float)
+        td = frame["true_depth_cm"].to_numpy(float)
+        eg, ed = obs.estimate(tg, td, rng)
+        g0 = float(s.to_gloss_pct(s.min))
+        truth = {"gloss": s.min + (tg - g0) / s.gloss_pct_per_unit,
+                 "depth": td / s.depth_cm_per_unit}
+        noise = {"gloss": s.min + (eg - g0) / s.gloss_pct_per_unit - truth["gloss"],
+                 "depth": ed / s.depth_cm_per_unit - truth["depth"]}
+        ill = frame["illumination"].astype(str).to_numpy()
+        gl = frame["gloss_level"].to_numpy(int)
+        dl = frame["depth_level"].to_numpy(int)
+        ses = frame["session"].to_numpy(int)
+        resp = {"gloss": np.empty(len(frame)), "depth": np.empty(len(frame))}
+        prev = None
+        for k in range(len(frame)):
+            if k and ses[k] != ses[k - 1]:
+                prev = None
+            t = {r: truth[r][k] for r in resp}
+            mu = dict(t)
+            scale = 1.0
             if effect == "crosstalk":
-                mu["gloss"] += strength * (du - mid)
+                mu["gloss"] += strength * (t["depth"] - mid)
             elif effect == "central_tendency":
                 mu = {r: v - strength * (v - mid) for r, v in mu.items()}
             elif effect == "illumination_gain":
-                sign = 1 if ill == ills[0] else -1
-                mu["gloss"] += sign * strength * (gu - mid)
-            elif effect == "serial_dependence" and prev["gloss"] is not None:
+                mu["gloss"] += (1 if ill[k] == ills[0] else -1) * strength * (t["gloss"] - mid)
+            elif effect == "serial_dependence" and prev is not None:
                 mu = {r: v + strength * (prev[r] - v) for r, v in mu.items()}
             elif effect == "depth_noise_scaling":
-                sd = {r: NOISE_SD * (1 + strength * 3 * (du - mid) / mid) for r in sd}
-                sd = {r: max(v, 0.1) for r, v in sd.items()}
+                scale = max(1 + strength * 3 * (t["depth"] - mid) / mid, 0.1)
             elif effect == "stimulus_bias":
-                mu["gloss"] += strength * 3 * (1 if (int(g) * 7 + int(d) * 3) % 2 else -1)
-            resp = {r: mu[r] + rng.normal(0, sd[r]) for r in mu}
-            for r in list(resp):
+                mu["gloss"] += strength * 3 * (1 if (gl[k] * 7 + dl[k] * 3) % 2 else -1)
+            out = {}
+            for r, column in resp.items():
+                v = mu[r] + scale * noise[r][k]
                 if effect == "label_rounding" and rng.random() < strength:
-                    resp[r] = float(np.round(resp[r]))
+                    v = float(np.round(v))
                 if effect == "lapses" and rng.random() < strength:
-                    resp[r] = rng.uniform(s.min, s.max)
-                resp[r] = float(np.clip(resp[r], s.min, s.max))
-            prev = dict(resp)
-            rows.append({
-                "participant": f"B{p:02d}", "session": 1, "trial": k + 1, "order": k + 1,
-                "stimulus_id": f"g{g}_d{d}_{ill}", "illumination": ill,
-                "gloss_level": int(g), "depth_level": int(d),
-                "true_gloss_pct": (gu - s.min) * s.gloss_pct_per_unit,
-                "true_depth_cm": du * s.depth_cm_per_unit,
-                "gloss_match": resp["gloss"], "depth_match": resp["depth"],
-                "rt_s": 2.0, "onset_s": 0.0, "dropped_frames": 0,
-                "timestamp_utc": "", "app_version": "bench", "calibration_id": "bench",
-            })
-    return pd.DataFrame(rows)
+                    v = rng.uniform(s.min, s.max)
+                out[r] = float(np.clip(v, s.min, s.max))
+                column[k] = out[r]
+            prev = out
+        frame["gloss_match"] = resp["gloss"]
+        frame["depth_match"] = resp["depth"]
+        frames.append(frame)
+    out = pd.concat(frames, ignore_index=True)
+    if lab_files:
+        out["illumination"] = out["illumination"].map(lab_names(design))
+        out["stimulus_id"] = [f"LAB-{i:05d}" for i in range(len(out))]
+    return out
 
 
 def write_sessions(frame: pd.DataFrame, folder: Path) -> None:
-    """One CSV per participant and session, ``<P>_s<N>.csv``."""
+    """One CSV per participant and session, ``folder/<P>_s<N>.csv`` (the app's naming)."""
+    folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for (p, ses), grp in frame.groupby(["participant", "session"]):
         grp.to_csv(folder / f"{p}_s{ses}.csv", index=False)

@@ -67,7 +67,8 @@ def test_diagnosis_never_imports_injectors():
                   if isinstance(n, ast.ImportFrom) for a in n.names]
         assert not any("inject" in n or "benchmark" in n for n in names), path
         # Nor the simulators the injectors generate pseudo-real data with.
-        assert not any(n.endswith(("SimulatedCRT", "load_crt")) for n in names), path
+        assert not any(n.endswith(("SimulatedCRT", "load_crt", "make_observer", "simulate_dataset",
+                                   "write_simulated_sessions")) for n in names), path
 
 
 def test_cli_diagnose_writes_report_and_refuses_overwrite(tmp_path, capsys):
