@@ -138,22 +138,32 @@ def _fsync_dir(folder: Path) -> None:
 class SessionWriter:
     """Append-only writer of one session's CSV and slider histories (a context manager).
 
-    Each :meth:`append` writes one complete row with a single ``write`` on an ``O_APPEND`` file
-    descriptor, then ``fsync``s it, so that a crash or ``kill -9`` right after the call loses
-    nothing, and a crash during it can at worst leave one partial last line (detected by
-    :func:`read_session`).
+    Each :meth:`append` writes one complete CSV row with a single ``write`` on an ``O_APPEND``
+    file descriptor: when it returns, the row is in the kernel and survives a crash or
+    ``kill -9`` of the app. It is then ``fsync``-ed to the disk (survives a power cut): at once
+    (``background_fsync=False``) or on a worker thread while the app draws the next stimulus
+    (``True``; the fsync of one trial always completes before the next trial is appended and
+    before the file is closed, and its errors are raised there). A crash during the ``write``
+    itself can at worst leave one partial last line, which :func:`read_session` detects.
 
     Parameters
     ----------
     data_dir : str or Path
     participant : str
     session : int
+    background_fsync : bool
+        Run the fsync beside the next stimulus's drawing (the session app does: the fsync of two
+        files costs about half a frame, see bench/experiment_frame_cost.py).
     """
 
-    def __init__(self, data_dir, participant: str, session: int):
+    def __init__(self, data_dir, participant: str, session: int, *,
+                 background_fsync: bool = False):
         self.path = session_path(data_dir, participant, session)
         self.sliders = sliders_path(data_dir, participant, session)
         self._fd = self._sfd = None
+        self._background = background_fsync
+        self._pool = None
+        self._pending = None
 
     def __enter__(self) -> Self:
         for p in (self.path, self.sliders):
@@ -163,15 +173,32 @@ class SessionWriter:
         self._sfd = os.open(self.sliders, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
         if new:
             self._write(self._fd, _csv_line(SESSION_COLUMNS))
+            os.fsync(self._fd)
             _fsync_dir(self.path.parent)
             _fsync_dir(self.sliders.parent)
+        if self._background:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fsync")
         return self
 
     def __exit__(self, *exc) -> None:
-        for fd in (self._fd, self._sfd):
-            if fd is not None:
-                os.close(fd)
-        self._fd = self._sfd = None
+        try:
+            self.wait()
+        finally:
+            if self._pool is not None:
+                self._pool.shutdown(wait=True)
+                self._pool = None
+            for fd in (self._fd, self._sfd):
+                if fd is not None:
+                    os.close(fd)
+            self._fd = self._sfd = None
+
+    def wait(self) -> None:
+        """Block until the last row is on the disk (raises the fsync's error, if any)."""
+        if self._pending is not None:
+            pending, self._pending = self._pending, None
+            pending.result()
 
     @staticmethod
     def _write(fd: int, text: str) -> None:
@@ -179,7 +206,10 @@ class SessionWriter:
         written = os.write(fd, data)
         if written != len(data):
             raise OSError(f"short write ({written} of {len(data)} bytes); is the disk full?")
-        os.fsync(fd)
+
+    def _fsync(self) -> None:
+        os.fsync(self._sfd)
+        os.fsync(self._fd)
 
     def append(self, row: dict, sliders: dict | None = None) -> None:
         """Write one trial: its slider histories first, then its CSV row (the commit point).
@@ -196,11 +226,16 @@ class SessionWriter:
             raise ValueError(f"session row lacks {missing}")
         if self._fd is None:
             raise RuntimeError("SessionWriter used outside its `with` block")
+        self.wait()
         if sliders is not None:
             record = {"participant": row["participant"], "session": int(row["session"]),
                       "trial": int(row["trial"]), "stimulus_id": row["stimulus_id"], **sliders}
             self._write(self._sfd, json.dumps(record) + "\n")
         self._write(self._fd, _csv_line([row[c] for c in SESSION_COLUMNS]))
+        if self._pool is not None:
+            self._pending = self._pool.submit(self._fsync)
+        else:
+            self._fsync()
 
 
 def _csv_line(values) -> str:

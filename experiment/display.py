@@ -228,8 +228,10 @@ class SessionDisplay:
         self.info["keyboard_backend"] = backend
         self.info["font"] = font
         lay = self.layout
-        labels = [str(t) for t in self.design.slider.ticks]
-        slider_kw = {"ticks": list(self.design.slider.ticks), "labels": labels,
+        # Tick labels are TextStims, not the Slider's own labels: those are TextBox2 objects
+        # whose draw() costs ~2.5 ms of Python each per frame (colour-palette copies; 22 labels
+        # = two frames at 85 Hz). bench/experiment_frame_cost.py measures both side by side.
+        slider_kw = {"ticks": list(self.design.slider.ticks), "labels": None,
                      "granularity": 0, "size": (lay.slider_width_px, lay.slider_height_px),
                      "units": "pix", "style": "rating", "markerColor": "Red",
                      "lineColor": "White", "labelColor": "White", "font": font,
@@ -238,6 +240,12 @@ class SessionDisplay:
                                           **slider_kw)
         self.depth_slider = visual.Slider(self.win, pos=(0, lay.depth_y_px), name="depth",
                                           **slider_kw)
+        self.tick_labels = [
+            visual.TextStim(self.win, str(t), pos=(self._tick_x(t), y - 1.1 * lay.label_height_px),
+                            height=0.8 * lay.label_height_px, font=font, units="pix",
+                            color="White", autoLog=False)
+            for y in (lay.gloss_y_px, lay.depth_y_px) for t in self.design.slider.ticks
+        ]
         title = lay.label_height_px
         self.gloss_title = visual.TextStim(
             self.win, "gloss", pos=(0, lay.gloss_y_px + 1.3 * title), height=title, font=font,
@@ -265,6 +273,12 @@ class SessionDisplay:
         self.info["n_textures"] = len(self.textures)
         self.win.recordFrameIntervals = False
 
+    def _tick_x(self, value: float) -> float:
+        """Window x (px) of a slider value (both sliders span the same x range)."""
+        lo, hi = self.design.slider.ticks[0], self.design.slider.ticks[-1]
+        return (value - lo) / (hi - lo) * self.layout.slider_width_px \
+            - self.layout.slider_width_px / 2
+
     def _cm(self, xy_px):
         px_per_cm = self.design.display.resolution_px[0] / self.cal.width_cm
         return (xy_px[0] / px_per_cm, xy_px[1] / px_per_cm)
@@ -277,6 +291,8 @@ class SessionDisplay:
         self.depth_title.draw()
         self.gloss_slider.draw()
         self.depth_slider.draw()
+        for label in self.tick_labels:
+            label.draw()
         if hint:
             self.hint.draw()
 

@@ -317,7 +317,8 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, eve
     frames_csv = logs / f"{stem}_run{run}_frames.csv"
     with SessionDisplay(design, cal, stim_frame, fullscr=req.fullscr, fast=req.fast,
                         monitor_folder=Path(str(req.calibration)).parent / "monitors") as disp, \
-            SessionWriter(req.data_dir, req.participant, prep.session) as writer:
+            SessionWriter(req.data_dir, req.participant, prep.session,
+                          background_fsync=True) as writer:
         from psychopy import core
 
         win = disp.win

@@ -138,7 +138,9 @@ class SimulatedHand(threading.Thread):
         """Press on the slider's line, drag the marker to ``value``, release.
 
         Each step waits two flips: an event sent just after one flip's event dispatch is only
-        seen at the next, so two flips guarantee the app drew a frame with it.
+        seen at the next, so two flips guarantee the app drew a frame with it. With ``fast``,
+        the press and the drag to the target go in one step (the X server still gets press,
+        motion with the button held, release; the app sees the drag in one frame).
         """
         x0, x1, y = geometry[name]
         lo, hi = geometry["min"], geometry["max"]
@@ -146,14 +148,14 @@ class SimulatedHand(threading.Thread):
         start = self.rng.uniform(x0, x1)
         x.move(start, y + self.rng.uniform(-2, 2))
         x.button(True)
-        self._wait_frames()
+        if not self.fast:
+            self._wait_frames()
         x.move(target, y)
         self._wait_frames()
         x.button(False)
         self._wait_frames()
 
     def _answer(self, x: XTestInput, row: dict, geometry: dict) -> None:
-        self._wait_frames(1)
         if self.quit_at_trial is not None and int(row["trial"]) == self.quit_at_trial:
             self._press(x, "escape")
             self._wait_frames()

@@ -28,7 +28,8 @@ def make_calibration(folder: Path, design, *, calibration_id="test", age_days=1.
     return save_calibration(cal, Path(folder) / "calibration.json")
 
 
-def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=None) -> Path:
+def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=None,
+                  size_px: int = SIZE_PX, width_cm: float = WIDTH_CM) -> Path:
     """Write one real PNG per stimulus and a manifest listing them; returns the manifest path.
 
     Each PNG is a green square with a darker border and a stripe pattern unique to its stimulus.
@@ -40,7 +41,7 @@ def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=N
     if stimulus_ids is not None:
         stim = stim[stim["stimulus_id"].isin(stimulus_ids)]
     for k, row in enumerate(stim.itertuples(index=False)):
-        img = np.zeros((SIZE_PX, SIZE_PX, 3), np.uint8)
+        img = np.zeros((size_px, size_px, 3), np.uint8)
         img[:] = GREEN
         img[:, :: 2 + k % 7] = (20, 120, 40)
         img[:4], img[-4:], img[:, :4], img[:, -4:] = 10, 10, 10, 10
@@ -52,7 +53,7 @@ def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=N
             gloss_level=row.gloss_level, depth_level=row.depth_level,
             true_gloss_pct=row.true_gloss_pct, true_depth_cm=row.true_depth_cm,
             light_field=row.illumination, array_index=0, seed=k, rho_d=0.1, rho_s=0.05,
-            alpha=0.1, spp=1, width_px=SIZE_PX, height_px=SIZE_PX, image_width_cm=WIDTH_CM,
+            alpha=0.1, spp=1, width_px=size_px, height_px=size_px, image_width_cm=width_cm,
             variant="test", envmap="none", calibration_id=calibration_id,
             exr_path="", exr_sha256="", png_path=f"png/{row.stimulus_id}.png",
             png_sha256=sha256_file(png),
