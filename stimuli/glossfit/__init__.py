@@ -1,0 +1,59 @@
+"""Gloss fitting: Ward parameters of the physical gloss spheres from HDR photos (issue 7).
+
+Pipeline: ``load_photo_set`` (envmap.exr, photos/gloss_XXX.exr, setup.toml; checked) ->
+``register`` each photo to a reference render (the seed's affine Nelder-Mead) -> ``grid_fit``
+(the seed's shrinking grid) or ``basis_fit`` (closed-form albedos from basis renders, 1-D alpha
+search; same optimum, far fewer renders) -> residuals by region -> ``gloss_table_from_fits``
+(common albedo, rho_s on a line in gloss with leave-one-out errors). ``fit_gloss`` runs it all
+and writes the output folder; ``synth_photo_set`` renders test photo sets.
+
+Command lines: ``python -m stimuli fit-gloss`` and ``python -m stimuli synth-photos``.
+"""
+
+from stimuli.glossfit.fit import FitRun, fit_gloss, fit_level
+from stimuli.glossfit.methods import BasisCache, FitSettings, LevelFit, basis_fit, grid_fit
+from stimuli.glossfit.output import FITS_COLUMNS
+from stimuli.glossfit.photoset import (
+    GlossFitError,
+    PhotoSet,
+    PhotoSetup,
+    load_photo_set,
+    load_setup,
+    photo_name,
+)
+from stimuli.glossfit.registration import Registration, register, warp_photo
+from stimuli.glossfit.scene import Camera, SphereScene, fit_camera, photo_camera
+from stimuli.glossfit.synth import EFFECTS, MATERIALS, parse_effects, room_panorama, synth_photo_set
+from stimuli.glossfit.table import gloss_table_from_fits, line_with_loo
+
+__all__ = [
+    "EFFECTS",
+    "FITS_COLUMNS",
+    "MATERIALS",
+    "BasisCache",
+    "Camera",
+    "FitRun",
+    "FitSettings",
+    "GlossFitError",
+    "LevelFit",
+    "PhotoSet",
+    "PhotoSetup",
+    "Registration",
+    "SphereScene",
+    "basis_fit",
+    "fit_camera",
+    "fit_gloss",
+    "fit_level",
+    "gloss_table_from_fits",
+    "grid_fit",
+    "line_with_loo",
+    "load_photo_set",
+    "load_setup",
+    "parse_effects",
+    "photo_camera",
+    "photo_name",
+    "register",
+    "room_panorama",
+    "synth_photo_set",
+    "warp_photo",
+]
