@@ -53,15 +53,21 @@ def _cmd_render(args) -> int:
     gloss, gloss_name = _load_gloss(args.gloss_table)
     cal = _load_calibration(design, args.calibration)
     variant = setup_mitsuba(args.variant)  # fails here, with the fix, before any worker starts
+    from stimuli.render import multijitter_spp
+
+    spp = multijitter_spp(args.spp)
+    if spp != args.spp:
+        print(f"note: the multijitter sampler takes {spp} samples per pixel for --spp {args.spp} "
+              "(an a x b grid); recording and using that", file=sys.stderr)
     camera = camera_geometry(design, cal)
     size = args.size or camera.native_px
     cores = os.cpu_count() or 1
     client = cluster = None
     workers = args.workers if args.workers is not None else min(cores, 4)
     threads = max(1, cores // max(workers, 1)) if not args.scheduler else 0
-    job = RenderJob(camera=camera, size_px=size, spp=args.spp, variant=variant,
+    job = RenderJob(camera=camera, size_px=size, spp=spp, variant=variant,
                     design_path=str(design.source), threads=threads)
-    print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {args.spp} spp, "
+    print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {spp} spp, "
           f"variant {variant}, image width {camera.image_width_cm:.3f} cm at "
           f"{camera.distance_cm:g} cm, gloss table {gloss_name}, calibration "
           f"{cal.calibration_id} -> {args.out}", file=sys.stderr)

@@ -32,6 +32,7 @@ __all__ = [
     "CameraGeometry",
     "StimulusRenderer",
     "camera_geometry",
+    "multijitter_spp",
 ]
 
 #: Border around the largest possible array footprint, cm (each side).
@@ -86,6 +87,19 @@ def camera_geometry(design, calibration, *, margin_cm: float = MARGIN_CM) -> Cam
                           native_px=round(width / pitch_cm), backing_half_cm=4.0 * half)
 
 
+def multijitter_spp(spp: int) -> int:
+    """The sample count Mitsuba's ``multijitter`` sampler really takes for a requested one.
+
+    It lays samples on an a x b grid (a = floor(sqrt(spp)), b = ceil(spp / a)), so e.g. 32 becomes
+    35; perfect squares (16, 64, 256) and products such as 8 = 2 x 4 are kept. Record this one.
+    """
+    import mitsuba as mi
+
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    return int(mi.load_dict({"type": "multijitter", "sample_count": int(spp)}).sample_count())
+
+
 def _mitsuba_mesh(mesh, bsdf):
     import mitsuba as mi
 
@@ -113,17 +127,22 @@ class StimulusRenderer:
     size_px : int
         Image width = height, px.
     spp : int
-        Samples per pixel (multijitter).
+        Samples per pixel (multijitter; rounded as :func:`multijitter_spp`, see ``.spp``).
     max_depth : int
         Path length limit (5: light bounces between neighbouring bumps are kept).
+    bsdf : dict, optional
+        Another Mitsuba BSDF dict instead of ``ward`` (benchmarks compare with ``roughplastic``);
+        :meth:`render` then only re-renders (pass ``None`` parameters).
     """
 
-    def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5):
+    def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5,
+                 bsdf: dict | None = None):
+        self.bsdf = bsdf
         if size_px < 8 or spp < 1:
             raise ValueError(f"size_px must be >= 8 and spp >= 1, got {size_px}, {spp}")
         self.camera = camera
         self.size_px = int(size_px)
-        self.spp = int(spp)
+        self.spp = multijitter_spp(int(spp))  # the count really used (and recorded)
         self.max_depth = int(max_depth)
         self.scene = None
         self.params = None
@@ -139,7 +158,7 @@ class StimulusRenderer:
         if key == self._key:
             return
         cam = self.camera
-        bsdf = mi.load_dict({"type": "ward", "id": "ward"})
+        bsdf = mi.load_dict(self.bsdf or {"type": "ward", "id": "ward"})
         mesh = _mitsuba_mesh(render_mesh(geometry, backing_half_cm=cam.backing_half_cm), bsdf)
         film_format = "luminance"
         self.scene = mi.load_dict({
@@ -160,8 +179,8 @@ class StimulusRenderer:
             "array": mesh,
         })
         self.params = mi.traverse(self.scene)
-        self._keys = {name: next(k for k in self.params.properties if k.endswith("." + name))
-                      for name in ("rho_d", "rho_s", "alpha")}
+        self._keys = {name: next((k for k in self.params.properties if k.endswith("." + name)),
+                                 None) for name in ("rho_d", "rho_s", "alpha")}
         self._key = key
         self.n_loads += 1
 
@@ -182,11 +201,12 @@ class StimulusRenderer:
 
         if self.scene is None:
             raise RuntimeError("StimulusRenderer.render before load(geometry, probe)")
-        check_ward_params(rho_d, rho_s, alpha)
-        self.params[self._keys["rho_d"]] = mi.Float(float(rho_d))
-        self.params[self._keys["rho_s"]] = mi.Float(float(rho_s))
-        self.params[self._keys["alpha"]] = mi.Float(float(alpha))
-        self.params.update()
+        if self.bsdf is None:
+            check_ward_params(rho_d, rho_s, alpha)
+            self.params[self._keys["rho_d"]] = mi.Float(float(rho_d))
+            self.params[self._keys["rho_s"]] = mi.Float(float(rho_s))
+            self.params[self._keys["alpha"]] = mi.Float(float(alpha))
+            self.params.update()
         img = np.asarray(mi.render(self.scene, spp=self.spp, seed=int(seed) & 0x7FFFFFFF))
         img = img[..., 0] if img.ndim == 3 else img
         if not np.all(np.isfinite(img)):

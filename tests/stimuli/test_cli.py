@@ -1,0 +1,137 @@
+"""`python -m stimuli`: render (real Mitsuba renders, tiny), resume after a kill, bad input, export.
+
+Renders here are 32 px at 4 spp so the whole file runs in well under a minute on 2 cores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+from PIL import Image
+
+from stimuli import load_manifest, read_exr, verify_manifest
+from stimuli.__main__ import main
+
+TINY = ["--size", "32", "--spp", "4", "--no-progress"]
+
+
+def _env():
+    return dict(os.environ, DRJIT_LIBLLVM_PATH=os.environ.get(
+        "DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1"))
+
+
+def test_render_writes_manifest_exr_png(tmp_path, design, capsys, mitsuba_variant):
+    out = tmp_path / "r"
+    rc = main(["render", "--set", "preview", "--filter", "illumination=indoor", "--out", str(out),
+               "--workers", "0", *TINY])
+    assert rc == 0, capsys.readouterr().err
+    capsys.readouterr()
+    m = load_manifest(out)
+    assert len(m) == 4 and verify_manifest(out, kinds=("png", "exr")) == []
+    row = m.iloc[0]
+    assert row["variant"] == mitsuba_variant and row["width_px"] == 32 and row["spp"] == 4
+    assert row["image_width_cm"] > design.array.extent_cm
+    assert row["distance_cm"] == design.display.viewing_distance_cm
+    exr = read_exr(out / row["exr_path"])
+    assert exr.shape == (32, 32) and exr.dtype == np.float32 and exr.min() >= 0
+    png = np.asarray(Image.open(out / row["png_path"]))
+    assert png.dtype == np.uint8 and png.shape == (32, 32) and png.max() > png.min()
+    assert m["tonemap_lmax"].nunique() == 1  # one tone curve per illumination condition
+    # glossier stimuli reach brighter highlights
+    g = m.sort_values("gloss_level")
+    peaks = [np.percentile(read_exr(out / p), 99) for p in g["exr_path"]]
+    assert max(peaks[2:]) > max(peaks[:2])
+    # a second run finds everything done
+    rc = main(["render", "--set", "preview", "--filter", "illumination=indoor", "--out", str(out),
+               "--workers", "0", *TINY])
+    summary = json.loads(capsys.readouterr().out)
+    assert rc == 0 and summary["rendered"] == 0 and summary["png_skipped"] == 4
+    # a PNG changed after recording is never silently replaced
+    (out / row["png_path"]).write_bytes(b"x")
+    rc = main(["render", "--set", "preview", "--filter", "illumination=indoor", "--out", str(out),
+               "--workers", "0", *TINY])
+    assert rc == 1 and "never overwritten" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_killed_run_resumes_and_keeps_finished_work(tmp_path):
+    """SIGKILL the renderer mid-run; the re-run renders only what is missing, no file half-written."""
+    out = tmp_path / "k"
+    cmd = [sys.executable, "-m", "stimuli", "render", "--set", "preview", "--out", str(out),
+           "--workers", "0", *TINY]
+    proc = subprocess.Popen(cmd, env=_env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    log = out / "renders.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline:
+        if log.is_file() and len(log.read_text().splitlines()) >= 3:  # header + 2 EXRs
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    n_before = len(pd.read_csv(log))
+    assert 2 <= n_before < 8 and not (out / "manifest.csv").exists()
+    res = subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads(res.stdout)
+    assert summary["render_skipped"] == n_before and summary["rendered"] == 8 - n_before
+    assert verify_manifest(out, kinds=("png", "exr")) == []
+    assert not list(out.rglob(".*tmp*"))
+
+
+@pytest.mark.slow
+def test_dask_local_cluster_render(tmp_path, capsys):
+    out = tmp_path / "d"
+    rc = main(["render", "--set", "preview", "--filter", "depth_level=2", "--out", str(out),
+               "--workers", "2", *TINY])
+    assert rc == 0, capsys.readouterr().err
+    assert len(load_manifest(out)) == 4 and verify_manifest(out) == []
+
+
+def _bad(tmp_path):
+    bad_json = tmp_path / "cal.json"
+    bad_json.write_text("{not json")
+    bad_table = tmp_path / "gloss.csv"
+    bad_table.write_text("gloss_pct,rho_d\n0,0.5\n")
+    src = (tmp_path / "design.toml")
+    from studydesign import default_design_path
+
+    src.write_text(default_design_path().read_text().replace('"interior.exr"', '"nowhere.exr"'))
+    return [
+        (["--set", "nonsense"], "unknown stimulus set"),
+        (["--gloss-table", str(tmp_path / "missing.csv")], "missing.csv not found"),
+        (["--gloss-table", str(bad_table)], "lacks columns"),
+        (["--calibration", str(tmp_path / "none.json")], "none.json not found"),
+        (["--calibration", str(bad_json)], "not valid JSON"),
+        (["--filter", "depth_level=77"], "select no stimuli"),
+        (["--design", str(src)], "nowhere.exr"),
+    ]
+
+
+def test_bad_input_gives_clear_errors(tmp_path, capsys, mitsuba_variant):
+    for extra, match in _bad(tmp_path):
+        design = extra[:2] if extra[0] == "--design" else []
+        rest = extra[2:] if design else extra
+        args = [*design, "render", "--out", str(tmp_path / "o"), "--workers", "0", *TINY, *rest]
+        if "--set" not in rest:
+            args += ["--set", "preview"]
+        assert main(args) == 1, extra
+        err = capsys.readouterr().err
+        assert match in err, (extra, err)
+    assert not (tmp_path / "o" / "manifest.csv").exists()
+
+
+def test_export_print_writes_a_watertight_stl(tmp_path, capsys):
+    out = tmp_path / "d5.stl"
+    assert main(["export-print", "--depth-level", "5", "--spacing-cm", "0.1", str(out)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["watertight"].startswith("closed") and out.stat().st_size == 84 + 50 * info["faces"]
+    assert main(["export-print", "--depth-level", "42", str(out)]) == 1
+    assert "not a depth level" in capsys.readouterr().err
