@@ -39,7 +39,10 @@ def test_full_simulated_session_through_the_window(session_files, design):
     log = json.loads((f["data"] / "logs" / "P01_s1_run1.json").read_text())
     intended = np.array([log["simulated"]["intended"][str(t)] for t in data["trial"]])
     got = data[["gloss_match", "depth_match"]].to_numpy()
-    scale_units_per_px = (design.slider.max - design.slider.min) / (0.6 * 1024)
+    cal = load_calibration(f["calibration"])
+    lay = plan_layout(design, cal, pd.DataFrame({"image_width_cm": [WIDTH_CM],
+                                                 "width_px": [64], "height_px": [64]}))
+    scale_units_per_px = (design.slider.max - design.slider.min) / lay.slider_width_px
     clipped = np.clip(intended, design.slider.min, design.slider.max)
     assert np.abs(got - clipped).max() <= 1.01 * scale_units_per_px
     assert log["keyboard_backend"] == "ptb"

@@ -1,0 +1,193 @@
+"""Bad input: each problem is found before any window opens, with a message naming the fix."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import subprocess
+
+import pandas as pd
+import pytest
+
+from calibration import load_calibration, save_calibration
+from experiment import SESSION_COLUMNS
+from experiment.checks import PreflightError
+from experiment.session import SessionRequest, prepare_session
+
+from .conftest import REPO, app_env, run_app
+from .fixtures import make_calibration, make_manifest
+
+pytestmark = pytest.mark.xvfb
+
+
+def _request(design, files, **kw) -> SessionRequest:
+    args = {"design": design, "participant": "P01", "session": 1,
+            "manifest": str(files["manifest"]), "calibration": str(files["calibration"]),
+            "data_dir": str(files["data"])}
+    args.update(kw)
+    return SessionRequest(**args)
+
+
+def _session_png(design, files, k=0):
+    prep = prepare_session(_request(design, files))
+    return prep.stimuli.frame["png"].iloc[k], prep.stimuli.frame["stimulus_id"].iloc[k]
+
+
+def test_good_input_passes(design, session_files):
+    prep = prepare_session(_request(design, session_files))
+    assert len(prep.todo) == design.sessions.trials_per_session
+    assert prep.done.empty and prep.warnings == []
+
+
+@pytest.mark.parametrize("participant", ["P 01", "", "x" * 33, "../P01", "P01;rm", "Pé"])
+def test_bad_participant_ids(design, session_files, participant):
+    with pytest.raises(PreflightError, match="participant id .* is not valid"):
+        prepare_session(_request(design, session_files, participant=participant))
+
+
+@pytest.mark.parametrize("session", ["0", "3", "x", "1.5", -1])
+def test_bad_session_numbers(design, session_files, session):
+    with pytest.raises(PreflightError, match="session .* is not valid; the design has sessions"):
+        prepare_session(_request(design, session_files, session=session))
+
+
+def test_missing_manifest(design, session_files, tmp_path):
+    with pytest.raises(PreflightError, match="not found; render the stimuli first"):
+        prepare_session(_request(design, session_files, manifest=str(tmp_path / "none.csv")))
+    with pytest.raises(PreflightError, match="no stimulus manifest given"):
+        prepare_session(_request(design, session_files, manifest=None))
+
+
+def test_missing_stimulus_png(design, session_files):
+    png, sid = _session_png(design, session_files, 5)
+    os.remove(png)
+    with pytest.raises(PreflightError, match=rf"{sid}: .* is missing; re-render it"):
+        prepare_session(_request(design, session_files))
+
+
+def test_changed_stimulus_png(design, session_files):
+    png, sid = _session_png(design, session_files, 7)
+    with open(png, "ab") as fh:
+        fh.write(b"\0")
+    with pytest.raises(PreflightError, match=rf"{sid}: .* does not match its checksum"):
+        prepare_session(_request(design, session_files))
+
+
+def test_stimulus_absent_from_manifest(design, session_files, tmp_path):
+    manifest = make_manifest(tmp_path / "few", design,
+                             stimulus_ids=set(design.stimuli()["stimulus_id"][:10]))
+    with pytest.raises(PreflightError, match="not in the manifest; render it"):
+        prepare_session(_request(design, session_files, manifest=str(manifest)))
+
+
+def test_stale_calibration(design, session_files, tmp_path):
+    old = make_calibration(tmp_path / "old", design, age_days=45)
+    with pytest.raises(PreflightError, match=r"45\.0 days old, more than the allowed 30"):
+        prepare_session(_request(design, session_files, calibration=str(old)))
+    prep = prepare_session(_request(design, session_files, calibration=str(old),
+                                    max_calibration_age_days=60))
+    assert prep.calibration.calibration_id == "test"
+
+
+def test_missing_calibration(design, session_files, tmp_path):
+    with pytest.raises(PreflightError, match="calibration file .* not found"):
+        prepare_session(_request(design, session_files, calibration=str(tmp_path / "c.json")))
+    with pytest.raises(PreflightError, match="no calibration given"):
+        prepare_session(_request(design, session_files, calibration=None))
+
+
+@pytest.mark.parametrize("change, match", [
+    ({"resolution_px": (800, 600)}, "was made at 800x600 px"),
+    ({"distance_cm": 70.0}, "viewing distance of 70 cm"),
+    ({"refresh_hz": 60.0}, "measured 60.0 Hz"),
+])
+def test_calibration_of_another_display(design, session_files, tmp_path, change, match):
+    cal = dataclasses.replace(load_calibration(session_files["calibration"]), **change)
+    path = save_calibration(cal, tmp_path / "other" / "calibration.json")
+    with pytest.raises(PreflightError, match=match):
+        prepare_session(_request(design, session_files, calibration=str(path)))
+
+
+def test_stimuli_corrected_for_another_calibration(design, session_files, tmp_path):
+    other = make_calibration(tmp_path / "other", design, calibration_id="lab-2026-10")
+    with pytest.raises(PreflightError, match=r"gamma-corrected for calibration \['test'\]"):
+        prepare_session(_request(design, session_files, calibration=str(other)))
+    prep = prepare_session(_request(design, session_files, calibration=str(other),
+                                    accept_calibration_mismatch=True))
+    assert "re-render the stimuli" in prep.warnings[0]
+
+
+def test_fullscreen_needs_the_design_resolution(design, session_files):
+    with pytest.raises(PreflightError, match="set the display mode"):
+        prepare_session(_request(design, session_files, fullscr=True))
+
+
+def test_no_display(design, session_files, monkeypatch):
+    monkeypatch.delenv("DISPLAY", raising=False)
+    with pytest.raises(PreflightError, match="no X display"):
+        prepare_session(_request(design, session_files))
+
+
+def test_recorded_rows_that_disagree_with_the_plan(design, session_files):
+    prep = prepare_session(_request(design, session_files))
+    row = prep.plan.iloc[[0]].drop(columns="seed").assign(
+        stimulus_id=prep.plan["stimulus_id"].iloc[1], gloss_match=5, depth_match=5, rt_s=1,
+        onset_s=0, dropped_frames=0, timestamp_utc="x", app_version="x", calibration_id="test")
+    path = session_files["data"] / "sessions" / "P01_s1.csv"
+    path.parent.mkdir(parents=True)
+    row[list(SESSION_COLUMNS)].to_csv(path, index=False)
+    with pytest.raises(PreflightError, match="the plan file was replaced"):
+        prepare_session(_request(design, session_files))
+    # and a row cut off mid-write
+    path.write_text(path.read_text().rstrip("\n"))
+    with pytest.raises(PreflightError, match="last row is incomplete"):
+        prepare_session(_request(design, session_files))
+
+
+def _no_session_started(files):
+    assert not (files["data"] / "sessions").exists()
+    assert not (files["data"] / "logs").exists()
+
+
+def test_command_line_refuses_before_any_window(design, session_files, tmp_path):
+    """Exit status 2 with the message on stderr; nothing written but the plan."""
+    f = session_files
+    old = make_calibration(tmp_path / "old", design, age_days=100)
+    for args, match in [
+        (["--participant", "P 01"], "participant id 'P 01' is not valid"),
+        (["--participant", "P01", "--calibration", old], "days old"),
+    ]:
+        base = {"--participant": "P01", "--session": "1", "--stimuli": f["manifest"],
+                "--calibration": f["calibration"], "--data": f["data"]}
+        base.update(dict(zip(args[::2], args[1::2])))
+        res = run_app("run", *[str(x) for kv in base.items() for x in kv], "--simulate",
+                      "ideal", "--fast")
+        assert res.returncode == 2, res.stderr
+        assert match in res.stderr
+        _no_session_started(f)
+
+
+def test_screen_smaller_than_the_design(design, session_files):
+    """Under an 800x600 X screen the app refuses before opening its window."""
+    f = session_files
+    cmd = ["xvfb-run", "-a", "-s", "-screen 0 800x600x24", str(REPO / ".venv/bin/python"),
+           "-m", "experiment", "run", "--participant", "P01", "--session", "1", "--stimuli",
+           str(f["manifest"]), "--calibration", str(f["calibration"]), "--data",
+           str(f["data"]), "--simulate", "ideal", "--fast"]
+    res = subprocess.run(cmd, cwd=REPO, env=app_env(), capture_output=True, text=True,
+                         timeout=120, check=False)
+    assert res.returncode == 2, res.stderr
+    w, h = design.display.resolution_px
+    assert f"the screen is 800x600 px, smaller than the design's {w}x{h}" in res.stderr
+    _no_session_started(f)
+
+
+def test_plan_and_session_files_are_never_overwritten(design, session_files):
+    prep = prepare_session(_request(design, session_files))
+    plan_file = session_files["data"] / "plans" / "P01_plan.csv"
+    before = plan_file.read_bytes()
+    prepare_session(_request(design, session_files, session=2))
+    assert plan_file.read_bytes() == before
+    assert json.dumps(list(prep.plan["stimulus_id"]))  # the plan is usable
+    assert pd.read_csv(plan_file)["stimulus_id"].nunique() == design.n_stimuli
