@@ -24,7 +24,11 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap import inject
-from analysis.gap.diagnose import diagnose_display_files, diagnose_observer_files
+from analysis.gap.diagnose import (
+    diagnose_display_files,
+    diagnose_observer_files,
+    diagnose_render_files,
+)
 from analysis.gap.observer import load_sessions, observer_frame, observer_nll
 
 __all__ = ["TARGETS", "format_scores", "run_benchmark", "run_observer_benchmark",
@@ -101,11 +105,34 @@ def _display_trial(design, effect, strength, rng, tmp: Path, n_boot):
     return diag, float(diag.loss_before - nll.mean())
 
 
+# --- render -------------------------------------------------------------------------------
+
+def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
+    truth = inject.write_render_fit(tmp / "fit", rng, effect, strength)
+    diag, _ = diagnose_render_files(tmp / "fit", tmp / "fit", seed=int(rng.integers(2**31)),
+                                    n_boot=n_boot)
+    if effect in inject.RENDER_OUT_OF_CATALOGUE:
+        return diag, float("nan")
+    photos = {}
+    for name in truth:
+        with np.load(tmp / "fit" / "residuals" / f"{name}.npz") as a:
+            photos[name] = a["photo"][..., 0].astype(float)
+    sd = diag.loss_info["noise_sd"]
+    nll = []
+    for u in diag.heldout:
+        name, y, x = u.split("|")
+        r = (photos[name][int(y), int(x)] - truth[name][int(y), int(x)]) / sd[name]
+        nll.append(0.5 * np.log(2 * np.pi * sd[name] ** 2) + 0.5 * r**2)
+    return diag, float(diag.loss_before - np.mean(nll))
+
+
 _LAYERS = {
     "observer": (inject.OBSERVER_EFFECTS, inject.OUT_OF_CATALOGUE, _OBSERVER_STRENGTH,
                  _observer_trial),
     "display": (inject.DISPLAY_EFFECTS, inject.DISPLAY_OUT_OF_CATALOGUE,
                 inject.DISPLAY_STRENGTH, _display_trial),
+    "render": (inject.RENDER_EFFECTS, inject.RENDER_OUT_OF_CATALOGUE, inject.RENDER_STRENGTH,
+               _render_trial),
 }
 
 

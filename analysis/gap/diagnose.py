@@ -28,9 +28,19 @@ from analysis.gap.observer import (
     observer_unit_ids,
     split_observer,
 )
+from analysis.gap.render import (
+    RENDER_CANDIDATES,
+    RENDER_MIN_SHARE,
+    load_render,
+    localise_render,
+    render_floor,
+    render_loss,
+    render_unit_ids,
+    split_render,
+)
 
 __all__ = ["diagnose_display", "diagnose_display_files", "diagnose_files", "diagnose_observer",
-           "diagnose_observer_files"]
+           "diagnose_observer_files", "diagnose_render", "diagnose_render_files"]
 
 
 def diagnose_observer(real, sim, design, *, rng: np.random.Generator, seed: int,
@@ -75,10 +85,31 @@ def diagnose_display_files(real_path: str | Path, sim_path: str | Path, *, seed:
                             n_boot=n_boot)
 
 
+def diagnose_render(data, *, rng: np.random.Generator, seed: int,
+                    n_boot: int = 1000) -> tuple[Diagnosis, object]:
+    """Render layer on loaded residual files (:func:`analysis.gap.render.load_render`)."""
+    train, test = split_render(data, rng)
+    diag = diagnose_losses("render", RENDER_CANDIDATES, train, test, render_loss, render_floor,
+                           rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
+                           min_share=RENDER_MIN_SHARE,
+                           loss_info={"noise_sd": {lv["name"]: lv["sd"] for lv in data.levels}})
+    return diag, localise_render(data, rng, n_boot=min(n_boot, 500))
+
+
+def diagnose_render_files(real_path: str | Path, sim_path: str | Path, *, seed: int,
+                          n_boot: int = 1000):
+    """Photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss fit's output
+    folder; usually the same folder)."""
+    return diagnose_render(load_render(real_path, sim_path), rng=np.random.default_rng(seed),
+                           seed=seed, n_boot=n_boot)
+
+
 def diagnose_files(layer: str, real_path, sim_path, design, *, seed: int, n_boot: int = 1000):
     """Diagnose one layer from its files (see ``python -m analysis.gap diagnose --help``)."""
     if layer == "observer":
         return diagnose_observer_files(real_path, sim_path, design, seed=seed, n_boot=n_boot)
     if layer == "display":
         return diagnose_display_files(real_path, sim_path, seed=seed, n_boot=n_boot)
-    raise GapError(f"layer {layer!r} is not built; use observer or display")
+    if layer == "render":
+        return diagnose_render_files(real_path, sim_path, seed=seed, n_boot=n_boot)
+    raise GapError(f"unknown layer {layer!r}; use observer, display or render")

@@ -10,10 +10,25 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["DISPLAY_EFFECTS", "DISPLAY_OUT_OF_CATALOGUE", "DISPLAY_STRENGTH", "OBSERVER_EFFECTS",
-           "OUT_OF_CATALOGUE", "display_truth", "ideal_noise_sd", "lab_names",
-           "simulate_readings", "simulate_sessions",
-           "write_calibration", "write_readings", "write_sessions"]
+__all__ = [
+    "DISPLAY_EFFECTS",
+    "DISPLAY_OUT_OF_CATALOGUE",
+    "DISPLAY_STRENGTH",
+    "OBSERVER_EFFECTS",
+    "OUT_OF_CATALOGUE",
+    "RENDER_EFFECTS",
+    "RENDER_OUT_OF_CATALOGUE",
+    "RENDER_STRENGTH",
+    "display_truth",
+    "ideal_noise_sd",
+    "lab_names",
+    "simulate_readings",
+    "simulate_sessions",
+    "write_calibration",
+    "write_readings",
+    "write_render_fit",
+    "write_sessions",
+]
 
 OBSERVER_EFFECTS = ("crosstalk", "central_tendency", "illumination_gain", "label_rounding",
                     "lapses", "serial_dependence")
@@ -242,3 +257,145 @@ def write_readings(frame: pd.DataFrame, folder: Path) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     frame.to_csv(folder / "readings.csv", index=False)
     return folder / "readings.csv"
+
+
+# --- render layer -------------------------------------------------------------------------
+# Pseudo-real photos of spheres from an analytic renderer (one directional light + ambient,
+# Lambert diffuse, isotropic Ward specular), written in the gloss fit's residual-file format.
+# The effects are computed physically here (half-vector Fresnel, coat transmission on the light
+# and the view path, cos^4 vignetting, a long-tailed glare PSF, exact resampling, a GGX tail),
+# not with the diagnosis's image-space approximations.
+
+RENDER_EFFECTS = ("fresnel", "clearcoat", "vignetting", "veiling_glare", "misregistration",
+                  "long_tail")
+RENDER_OUT_OF_CATALOGUE = ("albedo_texture", "anisotropy")
+RENDER_STRENGTH = {"fresnel": 6.0, "clearcoat": 0.6, "vignetting": 0.5, "veiling_glare": 0.15,
+                   "misregistration": 0.6, "long_tail": 0.6, "albedo_texture": 0.06,
+                   "anisotropy": 0.6}
+_LIGHT = np.array([-0.45, 0.55, 0.70]) / np.linalg.norm([-0.45, 0.55, 0.70])
+_LEVELS = ((0.55, 0.04, 0.20), (0.45, 0.08, 0.12), (0.35, 0.12, 0.07))  # rho_d, rho_s, alpha
+
+
+def _schlick(cos, f0):
+    return f0 + (1 - f0) * (1 - np.clip(cos, 0, 1)) ** 5
+
+
+def _sphere_render(size, rho_d, rho_s, alpha, effect="none", strength=0.0, rng=None):
+    """Diffuse and specular luminance of a sphere (radius 0.36 size, centred a little off the
+    image centre), orthographic view along +z."""
+    h = w = size
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    cy, cx, rad = 0.48 * h, 0.52 * w, 0.36 * size
+    x, y = (xx - cx) / rad, -(yy - cy) / rad
+    r2 = x**2 + y**2
+    inside = r2 < 1
+    z = np.sqrt(np.clip(1 - r2, 0, 1))
+    n = np.stack([x, y, z], -1)
+    v = np.array([0.0, 0.0, 1.0])
+    cos_i = np.clip(n @ _LIGHT, 0, 1)
+    cos_o = np.clip(z, 1e-3, 1)
+    hv = (_LIGHT + v) / np.linalg.norm(_LIGHT + v)
+    cos_h = np.clip(n @ hv, 1e-6, 1)
+    tan2 = (1 - cos_h**2) / cos_h**2
+    e_dir, e_amb = 1.0, 0.25
+    diffuse = rho_d * (cos_i * e_dir + e_amb)
+    if effect == "anisotropy":
+        # Anisotropic Ward: alpha_x != alpha_y (out of the catalogue).
+        ax, ay = alpha * (1 + strength), alpha / (1 + strength)
+        tx = np.stack([np.ones_like(x), np.zeros_like(x), -x / np.maximum(z, 1e-3)], -1)
+        tx /= np.linalg.norm(tx, axis=-1, keepdims=True)
+        ty = np.cross(n, tx)
+        hx, hy = tx @ hv, ty @ hv
+        expo = -((hx / ax) ** 2 + (hy / ay) ** 2) / cos_h**2
+        lobe = np.exp(expo) / (4 * np.pi * ax * ay * np.sqrt(cos_i * cos_o + 1e-9))
+    else:
+        lobe = np.exp(-tan2 / alpha**2) / (4 * np.pi * alpha**2 * np.sqrt(cos_i * cos_o + 1e-9))
+    spec = rho_s * e_dir * cos_i * lobe
+    env = rho_s * 0.3 * np.ones_like(z)  # the uniform surround, mirrored
+    if effect == "fresnel":
+        # Schlick on each path's own angle: the light's lobe at the half vector (fixed light
+        # and view: a constant), the surround's mirror reflection at the view angle.
+        f0 = 1 / (1 + strength)
+        spec = spec * _schlick(float(hv @ v), f0) / f0
+        env = env * _schlick(cos_o, f0) / f0
+    if effect == "long_tail":
+        a_t = 2.5 * alpha
+        d_ggx = a_t**2 / (np.pi * (cos_h**2 * (a_t**2 - 1) + 1) ** 2)
+        tail = rho_s * e_dir * cos_i * d_ggx / (4 * cos_o + 1e-9)
+        spec = (1 - strength) * spec + strength * tail * (spec.sum() / max(tail.sum(), 1e-12))
+    if effect == "clearcoat":
+        # Light enters through the coat (its transmission averaged over the incident
+        # directions, 1 - 0.09 for n = 1.5: the lab's surround is diffuse) and leaves towards
+        # the camera through it at the view angle.
+        t = (1 - 0.09) * (1 - _schlick(cos_o, 0.04))
+        diffuse = diffuse * (1 - strength + strength * t)
+    if effect == "albedo_texture":
+        diffuse = diffuse * (1 + strength * np.sin(2 * np.pi * 3 * x) * np.sin(2 * np.pi * 2 * y))
+    return (np.where(inside, diffuse, 0.0), np.where(inside, spec + env, 0.0), inside,
+            np.sqrt(r2))
+
+
+def _camera(img, effect, strength, rng):
+    """Image-space effects of the camera and the residual registration."""
+    from scipy import ndimage as ndi
+
+    h, w = img.shape
+    if effect == "veiling_glare":
+        k = 2 * max(h, w) + 1
+        yy, xx = np.mgrid[0:k, 0:k] - k // 2
+        psf = 1 / (1 + (np.hypot(yy, xx) / (0.03 * w)) ** 2) ** 1.5
+        psf /= psf.sum()
+        from scipy.signal import fftconvolve
+
+        img = img + strength * fftconvolve(img, psf, mode="same")
+    if effect == "vignetting":
+        yy, xx = np.mgrid[0:h, 0:w].astype(float)
+        rho = np.hypot(yy - (h - 1) / 2, xx - (w - 1) / 2) / np.hypot(h / 2, w / 2)
+        img = img / (1 + (strength * rho) ** 2) ** 2
+    if effect == "misregistration":
+        ang = rng.uniform(0, 2 * np.pi)
+        img = ndi.shift(img, (strength * np.sin(ang), strength * np.cos(ang)), order=3,
+                        mode="nearest")
+    return img
+
+
+def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",
+                     strength: float = 0.0, size: int = 64, noise: float = 0.004) -> Path:
+    """A gloss fit's output folder (fits.csv, residuals/gloss_XXX.npz in its format) whose
+    photos carry the effect and whose renders are the plain analytic renders, scaled to the
+    photos. Returns the noiseless photos {level name: luminance image} (the truth, kept from
+    the diagnosis)."""
+    folder = Path(folder)
+    (folder / "residuals").mkdir(parents=True, exist_ok=True)
+    rows = []
+    truth = {}
+    for k, (rho_d, rho_s, alpha) in enumerate(_LEVELS):
+        d0, s0, _inside, r = _sphere_render(size, rho_d, rho_s, alpha)
+        d1, s1, _, _ = _sphere_render(size, rho_d, rho_s, alpha, effect, strength, rng)
+        clean = _camera(d1 + s1, effect, strength, rng)
+        photo = clean + noise * rng.standard_normal(clean.shape)
+        # The gloss fit scales the diffuse and specular renders to the photo (its basis fit is
+        # linear in rho_d, rho_s); the same least-squares fit here, on the sphere.
+        fitm = r < 1
+        (a, b), *_ = np.linalg.lstsq(np.c_[d0[fitm], s0[fitm]], photo[fitm], rcond=None)
+        d0, s0 = a * d0, b * s0
+        render = d0 + s0
+        spec_in = np.where(r < 0.85, s0, 0)
+        hl = (r < 0.85) & (spec_in >= 0.5 * spec_in.max())
+        edge = 1 + 1 / (0.36 * size)
+        masks = {"highlight": hl, "body": (r < 0.85) & ~hl, "rim": (r >= 0.85) & (r < edge),
+                 "background": r >= edge, "sphere": r < 1 - 1 / (0.36 * size),
+                 "valid": np.ones_like(hl)}
+
+        def rgb(a):
+            return np.repeat(a[..., None], 3, axis=-1).astype(np.float32)
+
+        gloss = 20 * (k + 1)
+        np.savez_compressed(folder / "residuals" / f"gloss_{gloss:03d}.npz",
+                            photo=rgb(photo), render=rgb(render), residual=rgb(photo - render),
+                            diffuse=rgb(d0), specular=rgb(s0), **masks)
+        rows.append({"gloss_pct": gloss, "method": "basis", "rho_d": rho_d, "rho_s": rho_s,
+                     "alpha": alpha})
+        truth[f"gloss_{gloss:03d}"] = clean
+    pd.DataFrame(rows).to_csv(folder / "fits.csv", index=False)
+    return truth

@@ -1,0 +1,331 @@
+"""Render layer: photos of the physical spheres vs their fitted Ward renders.
+
+Input: the gloss fit's output folder (``OUT_DIR/residuals/*.npz``, one per gloss level, with
+float32 ``photo``, ``render``, ``diffuse``, ``specular`` (h x w x 3, linear, photo units) and
+boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``). Everything
+is compared in Rec. 709 luminance.
+
+The plain simulation predicts the photo by the render ``R = D + S`` (diffuse + specular). Each
+candidate is an image-space or component-space extension (approximations, documented):
+
+=================  ===========================================================================
+candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic)
+=================  ===========================================================================
+fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
+                   view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
+                   radii) standing in for the half-vector angle
+clearcoat          D * (1 + c (T(t) / T(0) - 1)), T = (1 - F_0.04(t))^2: diffuse light passes the
+                   coat twice, attenuated more at grazing angles
+vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
+veiling_glare      R + c G_s * R: a blurred copy of the image (Gaussian, s from a grid of large
+                   widths) spread by the lens
+misregistration    R shifted by (dx, dy) px per gloss level (bilinear)
+long_tail          S + c (G_s * S - S): highlight energy moved into wider wings (Gaussian blur,
+                   s from a grid of 1-16 px)
+=================  ===========================================================================
+
+With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_s) are fitted
+again per level, as the gloss fit would have done had it known the effect.
+
+Loss: Gaussian NLL per pixel on the sphere (highlight, body, rim; valid pixels), with the noise
+SD of each level estimated without any model from the photo's second differences (median
+absolute deviation), so the floor is ``0.5 log(2 pi sd^2) + 0.5``. Held out: pixels in a
+checkerboard of 4 x 4 blocks (half train, half test) in every level.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy import ndimage, optimize
+
+from analysis.gap.engine import Candidate, GapError
+
+__all__ = [
+    "NPZ_ARRAYS",
+    "NPZ_MASKS",
+    "RENDER_CANDIDATES",
+    "RENDER_MIN_SHARE",
+    "RenderData",
+    "load_render",
+    "localise_render",
+    "render_floor",
+    "render_loss",
+    "render_unit_ids",
+    "split_render",
+]
+
+NPZ_ARRAYS = ("photo", "render", "diffuse", "specular")
+NPZ_MASKS = ("highlight", "body", "rim", "background", "sphere")
+REGIONS = ("highlight", "body", "rim", "background")
+#: An attribution must remove >= 80 % of the held-out gap (as for the display layer).
+RENDER_MIN_SHARE = 0.8
+_BLOCK = 4
+_GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
+_TAIL_SIGMAS = (1.0, 2.0, 4.0, 8.0, 16.0)  # px
+_REC709 = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _lum(a: np.ndarray) -> np.ndarray:
+    a = np.asarray(a, float)
+    return a @ _REC709 if a.ndim == 3 else a
+
+
+class RenderData:
+    """Per-level luminance images, geometry and the pixel units (a train or test view).
+
+    Attributes
+    ----------
+    levels : list of dict
+        One per gloss level: ``name``, ``P`` (photo), ``D``, ``S`` (h x w float), ``cos_t``
+        (view cosine on the sphere), ``rho2`` (squared image radius), ``sd`` (noise SD),
+        masks ``regions`` (dict), ``fit`` (bool: pixels in the loss), ``use`` (bool: this view's
+        pixels).
+    """
+
+    def __init__(self, levels: list[dict]):
+        self.levels = levels
+
+    def view(self, which: str) -> RenderData:
+        out = []
+        for lv in self.levels:
+            lv2 = dict(lv)
+            lv2["use"] = lv["fit"] & (lv["train"] if which == "train" else ~lv["train"])
+            out.append(lv2)
+        return RenderData(out)
+
+
+def _noise_sd(img: np.ndarray, mask: np.ndarray) -> float:
+    """Model-free noise SD: MAD of horizontal and vertical second differences / sqrt(6)."""
+    vals = []
+    for ax in (0, 1):
+        d2 = np.diff(img, 2, axis=ax)
+        m = mask[2:, :] if ax == 0 else mask[:, 2:]
+        m = m & (mask[:-2, :] if ax == 0 else mask[:, :-2])
+        vals.append(d2[m])
+    v = np.concatenate(vals)
+    if v.size < 10:
+        raise GapError("too few valid sphere pixels to measure the photo's noise")
+    return float(1.4826 * np.median(np.abs(v - np.median(v))) / np.sqrt(6.0))
+
+
+def load_render(real_path, sim_path=None) -> RenderData:
+    """Read the gloss fit's residual files. Photos come from REAL, renders (and components)
+    from SIM (the same folder when the fit's output holds both, the usual case)."""
+    real = Path(real_path)
+    sim = Path(sim_path) if sim_path is not None else real
+    files = sorted((real / "residuals").glob("*.npz")) if real.is_dir() else []
+    if not files:
+        raise GapError(f"no residuals/*.npz under {real}; pass the gloss fit's output folder "
+                       "(python -m stimuli glossfit ... --out DIR)")
+    levels = []
+    for f in files:
+        g = sim / "residuals" / f.name
+        if not g.exists():
+            raise GapError(f"{g} missing: the render for {f.name} is not in --sim")
+        with np.load(f) as a, np.load(g) as b:
+            need = [k for k in ("photo", *NPZ_MASKS) if k not in a.files]
+            need += [f"{k} (sim)" for k in ("render", "diffuse", "specular") if k not in b.files]
+            if need:
+                raise GapError(f"{f.name}: arrays {need} missing; the residual files need "
+                               f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
+            P = _lum(a["photo"])
+            D, S = _lum(b["diffuse"]), _lum(b["specular"])
+            masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
+            valid = np.asarray(a["valid"], bool) if "valid" in a.files else np.isfinite(P)
+        if P.shape != D.shape:
+            raise GapError(f"{f.name}: photo {P.shape} and render {D.shape} differ in size")
+        h, w = P.shape
+        sph = masks["sphere"]
+        if sph.sum() < 20:
+            raise GapError(f"{f.name}: the sphere mask has {int(sph.sum())} pixels (< 20)")
+        yy, xx = np.mgrid[0:h, 0:w].astype(float)
+        cy, cx = yy[sph].mean(), xx[sph].mean()
+        # The fit's sphere mask stops 1 px inside the silhouette.
+        radius = np.sqrt(sph.sum() / np.pi) + 1.0
+        r = np.hypot(yy - cy, xx - cx) / radius
+        cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
+        rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
+        fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
+        train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
+        m = re.search(r"(\d+(?:\.\d+)?)", f.stem)
+        levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
+                       "P": P, "D": D, "S": S, "cos_t": cos_t, "rho2": rho2,
+                       "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
+                       "train": train, "use": fit, "width": w,
+                       "sd": _noise_sd(P, valid & sph)})
+    return RenderData(levels)
+
+
+# --- the extended model -------------------------------------------------------------------
+
+def _coat_t(cos_t):
+    f = 0.04 + 0.96 * (1 - cos_t) ** 5
+    return (1 - f) ** 2 / (1 - 0.04) ** 2
+
+
+def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
+    """Diffuse and specular images after every fitted extension (before the scales)."""
+    p = dict(fitted)
+    D, S, c = lv["D"], lv["S"], lv["cos_t"]
+    if "fresnel" in p:
+        S = S * (1 + p["fresnel"]["c"] * (1 - c) ** 5)
+    if "long_tail" in p:
+        q = p["long_tail"]
+        S = S + q["c"] * (ndimage.gaussian_filter(S, q["sigma_px"]) - S)
+    if "clearcoat" in p:
+        D = D * (1 + p["clearcoat"]["c"] * (_coat_t(c) - 1))
+    out = []
+    for img in (D, S):  # the image-space effects are linear: apply them to each component
+        if "veiling_glare" in p:
+            q = p["veiling_glare"]
+            img = img + q["c"] * ndimage.gaussian_filter(img, q["sigma_frac"] * lv["width"],
+                                                         mode="constant")
+        if "vignetting" in p:
+            img = img * (1 - p["vignetting"]["c"] * lv["rho2"])
+        if "misregistration" in p:
+            dy, dx = p["misregistration"]["shift_px"].get(lv["name"], (0.0, 0.0))
+            img = ndimage.shift(img, (dy, dx), order=1, mode="nearest")
+        out.append(img)
+    return out[0], out[1]
+
+
+def _predict(lv: dict, fitted: list) -> np.ndarray:
+    """The extended render: the Ward fit's diffuse and specular scales re-fitted with the
+    extension (``scale`` of the last fitted step, per level; 1 for the plain render)."""
+    D, S = _basis(lv, fitted)
+    scale = next((q["scale"] for _, q in reversed(fitted) if "scale" in q), {})
+    a, b = scale.get(lv["name"], (1.0, 1.0))
+    return a * D + b * S
+
+
+def render_loss(data: RenderData, fitted: list) -> np.ndarray:
+    """Per-pixel Gaussian NLL (nats) on the view's pixels, levels concatenated."""
+    out = []
+    for lv in data.levels:
+        m = lv["use"]
+        r = (lv["P"] - _predict(lv, fitted))[m]
+        out.append(0.5 * np.log(2 * np.pi * lv["sd"] ** 2) + 0.5 * (r / lv["sd"]) ** 2)
+    return np.concatenate(out)
+
+
+def render_floor(data: RenderData) -> np.ndarray:
+    return np.concatenate([np.full(int(lv["use"].sum()), 0.5 * np.log(2 * np.pi * lv["sd"] ** 2)
+                                   + 0.5) for lv in data.levels])
+
+
+def render_unit_ids(data: RenderData) -> list[str]:
+    """Pixel names ``level|y|x``."""
+    ids = []
+    for lv in data.levels:
+        ys, xs = np.nonzero(lv["use"])
+        ids += [f"{lv['name']}|{y}|{x}" for y, x in zip(ys, xs)]
+    return ids
+
+
+def split_render(data: RenderData, rng: np.random.Generator):
+    """Held-out pixels: a checkerboard of 4 x 4 px blocks (``rng`` unused: fixed split)."""
+    return data.view("train"), data.view("test")
+
+
+def _scaled_sse(train: RenderData, fitted: list):
+    """Weighted SSE with the diffuse and specular scales re-fitted per level (least squares)."""
+    sse, scale = 0.0, {}
+    for lv in train.levels:
+        m = lv["use"]
+        D, S = _basis(lv, fitted)
+        a = np.c_[D[m], S[m]]
+        coef, *_ = np.linalg.lstsq(a, lv["P"][m], rcond=None)
+        scale[lv["name"]] = (float(coef[0]), float(coef[1]))
+        sse += float(np.sum((lv["P"][m] - a @ coef) ** 2)) / lv["sd"] ** 2
+    return sse, scale
+
+
+def _fit_amp(name, lo, hi, key=None, grid=(None,)):
+    """One amplitude (bounded) and optionally a width from a grid, with the scales re-fitted."""
+    def fit(train, chosen):
+        base = [f for f in chosen if f[0] != name]
+        best = None
+        for g in grid:
+            extra = {} if key is None else {key: float(g)}
+
+            def f(c, extra=extra):
+                return _scaled_sse(train, base + [(name, {**extra, "c": float(c)})])[0]
+            res = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",
+                                           options={"xatol": 1e-4 * (hi - lo)})
+            if best is None or res.fun < best[0]:
+                best = (res.fun, {**extra, "c": float(res.x)})
+        params = best[1]
+        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
+        return params
+    return fit
+
+
+def _fit_misregistration(train, chosen):
+    base = [f for f in chosen if f[0] != "misregistration"]
+    shifts = {}
+    for lv in train.levels:
+        m = lv["use"]
+        dy = dx = 0.0
+        one = RenderData([lv])
+        for _ in range(4):
+            p = [("misregistration", {"shift_px": {lv["name"]: (dy, dx)}})]
+            _, scale = _scaled_sse(one, base + p)
+            a, b = scale[lv["name"]]
+            D, S = _basis(lv, base + p)
+            pred = a * D + b * S
+            gy, gx = np.gradient(pred)
+            step, *_ = np.linalg.lstsq(np.c_[-gy[m], -gx[m]], (lv["P"] - pred)[m], rcond=None)
+            dy, dx = float(np.clip(dy + step[0], -3, 3)), float(np.clip(dx + step[1], -3, 3))
+        shifts[lv["name"]] = (dy, dx)
+    params = {"shift_px": shifts}
+    params["scale"] = _scaled_sse(train, base + [("misregistration", params)])[1]
+    return params
+
+
+RENDER_CANDIDATES = [
+    Candidate("fresnel", _fit_amp("fresnel", 0.0, 50.0),
+              "specular reflectance rising towards grazing angles (Schlick)"),
+    Candidate("clearcoat", _fit_amp("clearcoat", 0.0, 1.0),
+              "diffuse light attenuated by a clear coat (twice through its Fresnel interface)"),
+    Candidate("vignetting", _fit_amp("vignetting", -1.0, 1.0),
+              "the camera darkens towards the image corners"),
+    Candidate("veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
+              "lens glare: a blurred copy of the image added"),
+    Candidate("misregistration", _fit_misregistration,
+              "photo and render still offset after registration"),
+    Candidate("long_tail", _fit_amp("long_tail", 0.0, 1.0, "sigma_px", _TAIL_SIGMAS),
+              "highlight lobe with longer tails than Ward's"),
+]
+
+
+def localise_render(data: RenderData, rng: np.random.Generator,
+                    n_boot: int = 500) -> pd.DataFrame:
+    """Mean residual (photo - render, % of the level's mean sphere luminance) per region and
+    gloss level, 95 % CIs by a bootstrap over 4 x 4 px blocks (pixels within a block are not
+    independent)."""
+    rows = []
+    for lv in data.levels:
+        R = lv["D"] + lv["S"]
+        sph = lv["regions"]["highlight"] | lv["regions"]["body"] | lv["regions"]["rim"]
+        scale = float(np.mean(lv["P"][sph])) if sph.any() else 1.0
+        res = 100 * (lv["P"] - R) / max(scale, 1e-12)
+        h, w = res.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        block = (yy // _BLOCK) * (w // _BLOCK + 1) + xx // _BLOCK
+        for reg in REGIONS:
+            m = lv["regions"][reg]
+            if not m.any():
+                continue
+            frame = pd.DataFrame({"b": block[m], "r": res[m]})
+            sums = frame.groupby("b")["r"].agg(["sum", "size"]).to_numpy()
+            idx = rng.integers(0, len(sums), (n_boot, len(sums)))
+            boot = sums[idx, 0].sum(axis=1) / sums[idx, 1].sum(axis=1)
+            lo, hi = np.percentile(boot, [2.5, 97.5])
+            rows.append({"axis": "region", "cell": f"{lv['name']}: {reg}", "n": int(m.sum()),
+                         "mean_residual": float(res[m].mean()), "ci_low": float(lo),
+                         "ci_high": float(hi), "unit": "% of mean sphere luminance"})
+    return pd.DataFrame(rows)
