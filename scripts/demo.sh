@@ -48,6 +48,22 @@ xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
 # --- end gloss fit ---
 
 # --- stimuli (issue 3) ---
+step "stimuli: Mitsuba (LLVM) renders of the ellipsoid arrays with the Ward BSDF, tone-mapped, gamma-corrected"
+# The gloss table and calibration of the steps above when they exist, else the documented defaults.
+mkdir -p "$RUN/stimuli"
+STIM_OPTS=()
+[ -f "$RUN/glossfit/gloss_table.csv" ] && STIM_OPTS+=(--gloss-table "$RUN/glossfit/gloss_table.csv")
+[ -f "$RUN/calibration/calibration.json" ] && STIM_OPTS+=(--calibration "$RUN/calibration/calibration.json")
+"$PY" -m stimuli check-env
+"$PY" -m stimuli render --set preview --out "$RUN/stimuli/preview" --size 128 --spp 16 \
+  --workers 0 --no-progress ${STIM_OPTS[@]+"${STIM_OPTS[@]}"} >"$RUN/stimuli/preview-summary.json"
+"$PY" -m stimuli contact-sheet "$RUN/stimuli/preview" "$RUN/stimuli/preview/contact_sheet.png"
+# All 162 experiment stimuli, small and few samples so the demo stays near a minute or two
+# (a lab run: --size at the native width and --spp 64 or more; see bench/stimuli_throughput.py).
+"$PY" -m stimuli render --set experiment --out "$RUN/stimuli/experiment" --size 96 --spp 8 \
+  --workers 2 --no-progress ${STIM_OPTS[@]+"${STIM_OPTS[@]}"} >"$RUN/stimuli/experiment-summary.json"
+"$PY" -m stimuli verify "$RUN/stimuli/experiment"
+"$PY" -m stimuli export-print --depth-level 5 --spacing-cm 0.05 "$RUN/stimuli/print_depth05.stl"
 # --- end stimuli ---
 
 # --- experiment (issue 5) ---
