@@ -95,11 +95,12 @@ class ImageStatsObserver:
         n_ps_components : int
             Also use this many principal components of the PS statistics.
 
+        Only cells with images in ``stats`` are fitted (see `join_perception`).
+
         Raises
         ------
         ImageStatsError
-            If the table lacks a feature or a stimulus the sessions show, or there are fewer
-            cells than features + 2.
+            If the table lacks a feature, or has images of fewer cells than features + 2.
         """
         features = tuple(features)
         basis = None
@@ -110,7 +111,7 @@ class ImageStatsObserver:
         x_all = _features(stats, features, basis)
         frame = pd.concat([stats[["stimulus_id", *CELL, "true_gloss_pct", "true_depth_cm"]],
                            x_all], axis=1)
-        joined, _ = join_perception(frame, list(features), trials)
+        joined, _, _ = join_perception(frame, list(features), trials)
         cells = joined.groupby(list(CELL), as_index=False)[
             ["gloss_match_pct", *features]].mean()
         if len(cells) < len(features) + 2:

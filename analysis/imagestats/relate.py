@@ -207,12 +207,14 @@ def cell_means(frame: pd.DataFrame, names: list[str]) -> pd.DataFrame:
 
 
 def join_perception(frame: pd.DataFrame, names: list[str], trials: pd.DataFrame) \
-        -> tuple[pd.DataFrame, str]:
+        -> tuple[pd.DataFrame, str, list]:
     """Per participant and stimulus cell: mean perceived gloss with the cell's statistics.
 
     Trials are matched to images by ``stimulus_id`` when the table holds every stimulus the
     sessions show (the statistics were computed on the experiment's own renders); otherwise by
     design cell, with each cell's statistics averaged over its images (light fields, arrays).
+    Cells the sessions show but the table has no image of are left out and returned, so a
+    subset of the render set can be related (the report lists them).
 
     Returns
     -------
@@ -220,26 +222,31 @@ def join_perception(frame: pd.DataFrame, names: list[str], trials: pd.DataFrame)
         ``participant``, `CELL`, ``true_gloss_pct``, ``true_depth_cm``, ``gloss_match_pct`` (mean
         over the participant's trials of the cell), the statistics.
     how : {"stimulus_id", "cell"}
+    missing : list of tuple
+        Cells ``(illumination, gloss_level, depth_level)`` shown but without images.
+
+    Raises
+    ------
+    ImageStatsError
+        If no cell the sessions show has an image in the table.
     """
     per = trials.groupby(["participant", "stimulus_id", *CELL], as_index=False)[
         "gloss_match_pct"].mean()
     if set(per["stimulus_id"]) <= set(frame["stimulus_id"]):
         stats = frame.set_index("stimulus_id")[["true_gloss_pct", "true_depth_cm", *names]]
-        joined = per.join(stats, on="stimulus_id")
-        how = "stimulus_id"
-    else:
-        stats = cell_means(frame, names)
-        joined = per.merge(stats, on=list(CELL), how="left")
-        how = "cell"
-    missing = joined[names[0]].isna()
-    if missing.any():
-        cells = joined.loc[missing, list(CELL)].drop_duplicates().head(5).to_records(index=False)
+        return per.join(stats, on="stimulus_id"), "stimulus_id", []
+    stats = cell_means(frame, names)
+    joined = per.merge(stats, on=list(CELL), how="left")
+    absent = joined[names[0]].isna()
+    missing = sorted({tuple(c) for c in
+                      joined.loc[absent, list(CELL)].drop_duplicates().itertuples(index=False)})
+    joined = joined[~absent].reset_index(drop=True)
+    if joined.empty:
         raise ImageStatsError(
-            f"the statistics table has no images of {int(missing.sum())} participant x cell "
-            f"combinations the sessions show (e.g. {[tuple(c) for c in cells]}); compute "
-            "statistics of a render set that covers the experiment's stimuli"
+            f"the statistics table has no image of any stimulus cell the sessions show (e.g. "
+            f"{missing[:3]}); compute statistics of a render set that covers them"
         )
-    return joined, how
+    return joined, "cell", missing
 
 
 def _ols(y: np.ndarray, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

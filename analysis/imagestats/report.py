@@ -105,7 +105,10 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
         parts.append(f'<h3>{name}</h3><img src="grid_{name}.png">')
     if data_dir is not None:
         trials = load_sessions(data_dir, design).frame
-        joined, how = join_perception(frame, names, trials)
+        joined, how, missing = join_perception(frame, names, trials)
+        if missing:
+            covered = ~pd.MultiIndex.from_frame(trials[list(CELL)]).isin(missing)
+            trials = trials[covered]
         rng = np.random.default_rng(seed)
         reg = gloss_regression(joined, names, n_boot=n_boot, rng=rng)
         observer = ImageStatsObserver.fit(stats, trials)
@@ -120,7 +123,11 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
                                       obs_cells["pred"].to_numpy(),
                                       obs_cells["true_depth_cm"].to_numpy()),
                     out / "observer_fit.png")
+        if missing:
+            parts.append(f"<p><b>Note:</b> {len(missing)} stimulus cells the sessions show have "
+                         f"no image in the table and are left out, e.g. {missing[:5]}.</p>")
         results.update({"sessions": str(Path(data_dir).resolve()), "joined_by": how,
+                        "cells_without_images": [list(c) for c in missing],
                         "gloss_regression": reg, "observer": json.loads(observer.to_json())})
         rows = [{"statistic": r["statistic"],
                  **{f"{k} {part}": r[k][part] for k in ("coef", "r2", "depth_share")

@@ -71,8 +71,8 @@ def test_regression_and_observer_recover_a_cue_observer(tmp_path, design, rng):
     write_sessions(tmp_path / "data", design, rng, n_participants=4, kind="humanlike")
     trials = load_sessions(tmp_path / "data", design).frame
     frame, names = stat_table(stats, n_ps_components=0)
-    joined, how = join_perception(frame, names, trials)
-    assert how == "cell"  # the table's ids carry an array suffix
+    joined, how, missing = join_perception(frame, names, trials)
+    assert how == "cell" and missing == []  # the table's ids carry an array suffix
     reg = gloss_regression(joined, names, n_boot=50, rng=rng)
     assert reg["depth_effect"]["ci_low"] > 0  # humanlike: deeper looks glossier
     share = {r["statistic"]: r["depth_share"] for r in reg["per_statistic"]}
@@ -89,6 +89,12 @@ def test_regression_and_observer_recover_a_cue_observer(tmp_path, design, rng):
     assert pred.shape == (len(trials),) and np.isfinite(pred).all()
     with pytest.raises(ValueError, match="lacks"):
         obs.predict(stats.drop(columns="kurtosis"))
+    # a subset of the cells: the rest are named, not silently dropped
+    part = frame[frame["gloss_level"].isin([2, 6, 10])]
+    joined, _, missing = join_perception(part, names, trials)
+    assert len(missing) == 2 * 6 * 9 and set(joined["gloss_level"]) == {2, 6, 10}
+    with pytest.raises(ValueError, match="no image of any"):
+        join_perception(frame[frame["gloss_level"] == 11], names, trials)
 
 
 def test_relate_cli_writes_a_report_and_never_overwrites_it(tmp_path, design, rng, capsys):
