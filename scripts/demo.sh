@@ -80,6 +80,28 @@ fi
 # --- end analysis report ---
 
 # --- image statistics (issue 9) ---
+step "image statistics: a stratified subset of the imagestats set, statistics on Dask, relation to gloss"
+# 2 illuminations x 1 light field x 1 array x gloss levels 2,6,10 x depth levels 2,6,10 = 18
+# images at 192 px (the smallest size whose array square suits the Portilla-Simoncelli pyramid),
+# 16 spp; the full set is 58,564 images (protocol.md, 7.x).
+IS="$RUN/imagestats"
+if "$PY" -m stimuli list --set imagestats --limit 1 >/dev/null 2>&1; then
+  "$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
+    --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
+    --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress >"$IS.render.log"
+  "$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \
+    --batch-size 3 --quiet
+  SESSIONS=()
+  if [ -d "$RUN/data/sessions" ]; then
+    SESSIONS=(--sessions "$RUN/data")
+  else
+    echo "image statistics: no sessions in \$RUN/data/sessions; relating to depth only"
+  fi
+  "$PY" -m analysis imagestats relate "$IS/stats.parquet" "${SESSIONS[@]}" \
+    --out "$IS/report" --n-boot 200 --seed 1
+else
+  echo "image statistics skipped: the stimuli CLI has no 'imagestats' set (python -m stimuli list --set imagestats)"
+fi
 # --- end image statistics ---
 
 # --- sim-to-real gap (issue 8) ---
