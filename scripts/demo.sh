@@ -45,6 +45,12 @@ xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
 # --- end calibration ---
 
 # --- gloss fit (issue 7) ---
+step "gloss fit: synthetic HDR photos of the gloss spheres -> Ward parameters (basis method)"
+# The lab's photos are not in the repository: render 6 of the 11 levels (clear-coat spheres with
+# noise, glare, vignetting and misregistration), then fit them as the lab's photos would be.
+# The gloss table spans 0-100 %, so it covers the rendered levels (10-90 %).
+"$PY" -m stimuli synth-photos "$RUN/glossfit/photos" --levels 0,20,40,60,80,100 --seed 1
+"$PY" -m stimuli fit-gloss "$RUN/glossfit/photos" --out "$RUN/glossfit"
 # --- end gloss fit ---
 
 # --- stimuli (issue 3) ---
@@ -67,6 +73,41 @@ STIM_OPTS=()
 # --- end stimuli ---
 
 # --- experiment (issue 5) ---
+step "experiment: two simulated humanlike observers x two sessions through the app (Xvfb, XTEST input)"
+# The real session app, windowed under Xvfb, a simulated participant at the X mouse and keyboard;
+# --fast: no waiting for the vertical blank or the observer's response times.
+STIM_MANIFEST="$RUN/stimuli/experiment/manifest.csv"
+if [ ! -f "$STIM_MANIFEST" ]; then
+  echo "experiment sessions skipped: no rendered stimuli at $STIM_MANIFEST (the stimuli step wrote none)"
+else
+  EXP_CAL="$RUN/calibration/calibration.json"
+  EXP_FLAGS=()
+  # The stimuli should be gamma-corrected for this calibration; if the stimuli step used another
+  # one, say so and run anyway (a lab session would refuse; the flag is recorded in the log).
+  if ! "$PY" - "$STIM_MANIFEST" "$EXP_CAL" <<'PYEOF'
+import sys
+import pandas as pd
+from calibration import load_calibration
+ids = set(pd.read_csv(sys.argv[1], dtype=str)["calibration_id"])
+sys.exit(0 if ids == {load_calibration(sys.argv[2]).calibration_id} else 1)
+PYEOF
+  then
+    echo "note: stimuli were corrected for another calibration; running with --accept-calibration-mismatch"
+    EXP_FLAGS+=(--accept-calibration-mismatch)
+  fi
+  xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
+    set -euo pipefail
+    PY=$1; MANIFEST=$2; CAL=$3; DATA=$4; shift 4
+    for p in D01 D02; do
+      for s in 1 2; do
+        "$PY" -m experiment run --participant "$p" --session "$s" --stimuli "$MANIFEST" \
+          --calibration "$CAL" --data "$DATA" --simulate humanlike --fast "$@"
+      done
+    done
+  ' experiment "$PY" "$STIM_MANIFEST" "$EXP_CAL" "$RUN/data" ${EXP_FLAGS[@]+"${EXP_FLAGS[@]}"}
+fi
+# Ideal observers (same ids, so the same plans) for the sim-to-real diagnosis, without the app.
+"$PY" -m experiment simulate --observer ideal --participants D01 D02 --data "$RUN/data_ideal" --seed 1
 # --- end experiment ---
 
 # --- analysis report (issue 6) ---
