@@ -129,7 +129,7 @@ IS="$RUN/imagestats"
 if "$PY" -m stimuli list --set imagestats --limit 1 >/dev/null 2>&1; then
   "$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
     --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
-    --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress >"$IS.render.log"
+    --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress
   "$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \
     --batch-size 3 --quiet
   SESSIONS=()
@@ -138,7 +138,7 @@ if "$PY" -m stimuli list --set imagestats --limit 1 >/dev/null 2>&1; then
   else
     echo "image statistics: no sessions in \$RUN/data/sessions; relating to depth only"
   fi
-  "$PY" -m analysis imagestats relate "$IS/stats.parquet" "${SESSIONS[@]}" \
+  "$PY" -m analysis imagestats relate "$IS/stats.parquet" ${SESSIONS[@]+"${SESSIONS[@]}"} \
     --out "$IS/report" --n-boot 200 --seed 1
 else
   echo "image statistics skipped: the stimuli CLI has no 'imagestats' set (python -m stimuli list --set imagestats)"
