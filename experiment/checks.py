@@ -23,6 +23,7 @@ __all__ = [
     "PreflightError",
     "SessionStimuli",
     "check_calibration",
+    "check_keyboard_libraries",
     "check_participant",
     "check_screen",
     "check_session_number",
@@ -230,3 +231,30 @@ def check_screen(design: StudyDesign, *, fullscr: bool, display_name: str | None
             f"{want[0]}x{want[1]} window; use a larger screen or the CRT at its design mode"
         )
     return size
+
+
+def check_keyboard_libraries() -> None:
+    """psychtoolbox's keyboard needs libasound2 and libjack; without them PsychoPy silently falls
+    back to its ``event`` keyboard, which never matches keys in PsychoPy 2026.2.
+
+    Raises
+    ------
+    PreflightError
+        A library is missing or psychtoolbox cannot be imported.
+    """
+    import ctypes.util
+
+    missing = [pkg for lib, pkg in (("asound", "libasound2"), ("jack", "libjack-jackd2-0"))
+               if ctypes.util.find_library(lib) is None]
+    if missing:
+        raise PreflightError(
+            f"the keyboard needs {missing} (psychtoolbox's key queue); install them "
+            f"(`apt-get install {' '.join(missing)}`, or `make system-deps`)"
+        )
+    try:
+        import psychtoolbox  # noqa: F401
+    except ImportError as exc:
+        raise PreflightError(
+            f"psychtoolbox does not load ({exc}); the keyboard would fall back to PsychoPy's "
+            "'event' backend, which loses key presses. Reinstall the venv (`make venv`)"
+        ) from exc

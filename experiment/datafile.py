@@ -3,10 +3,11 @@
 Files of one participant and session, under the data folder ``DATA_DIR``:
 
 ================================================  =================================================
-``sessions/<participant>_s<session>.csv``          one row per answered trial (``SESSION_COLUMNS``)
-``sliders/<participant>_s<session>.jsonl``         each trial's full slider histories (JSON lines)
-``logs/<participant>_s<session>_run<k>.json``      one log per run of the app (a resume is a new run)
-``logs/<participant>_s<session>_run<k>_frames.*``  frame intervals of that run (CSV and a plot)
+``sessions/<participant>_s<session>.csv``         one row per answered trial (``SESSION_COLUMNS``)
+``sliders/<participant>_s<session>.jsonl``        each trial's full slider histories (JSON lines)
+``logs/<participant>_s<session>_run<k>.json``     one log per run of the app (a resume is a new run)
+``logs/<participant>_s<session>_runs.jsonl``      start and end of every run (append-only)
+``logs/<participant>_s<session>_run<k>_frames.*`` frame intervals of that run (CSV and a plot)
 ================================================  =================================================
 
 Recorded data is never overwritten: rows are only appended (``O_APPEND``, one ``write`` per row,
@@ -34,7 +35,6 @@ __all__ = [
     "DataFileError",
     "SessionWriter",
     "app_version",
-    "next_run_path",
     "read_session",
     "session_path",
     "sliders_path",
@@ -70,16 +70,6 @@ def session_path(data_dir, participant: str, session: int) -> Path:
 def sliders_path(data_dir, participant: str, session: int) -> Path:
     """``DATA_DIR/sliders/<participant>_s<session>.jsonl``: slider histories, one line a trial."""
     return Path(data_dir) / "sliders" / f"{_name(participant, session)}.jsonl"
-
-
-def next_run_path(data_dir, participant: str, session: int) -> tuple[int, Path]:
-    """The first unused run number ``k`` and ``DATA_DIR/logs/<participant>_s<session>_run<k>.json``."""
-    folder = Path(data_dir) / "logs"
-    stem = _name(participant, session)
-    k = 1
-    while (folder / f"{stem}_run{k}.json").exists() or (folder / f"{stem}_run{k}.lock").exists():
-        k += 1
-    return k, folder / f"{stem}_run{k}.json"
 
 
 @cache

@@ -35,6 +35,7 @@ from experiment.checks import (
     PreflightError,
     SessionStimuli,
     check_calibration,
+    check_keyboard_libraries,
     check_participant,
     check_screen,
     check_session_number,
@@ -166,7 +167,10 @@ def prepare_session(req: SessionRequest) -> Prepared:
                 raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
                                      "in the session log)")
             warnings.append(msg)
-    screen = check_screen(design, fullscr=req.fullscr) if len(todo) else None
+    screen = None
+    if len(todo):
+        check_keyboard_libraries()
+        screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,
                     stimuli=stim, calibration=cal, screen_px=screen, warnings=warnings)
 

@@ -191,3 +191,13 @@ def test_plan_and_session_files_are_never_overwritten(design, session_files):
     assert plan_file.read_bytes() == before
     assert json.dumps(list(prep.plan["stimulus_id"]))  # the plan is usable
     assert pd.read_csv(plan_file)["stimulus_id"].nunique() == design.n_stimuli
+
+
+def test_keyboard_libraries_missing(design, session_files, monkeypatch):
+    import ctypes.util
+
+    real = ctypes.util.find_library
+    monkeypatch.setattr(ctypes.util, "find_library",
+                        lambda name: None if name == "jack" else real(name))
+    with pytest.raises(PreflightError, match=r"needs \['libjack-jackd2-0'\]"):
+        prepare_session(_request(design, session_files))
