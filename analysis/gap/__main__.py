@@ -21,13 +21,33 @@ def _benchmark(args, design) -> int:
         thr = (run_thresholds(design, layer, reps=args.threshold_reps, seed=args.seed + 1,
                               log=log) if args.threshold_reps > 0 else None)
         print(format_scores(layer, r, thr), flush=True)
+    if args.layer == "all":
+        from analysis.gap.benchmark import run_layer_benchmark
+
+        lr = run_layer_benchmark(design, trials=args.trials, seed=args.seed + 2,
+                                 log=None if args.quiet else print)
+        print(f"all: carrying layer named correctly in {lr['layer_rate']:.3f} of {lr['n']} runs "
+              "(one layer injected, the others clean)")
     print(f"seed {args.seed}, {args.trials} trials per layer")
     return 0
 
 
 def _diagnose(args, design) -> int:
-    from analysis.gap.diagnose import diagnose_files
-    from analysis.gap.report import write_report
+    from analysis.gap.diagnose import diagnose_all_files, diagnose_files
+    from analysis.gap.report import write_multi_report, write_report
+
+    if args.layer == "all":
+        from analysis.gap.layers import parse_layer_paths, which_layer
+
+        results = diagnose_all_files(parse_layer_paths(args.real), parse_layer_paths(args.sim),
+                                     design, seed=args.seed)
+        which = which_layer({n: d for n, (d, _) in results.items()})
+        path = write_multi_report(results, which, args.out)
+        for name, (diag, _) in results.items():
+            print(f"{name}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
+                  f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %)")
+        print(f"{which['text']}\nreport {path}")
+        return 0
 
     diag, local = diagnose_files(args.layer, args.real, args.sim, design, seed=args.seed)
     path = write_report(diag, local, args.out)

@@ -31,8 +31,8 @@ from analysis.gap.diagnose import (
 )
 from analysis.gap.observer import load_sessions, observer_frame, observer_nll
 
-__all__ = ["TARGETS", "format_scores", "run_benchmark", "run_observer_benchmark",
-           "run_thresholds"]
+__all__ = ["TARGETS", "format_scores", "run_benchmark", "run_layer_benchmark",
+           "run_observer_benchmark", "run_thresholds"]
 
 #: The issue's targets.
 TARGETS = {"top1": 0.95, "false_attribution": 0.05, "unexplained_out": 0.90,
@@ -207,6 +207,34 @@ def run_thresholds(design, layer: str, *, reps: int, seed: int,
         if log:
             log(f"{layer} threshold {effect}: {threshold} (hit rates {rates})")
     return out
+
+
+def run_layer_benchmark(design, *, trials: int, seed: int, n_boot: int = 300,
+                        log=print) -> dict:
+    """Which layer carries the gap: each run injects one catalogue effect at moderate strength
+    into one layer chosen at random (nothing into the others), diagnoses all three from their
+    files and checks :func:`analysis.gap.layers.which_layer` names that layer."""
+    from analysis.gap.layers import which_layer
+
+    rng = np.random.default_rng(seed)
+    hits = []
+    for t in range(trials):
+        layer = str(rng.choice(list(_LAYERS)))
+        effects, _, strength0, _ = _LAYERS[layer]
+        effect = str(rng.choice(effects))
+        strength = strength0[effect] * rng.uniform(0.5, 1.5)
+        diags = {}
+        with tempfile.TemporaryDirectory() as tmp:
+            for name, (_, _, _, trial) in _LAYERS.items():
+                e, s = (effect, strength) if name == layer else ("none", 0.0)
+                (Path(tmp) / name).mkdir()
+                diags[name], _ = trial(design, e, s, rng, Path(tmp) / name, n_boot)
+        which = which_layer(diags)
+        hits.append(which["layer"] == layer)
+        if log:
+            log(f"layers trial {t}: injected {effect} into {layer} -> {which['layer']} "
+                f"(gaps {', '.join(f'{n} {g[0]:.3f}' for n, g in which['gaps'].items())})")
+    return {"layer_rate": float(np.mean(hits)), "n": trials}
 
 
 def _score(records):

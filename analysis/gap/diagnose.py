@@ -39,7 +39,7 @@ from analysis.gap.render import (
     split_render,
 )
 
-__all__ = ["diagnose_display", "diagnose_display_files", "diagnose_files", "diagnose_observer",
+__all__ = ["diagnose_all_files", "diagnose_display", "diagnose_display_files", "diagnose_files", "diagnose_observer",
            "diagnose_observer_files", "diagnose_render", "diagnose_render_files"]
 
 
@@ -102,6 +102,16 @@ def diagnose_render_files(real_path: str | Path, sim_path: str | Path, *, seed: 
     folder; usually the same folder)."""
     return diagnose_render(load_render(real_path, sim_path), rng=np.random.default_rng(seed),
                            seed=seed, n_boot=n_boot)
+
+
+def diagnose_all_files(real: dict, sim: dict, design, *, seed: int, n_boot: int = 1000) -> dict:
+    """Diagnose every layer given ({layer: path} for REAL and SIM; a render layer without a SIM
+    path uses its REAL folder). Returns {layer: (Diagnosis, localisation)}."""
+    missing = [n for n in real if n not in sim and n != "render"]
+    if missing:
+        raise GapError(f"--sim lacks {missing}; give LAYER=PATH for every layer in --real")
+    return {n: diagnose_files(n, real[n], sim.get(n, real[n]), design, seed=seed,
+                              n_boot=n_boot) for n in real}
 
 
 def diagnose_files(layer: str, real_path, sim_path, design, *, seed: int, n_boot: int = 1000):

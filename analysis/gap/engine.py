@@ -65,6 +65,8 @@ class Diagnosis:
     explained_share: float = float("nan")
     min_share: float = 0.0
     loss_info: dict | None = None
+    gap_before_ci: tuple = ()
+    gap_after_ci: tuple = ()
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -199,6 +201,10 @@ def diagnose_losses(
         explained_share=float(share),
         min_share=float(min_share),
         loss_info=loss_info,
+        gap_before_ci=tuple(float(x) for x in np.percentile(gap_b[idx].mean(axis=1),
+                                                              [2.5, 97.5])),
+        gap_after_ci=tuple(float(x) for x in np.percentile(gap_a[idx].mean(axis=1),
+                                                             [2.5, 97.5])),
     )
 
 

@@ -15,7 +15,7 @@ import matplotlib.pyplot as plt
 
 from analysis.gap.engine import Diagnosis, GapError
 
-__all__ = ["verdict_text", "write_report"]
+__all__ = ["verdict_text", "write_multi_report", "write_report"]
 
 
 def verdict_text(d: Diagnosis) -> str:
@@ -124,4 +124,33 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
 <p>seed {diag.seed}</p></body></html>"""
     (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
     local.to_csv(out / "localisation.csv", index=False)
+    return _atomic_page(out, page)
+
+
+def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
+    """``out_dir/index.html`` with the carrying layer and each layer's section (figures in
+    ``out_dir/<layer>/``)."""
+    out = Path(out_dir)
+    _check_new(out)
+    sections = []
+    for name, (diag, local) in results.items():
+        sub = out / name
+        sub.mkdir(exist_ok=True)
+        if "axis" in local.columns:
+            _plot_generic(local, sub / "localisation.png")
+        else:
+            _plot_observer(local, sub / "localisation.png")
+        (sub / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
+        local.to_csv(sub / "localisation.csv", index=False)
+        sections.append(f"<h2>{html.escape(name)} layer</h2>"
+                        + diagnosis_html(diag, f"{name}/localisation.png"))
+    rows = "".join(f"<tr><td>{html.escape(n)}</td><td>{g[0]:.4f}</td><td>[{g[1]:.4f}, "
+                   f"{g[2]:.4f}]</td></tr>" for n, g in which["gaps"].items())
+    page = f"""<!doctype html><html><head><meta charset="utf-8">
+<title>Sim-to-real gap: all layers</title></head><body>
+<h1>Sim-to-real gap, all layers</h1>
+<p><b>{html.escape(which["text"])}</b></p>
+<table border="1"><tr><th>layer</th><th>held-out gap (nats per unit)</th><th>95 % CI</th></tr>
+{rows}</table>
+{"".join(sections)}</body></html>"""
     return _atomic_page(out, page)
