@@ -28,6 +28,25 @@ def _cmd_plan(args) -> int:
     return 0
 
 
+#: Debian packages Qt's X11 plugin (PsychoPy's dialog) needs beyond PsychoPy's own: library -> package.
+_QT_XCB_LIBS = {"xcb-icccm": "libxcb-icccm4", "xcb-keysyms": "libxcb-keysyms1",
+                "xcb-cursor": "libxcb-cursor0"}
+
+
+def _dialog_problem() -> str | None:
+    """Why PsychoPy's (Qt) dialog cannot open here, or None. Qt aborts the process when its X11
+    plugin cannot load, so this is checked first."""
+    import ctypes.util
+    import os
+
+    if not os.environ.get("DISPLAY"):
+        return "there is no X display (DISPLAY is not set)"
+    missing = [pkg for lib, pkg in _QT_XCB_LIBS.items() if ctypes.util.find_library(lib) is None]
+    if missing:
+        return f"Qt's X11 plugin needs the Debian packages {missing} (apt-get install them)"
+    return None
+
+
 def _ask(participant, session):
     """PsychoPy's dialog for what the command line left out; None when cancelled."""
     from psychopy import gui
@@ -46,10 +65,19 @@ def _cmd_run(args) -> int:
 
     design = load_design(args.design)
     participant, session = args.participant, args.session
+    if args.fast and not args.simulate:
+        print("error: --fast is for simulated runs (it does not wait for the vertical blank, so "
+              "onsets and frame counts would be wrong with a participant)", file=sys.stderr)
+        return 2
     if participant is None or session is None:
         if args.simulate:
             print("error: --participant and --session are required with --simulate",
                   file=sys.stderr)
+            return 2
+        problem = _dialog_problem()
+        if problem is not None:
+            print(f"error: cannot show the session dialog: {problem}; or give --participant and "
+                  "--session on the command line", file=sys.stderr)
             return 2
         answer = _ask(participant, session)
         if answer is None:
