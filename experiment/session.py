@@ -169,6 +169,12 @@ def prepare_session(req: SessionRequest) -> Prepared:
             warnings.append(msg)
     screen = None
     if len(todo):
+        from experiment.display import DisplayError, plan_layout
+
+        try:
+            plan_layout(design, cal, stim.frame)
+        except DisplayError as exc:
+            raise PreflightError(str(exc)) from exc
         check_keyboard_libraries()
         screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,

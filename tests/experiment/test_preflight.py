@@ -201,3 +201,9 @@ def test_keyboard_libraries_missing(design, session_files, monkeypatch):
                         lambda name: None if name == "jack" else real(name))
     with pytest.raises(PreflightError, match=r"needs \['libjack-jackd2-0'\]"):
         prepare_session(_request(design, session_files))
+
+
+def test_stimulus_too_large_for_the_screen(design, session_files, tmp_path):
+    big = make_manifest(tmp_path / "big", design, width_cm=30.0)
+    with pytest.raises(PreflightError, match="does not fit above the sliders"):
+        prepare_session(_request(design, session_files, manifest=str(big)))
