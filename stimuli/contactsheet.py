@@ -48,7 +48,10 @@ def contact_sheet(folder: str | os.PathLike, out_png: str | os.PathLike, *, colu
             tile = im.convert("L").resize((tile_px, tile_px), Image.Resampling.LANCZOS)
         x, y = (k % columns) * tile_px, (k // columns) * (tile_px + label_px)
         sheet.paste(tile, (x, y))
-        draw.text((x + 2, y + tile_px + 1), str(row.stimulus_id), fill=0)
+        label = str(row.stimulus_id)
+        if tile_px < 8 * len(label):  # too narrow for the id: gloss and depth levels only
+            label = f"g{int(row.gloss_level):02d} d{int(row.depth_level):02d}"
+        draw.text((x + 2, y + tile_px + 1), label, fill=0)
     out = Path(out_png)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.png")
