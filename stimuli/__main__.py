@@ -7,6 +7,7 @@ Commands: ``list``, ``render``, ``verify``, ``contact-sheet``, ``export-print``,
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import os
 import sys
@@ -169,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
     g = p.add_mutually_exclusive_group()
     g.add_argument("--workers", type=int, help="Dask LocalCluster worker processes (default: "
                    "min(cores, 4)); 0 renders in this process")
-    g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786)")
+    g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786); "
+                   "its workers must see --out at the same path (shared file system)")
     p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_spectral, else llvm_ad_rgb)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
@@ -210,7 +212,11 @@ def main(argv: list[str] | None = None) -> int:
               "to resume", file=sys.stderr)
         return 130
     except (ValueError, OSError) as exc:  # every package error is a ValueError subclass
-        print(f"error: {exc}", file=sys.stderr)
+        hint = ""
+        if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
+            hint = ("; the disk is full: free space and re-run the same command (finished files "
+                    "are kept, no half-written file remains)")
+        print(f"error: {exc}{hint}", file=sys.stderr)
         return 1
 
 

@@ -2,6 +2,15 @@
 
 The experiment checks a manifest before a session (every PNG present, checksums match); analysis
 keys image statistics by it. Paths in the manifest are relative to the manifest's folder.
+
+Columns written by ``python -m stimuli render`` (protocol.md section 4): the stimulus's levels and
+true values, ``light_field`` (its tone-mapping condition), ``array_index`` and ``seed`` (of the
+array), the Ward ``rho_d, rho_s, alpha``, ``spp`` (multijitter's real count), ``width_px,
+height_px``, ``image_width_cm`` (show the image this wide on the CRT: physical size) and
+``distance_cm`` (the viewing distance it was rendered for), the Mitsuba ``variant``, the probe
+(``envmap``, ``envmap_sha256``, ``rotation_deg``), ``tonemap_lmax`` (L_max of the condition's
+tone curve, render units), ``calibration_id`` (whose inverse gamma the PNG carries), the files
+and their SHA-256.
 """
 
 from __future__ import annotations

@@ -263,9 +263,9 @@ def render_set(
     n_png = n_png_skipped = 0
     try:
         for lf, group in plan.groupby("light_field", sort=False):
-            images = {sid: read_exr(out / p) for sid, p in zip(group["stimulus_id"],
-                                                                  group["exr_path"])}
-            lmax = luminance_range(images.values())
+            # streamed (one image in memory at a time): a light field of the imagestats set
+            # holds thousands of EXRs
+            lmax = max(luminance_range([read_exr(out / p)]) for p in group["exr_path"])
             curve = tone_curve(tonemap_spec, lmax)
             for row in group.itertuples(index=False):
                 rec = records.loc[row.stimulus_id]
@@ -286,7 +286,8 @@ def render_set(
                     raise StimuliError(
                         f"{png} is missing or changed but {manifest_path} lists it; recorded data "
                         "are never overwritten: render into a new --out folder")
-                u8 = gamma_encode(display_fraction(images[row.stimulus_id], curve), calibration)
+                lum = read_exr(out / row.exr_path)
+                u8 = gamma_encode(display_fraction(lum, curve), calibration)
                 png = out / row.png_path
                 png.parent.mkdir(parents=True, exist_ok=True)
                 write_png(png, u8)

@@ -29,16 +29,17 @@ with probability ``rho_s / (rho_d + rho_s)`` and the returned pdf is the mixture
 
 Plugin reference (``ward``)
 ---------------------------
-=========  =====  =======  =====================================================================
-Property   Type   Default  Meaning
-=========  =====  =======  =====================================================================
-rho_d      float  0.5      diffuse reflectance, [0, 1]
-rho_s      float  0.05     specular (lobe) reflectance, [0, 1]; rho_d + rho_s <= 1
-alpha      float  0.1      lobe width (RMS surface slope), > 0; small = sharp highlights
-lobe_      float  unset    probability of sampling the glossy lobe, (0, 1); unset: rho_s /
-probabil-                  (rho_d + rho_s). Fixed, the pdf does not depend on rho_d, rho_s, so
-ity                        renders with the same seed are exactly linear in them (gloss fitting)
-=========  =====  =======  =====================================================================
+================  =====  =======  ==============================================================
+Property          Type   Default  Meaning
+================  =====  =======  ==============================================================
+rho_d             float  0.5      diffuse reflectance, [0, 1]
+rho_s             float  0.05     specular (lobe) reflectance, [0, 1]; rho_d + rho_s <= 1
+alpha             float  0.1      lobe width (RMS surface slope), > 0; small = sharp highlights
+lobe_probability  float  unset    probability of sampling the glossy lobe, (0, 1); unset:
+                                  rho_s / (rho_d + rho_s). Fixed, the pdf does not depend on
+                                  rho_d, rho_s, so renders with one seed are exactly linear in
+                                  them (used by gloss fitting)
+================  =====  =======  ==============================================================
 
 All three are exposed through ``traverse`` (``mi.traverse(scene)["<id>.rho_s"]``) so a loaded scene
 is re-rendered with new values without re-loading; they are stored opaque, so the render kernel is
