@@ -146,15 +146,66 @@ fi
 # --- end image statistics ---
 
 # --- sim-to-real gap (issue 8) ---
-step "sim-to-real gap: observer layer"
+step "sim-to-real gap: observer, display and render layers, then which layer carries the gap"
+GAP="$RUN/gap"
+mkdir -p "$GAP"
+GAP_REAL=(); GAP_SIM=()
+# Observer: the humanlike sessions (app) against the ideal observer's (experiment simulate).
 if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
-  $PY -m analysis.gap diagnose --layer observer --real "$RUN/data/sessions" \
-    --sim "$RUN/data_ideal/sessions" --out "$RUN/gap/observer"
+  "$PY" -m analysis gap diagnose --layer observer --real "$RUN/data/sessions" \
+    --sim "$RUN/data_ideal/sessions" --out "$GAP/observer"
+  GAP_REAL+=("observer=$RUN/data/sessions"); GAP_SIM+=("observer=$RUN/data_ideal/sessions")
 else
-  echo "gap diagnose skipped: needs humanlike sessions in \$RUN/data/sessions and ideal-observer"
-  echo "sessions in \$RUN/data_ideal/sessions (experiment's ideal run not in the demo yet)"
-  $PY -m analysis.gap benchmark --layer observer --trials 4 --seed 1
+  echo "gap observer layer skipped: needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)"
 fi
+# Display: photometer readings against the calibration. The noise floor needs repeated patches;
+# the demo's quick calibration measures each patch once, so then a check measurement of the
+# same simulated display (calibration/crt.toml, 3 x 3 positions, 2 repeats) is taken instead.
+if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings.csv" ]; then
+  READINGS="$RUN/calibration/readings.csv"
+  if ! "$PY" -c 'import sys; from calibration import load_readings; sys.exit(0 if load_readings(sys.argv[1])["repeat"].nunique() >= 2 else 1)' "$READINGS"; then
+    READINGS="$GAP/display_check/readings.csv"
+    mkdir -p "$GAP/display_check"
+    "$PY" - "$READINGS" <<'PYEOF'
+import sys
+import numpy as np
+import pandas as pd
+from calibration import READINGS_COLUMNS, load_crt
+crt, rng = load_crt(), np.random.default_rng(1)
+rows = []
+for y in (0.6, 0.0, -0.6):
+    for x in (-0.6, 0.0, 0.6):
+        levels = np.round(np.linspace(0, 1, 9 if x == y == 0 else 3) * 255) / 255
+        rows += [(x, y, lv, r) for r in range(2) for lv in levels]
+f = pd.DataFrame(rows, columns=["x_norm", "y_norm", "level", "repeat"])
+t = np.arange(len(f)) * 3.0
+f["luminance_cd_m2"] = crt.luminance(f["level"], f["x_norm"], f["y_norm"], np.inf, rng)
+f["calibration_id"], f["device"], f["raw_reply"] = "demo-check", "pr655", ""
+f["timestamp_utc"] = [(pd.Timestamp("2026-01-05T09:00:00Z") + pd.Timedelta(seconds=s))
+                      .strftime("%Y-%m-%dT%H:%M:%S.%fZ") for s in t]
+f[list(READINGS_COLUMNS)].to_csv(sys.argv[1], index=False)
+PYEOF
+    echo "display: the calibration measured each patch once; diagnosing a 2-repeat check measurement ($READINGS)"
+  fi
+  "$PY" -m analysis gap diagnose --layer display --real "$READINGS" \
+    --sim "$RUN/calibration/calibration.json" --out "$GAP/display"
+  GAP_REAL+=("display=$READINGS"); GAP_SIM+=("display=$RUN/calibration/calibration.json")
+else
+  echo "gap display layer skipped: no \$RUN/calibration/calibration.json and readings.csv"
+fi
+# Render: the synthetic photos against their Ward fit (the gloss fit's residual files).
+if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
+  "$PY" -m analysis gap diagnose --layer render --real "$RUN/glossfit" --sim "$RUN/glossfit" \
+    --out "$GAP/render"
+  GAP_REAL+=("render=$RUN/glossfit")
+else
+  echo "gap render layer skipped: no \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)"
+fi
+if [ ${#GAP_REAL[@]} -ge 2 ]; then
+  "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
+    --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"
+fi
+echo "blind benchmark (not run here, ~15 min): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5"
 # --- end sim-to-real gap ---
 
 step "done"

@@ -255,17 +255,17 @@ def _score(records):
 
 def format_scores(layer: str, r: dict, thresholds: dict | None = None) -> str:
     """The scores against the issue's targets, one line each."""
-    def mark(ok):
-        return "met" if ok else "NOT met"
+    def mark(ok, n=1):
+        return "n/a (no runs)" if n == 0 else ("met" if ok else "NOT met")
     lines = [
         (f"{layer}: top-1 {r['top1']:.3f} (n={r['n_in']}; target >= {TARGETS['top1']}) "
-        f"{mark(r['top1'] >= TARGETS['top1'])}"),
+        f"{mark(r['top1'] >= TARGETS['top1'], r['n_in'])}"),
         (f"{layer}: false attributions {r['false_attribution']:.3f} (n={r['n_none']}; target "
         f"<= {TARGETS['false_attribution']}) "
-        f"{mark(r['false_attribution'] <= TARGETS['false_attribution'])}"),
+        f"{mark(r['false_attribution'] <= TARGETS['false_attribution'], r['n_none'])}"),
         (f"{layer}: unexplained for out-of-catalogue {r['unexplained_out']:.3f} (n={r['n_out']}; "
         f"target >= {TARGETS['unexplained_out']}) "
-        f"{mark(r['unexplained_out'] >= TARGETS['unexplained_out'])}"),
+        f"{mark(r['unexplained_out'] >= TARGETS['unexplained_out'], r['n_out'])}"),
         (f"{layer}: shrinkage error median {100 * r['shrink_error']:.1f} % of the gap, 90th "
         f"percentile {100 * r['shrink_error_p90']:.1f} % (target <= "
         f"{100 * TARGETS['shrink_error']:.0f} %) "
