@@ -68,8 +68,9 @@ class FitSettings:
     tol: float = 0.001
     patience: int = 5
     max_iter: int = 60
+    gate_on_spacing: bool = True
     alpha_scan: int = 9
-    alpha_xtol: float = 2e-4
+    alpha_xtol: float = 5e-4
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -193,14 +194,26 @@ def grid_fit(renderer, photo_lum: np.ndarray, mask: np.ndarray,
         new = min((error(r, a), (float(r), float(a))) for r in rs for a in alphas)
         if best is not None and new[0] > best_e:
             new = (best_e, best)  # the grid moved past the best point seen; keep it
+        # Stop only once the grid resolves tol (the seed's rule alone could stop at a coarse grid
+        # whose centre stays best by chance).
+        # At r = 0 alpha has no effect on the render (rho_s = 0), so the best alpha there is
+        # chance (Monte-Carlo noise): keep alpha's range whole and do not count the iteration
+        # as stable until r leaves 0. Without this the grid locked onto r = 0 and a random alpha
+        # on weakly glossy photos whose best fit has rho_s > 0 (protocol.md, choices).
+        at_zero = new[1][0] <= 0.0
+        if at_zero:
+            new = (new[0], (0.0, centre[1]))
         move = np.inf if best is None else max(abs(new[1][0] - best[0]),
                                                abs(new[1][1] - best[1]))
-        stable = stable + 1 if move < settings.tol else 0
+        spacing = max(width[0], width[1]) / (settings.grid_points - 1)
+        converged = not settings.gate_on_spacing or spacing < settings.tol
+        stable = stable + 1 if move < settings.tol and not at_zero and converged else 0
         best_e, best = new
         trace.append((iterations, best[0], best[1], best_e))
         centre = best
-        width = [w * (1 - settings.shrink) for w in width]
-        if stable >= settings.patience:
+        width = [width[0] * (1 - settings.shrink),
+                 width[1] if at_zero else width[1] * (1 - settings.shrink)]
+        if stable >= settings.patience or (at_zero and width[0] < settings.tol):
             break
     r, alpha = best
     background = renderer.render(0.0, 0.0, alpha)
@@ -253,7 +266,7 @@ def _project(q: np.ndarray, d: np.ndarray, s: np.ndarray) -> tuple[float, float]
 
 
 def basis_fit(cache: BasisCache, photo_lum: np.ndarray, mask: np.ndarray,
-              settings: FitSettings | None = None) -> LevelFit:
+              settings: FitSettings | None = None, *, refine_alpha: bool = True) -> LevelFit:
     """The fast fit: closed-form albedos for each alpha, 1-D search over alpha.
 
     Parameters
@@ -262,6 +275,9 @@ def basis_fit(cache: BasisCache, photo_lum: np.ndarray, mask: np.ndarray,
         Shared by all photos of a set (same camera, panorama and sampler seed).
     photo_lum, mask, settings
         As for ``grid_fit``.
+    refine_alpha : bool
+        False: stop at the best alpha of the shared scan (no new renders after the first photo;
+        used for the registration's template).
 
     Returns
     -------
@@ -293,11 +309,14 @@ def basis_fit(cache: BasisCache, photo_lum: np.ndarray, mask: np.ndarray,
     errors = [evaluate(a) for a in scan]
     i = int(np.argmin(errors))
     bracket = (scan[max(i - 1, 0)], scan[min(i + 1, len(scan) - 1)])
-    res = optimize.minimize_scalar(evaluate, bounds=bracket, method="bounded",
-                                   options={"xatol": settings.alpha_xtol})
+    nfev = len(scan)
+    if refine_alpha:
+        res = optimize.minimize_scalar(evaluate, bounds=bracket, method="bounded",
+                                       options={"xatol": settings.alpha_xtol})
+        nfev += int(res.nfev)
     alpha = min(results, key=lambda a: results[a][1])
     r, err = results[alpha]
     trace = sorted((a, v[0], v[1]) for a, v in results.items())
     return _finish(p, r, alpha, cache.background(), cache.diffuse(), cache.specular(alpha),
                    mask, err,
-                   cache.renderer.n_renders - start_renders, int(res.nfev), trace)
+                   cache.renderer.n_renders - start_renders, nfev, trace)

@@ -2,7 +2,9 @@
 
 The seed averages rho_d over all levels (one common albedo: the balls share a base and differ in
 varnish), fits rho_s against gloss level by a line, checks the line by leave-one-out
-cross-validation and moves rho_s onto it. alpha stays as fitted per level.
+cross-validation and moves rho_s onto it. alpha stays as fitted per level, except where a photo
+does not determine it (almost no specular light, e.g. the matte 0 % ball): there alpha comes from
+a line in log alpha through the levels that do determine it (column ``alpha_source``).
 """
 
 from __future__ import annotations
@@ -43,7 +45,8 @@ def line_with_loo(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     return np.array([a, b]), loo
 
 
-def gloss_table_from_fits(fits: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
+def gloss_table_from_fits(fits: pd.DataFrame, alpha_undetermined: tuple[float, ...] = ()
+                          ) -> tuple[pd.DataFrame, dict]:
     """The gloss table from fits.csv rows.
 
     Parameters
@@ -51,6 +54,8 @@ def gloss_table_from_fits(fits: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
     fits : DataFrame
         Columns gloss_pct, rho_d, rho_s, alpha, rmse (rows with NaN parameters, i.e. failed
         levels, are left out).
+    alpha_undetermined : tuple of float
+        Gloss levels (%) whose photo does not determine alpha.
 
     Returns
     -------
@@ -74,15 +79,26 @@ def gloss_table_from_fits(fits: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
     rho_d = float(ok["rho_d"].mean())
     coef, loo = line_with_loo(g, ok["rho_s"].to_numpy(float))
     rho_s_line = np.clip(coef[0] + coef[1] * g, 0.0, None)
+    alpha = ok["alpha"].to_numpy(float)
+    fill = np.isin(g, np.asarray(alpha_undetermined, float))
+    source = np.where(fill, "log-linear from the other levels", "fitted")
+    if fill.any():
+        if (~fill).sum() >= 2:
+            b_log, a_log = np.polyfit(g[~fill], np.log(alpha[~fill]), 1)
+            alpha = np.where(fill, np.exp(a_log + b_log * g), alpha)
+        else:
+            source = np.where(fill, "fitted (undetermined; too few other levels)", source)
     table = pd.DataFrame({
         "gloss_pct": g,
         "rho_d": rho_d,
         "rho_s": rho_s_line,
-        "alpha": ok["alpha"].to_numpy(float),
+        "alpha": alpha,
         "fit_error": ok["rmse"].to_numpy(float),
         "loo_error": loo,
         "rho_d_fit": ok["rho_d"].to_numpy(float),
         "rho_s_fit": ok["rho_s"].to_numpy(float),
+        "alpha_fit": ok["alpha"].to_numpy(float),
+        "alpha_source": source,
     })
     summary = {"common_rho_d": rho_d, "rho_s_intercept": float(coef[0]),
                "rho_s_slope_per_pct": float(coef[1]),
