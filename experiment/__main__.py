@@ -47,46 +47,51 @@ def _dialog_problem() -> str | None:
     return None
 
 
-def _ask(participant, session):
-    """PsychoPy's dialog for what the command line left out; None when cancelled."""
+_FIELDS = ("participant", "session", "stimuli", "calibration")
+_TIPS = {"participant": "e.g. P01 (letters, digits, - or _)", "session": "1 or 2",
+         "stimuli": "path of the stimuli's manifest.csv",
+         "calibration": "path of the calibration's calibration.json"}
+
+
+def _ask(values: dict) -> dict | None:
+    """PsychoPy's dialog for the fields the command line left out; None when cancelled."""
     from psychopy import gui
 
-    info = {"participant": participant or "", "session": session or ""}
-    dlg = gui.DlgFromDict(info, title="glossdepth session", order=["participant", "session"],
-                          tip={"participant": "e.g. P01 (letters, digits, - or _)",
-                               "session": "1 or 2"})
+    info = {k: values[k] or "" for k in _FIELDS}
+    dlg = gui.DlgFromDict(info, title="glossdepth session", order=list(_FIELDS),
+                          fixed=[k for k in _FIELDS if values[k]], tip=_TIPS)
     if not dlg.OK:
         return None
-    return str(info["participant"]).strip(), str(info["session"]).strip()
+    return {k: str(v).strip() or None for k, v in info.items()}
 
 
 def _cmd_run(args) -> int:
     from experiment.session import SessionRequest, main_run
 
     design = load_design(args.design)
-    participant, session = args.participant, args.session
+    values = {"participant": args.participant, "session": args.session,
+              "stimuli": args.stimuli, "calibration": args.calibration}
     if args.fast and not args.simulate:
         print("error: --fast is for simulated runs (it does not wait for the vertical blank, so "
               "onsets and frame counts would be wrong with a participant)", file=sys.stderr)
         return 2
-    if participant is None or session is None:
+    if any(v is None for v in values.values()):
         if args.simulate:
-            print("error: --participant and --session are required with --simulate",
-                  file=sys.stderr)
+            print("error: --participant, --session, --stimuli and --calibration are required "
+                  "with --simulate", file=sys.stderr)
             return 2
         problem = _dialog_problem()
         if problem is not None:
-            print(f"error: cannot show the session dialog: {problem}; or give --participant and "
-                  "--session on the command line", file=sys.stderr)
+            print(f"error: cannot show the session dialog: {problem}; or give --participant, "
+                  "--session, --stimuli and --calibration on the command line", file=sys.stderr)
             return 2
-        answer = _ask(participant, session)
-        if answer is None:
+        values = _ask(values)
+        if values is None:
             print("cancelled: no session run", file=sys.stderr)
             return 1
-        participant, session = answer
     req = SessionRequest(
-        design=design, participant=participant, session=session, manifest=args.stimuli,
-        calibration=args.calibration, data_dir=args.data,
+        design=design, participant=values["participant"], session=values["session"],
+        manifest=values["stimuli"], calibration=values["calibration"], data_dir=args.data,
         max_calibration_age_days=args.max_calibration_age_days, simulate=args.simulate,
         observer_params=args.observer_params, seed=args.seed, fast=args.fast,
         fullscr=args.fullscr, accept_calibration_mismatch=args.accept_calibration_mismatch,
