@@ -14,7 +14,7 @@ default_gloss_table_path, validate_gloss_table, ward_params_for_gloss
     The gloss table: gloss % -> Ward parameters (rho_d, rho_s, alpha).
 draw_array, stimulus_seed, render_mesh, print_mesh, mesh_edges_ok, write_mesh, ArrayGeometry, Mesh
     The ellipsoid array (from the design and a seed) and its meshes (render; watertight print).
-camera_geometry, CameraGeometry, StimulusRenderer
+camera_geometry, CameraGeometry, StimulusRenderer, multijitter_spp
     Camera at the viewing distance showing the array at its physical size; the reusable scene.
 tone_curve, ToneCurve, tonemap, display_fraction, luminance_range, gamma_encode, write_png
     The seed's tone map (linear + asymptotic logistic) and the calibration's inverse gamma.
@@ -68,7 +68,7 @@ from stimuli.manifest import (
 )
 from stimuli.mitsuba_env import LLVM_VARIANTS, setup_mitsuba
 from stimuli.pipeline import RenderJob, render_set
-from stimuli.render import CameraGeometry, StimulusRenderer, camera_geometry
+from stimuli.render import CameraGeometry, StimulusRenderer, camera_geometry, multijitter_spp
 from stimuli.sets import SET_COLUMNS, SET_NAMES, apply_filters, parse_filters, stimulus_set
 from stimuli.tonemap import (
     ToneCurve,
@@ -117,6 +117,7 @@ __all__ = [
     "luminance",
     "luminance_range",
     "mesh_edges_ok",
+    "multijitter_spp",
     "parse_filters",
     "print_mesh",
     "probe_path",
