@@ -24,6 +24,7 @@ __all__ = [
     "SessionStimuli",
     "check_calibration",
     "check_keyboard_libraries",
+    "check_monitor_profile",
     "check_participant",
     "check_screen",
     "check_session_number",
@@ -258,3 +259,47 @@ def check_keyboard_libraries() -> None:
             f"psychtoolbox does not load ({exc}); the keyboard would fall back to PsychoPy's "
             "'event' backend, which loses key presses. Reinstall the venv (`make venv`)"
         ) from exc
+
+
+def check_monitor_profile(calibration_path, cal: Calibration) -> Path | None:
+    """The PsychoPy monitor profile saved with the calibration must describe the same display.
+
+    ``python -m calibration run`` writes ``<calibration folder>/monitors/<monitor_name>.json``; the
+    app builds its monitor from ``calibration.json`` and checks the two agree (width, distance,
+    resolution). A calibration without a saved profile (e.g. the default curve) is accepted.
+
+    Returns
+    -------
+    Path or None
+        The profile checked, if there is one.
+
+    Raises
+    ------
+    PreflightError
+        The profile lacks this calibration or disagrees with it.
+    """
+    import json
+
+    folder = Path(calibration_path)
+    folder = folder if folder.is_dir() else folder.parent
+    path = folder / "monitors" / f"{cal.monitor_name}.json"
+    if not path.is_file():
+        return None
+    try:
+        entry = json.loads(path.read_text(encoding="utf-8")).get(cal.calibration_id)
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError) as exc:
+        raise PreflightError(f"monitor profile {path} is not a PsychoPy profile ({exc})") from exc
+    if entry is None:
+        raise PreflightError(
+            f"monitor profile {path} has no calibration {cal.calibration_id!r}; the calibration "
+            "folder was mixed up. Use the calibration.json written with this profile"
+        )
+    got = (float(entry["width"]), float(entry["distance"]), tuple(entry["sizePix"]))
+    want = (cal.width_cm, cal.distance_cm, tuple(cal.resolution_px))
+    if not (np.isclose(got[0], want[0]) and np.isclose(got[1], want[1]) and got[2] == want[2]):
+        raise PreflightError(
+            f"monitor profile {path} says width {got[0]:g} cm, distance {got[1]:g} cm, "
+            f"{got[2][0]}x{got[2][1]} px, but {calibration_path} says {want[0]:g} cm, "
+            f"{want[1]:g} cm, {want[2][0]}x{want[2][1]} px; recalibrate (or restore the pair)"
+        )
+    return path

@@ -17,7 +17,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Self
 
-import numpy as np
 import pandas as pd
 
 from calibration import Calibration
@@ -122,6 +121,8 @@ class SessionDisplay:
     fullscr : bool
     fast : bool
         Do not wait for the vertical blank at flips (headless runs).
+    monitor_profile : path-like, optional
+        The calibration's saved PsychoPy profile (checked in pre-flight), recorded in the log.
 
     Attributes
     ----------
@@ -131,10 +132,10 @@ class SessionDisplay:
     """
 
     def __init__(self, design: StudyDesign, cal: Calibration, stimuli: pd.DataFrame, *,
-                 fullscr: bool = False, fast: bool = False, monitor_folder=None):
+                 fullscr: bool = False, fast: bool = False, monitor_profile=None):
         self.design, self.cal, self.stimuli = design, cal, stimuli
         self.fullscr, self.fast = fullscr, fast
-        self.monitor_folder = monitor_folder
+        self.monitor_profile = None if monitor_profile is None else str(monitor_profile)
         self.layout = plan_layout(design, cal, stimuli)
         self.win = None
         self.frame_count = 0
@@ -173,30 +174,8 @@ class SessionDisplay:
                                 "resolution_px": list(self.cal.resolution_px),
                                 "calibration_id": self.cal.calibration_id,
                                 "refresh_hz_calibrated": self.cal.refresh_hz}
-        if self.monitor_folder is not None:
-            self._check_saved_profile(Path(self.monitor_folder))
+        self.info["monitor"]["profile"] = self.monitor_profile
         return mon
-
-    def _check_saved_profile(self, folder: Path) -> None:
-        """The profile written by calibration must agree with calibration.json (if present)."""
-        import json
-
-        path = folder / f"{self.cal.monitor_name}.json"
-        self.info["monitor"]["profile"] = str(path) if path.is_file() else None
-        if not path.is_file():
-            return
-        calibs = json.loads(path.read_text(encoding="utf-8"))
-        entry = calibs.get(self.cal.calibration_id)
-        if entry is None:
-            raise DisplayError(f"monitor profile {path} has no calibration "
-                               f"{self.cal.calibration_id!r}; recalibrate or pass the matching "
-                               "calibration.json")
-        got = (float(entry["width"]), float(entry["distance"]), tuple(entry["sizePix"]))
-        want = (self.cal.width_cm, self.cal.distance_cm, tuple(self.cal.resolution_px))
-        if not (np.isclose(got[0], want[0]) and np.isclose(got[1], want[1])
-                and got[2] == want[2]):
-            raise DisplayError(f"monitor profile {path} says width/distance/size {got}, the "
-                               f"calibration {want}; they must match")
 
     def _open(self) -> None:
         from psychopy import logging, visual

@@ -36,6 +36,7 @@ from experiment.checks import (
     SessionStimuli,
     check_calibration,
     check_keyboard_libraries,
+    check_monitor_profile,
     check_participant,
     check_screen,
     check_session_number,
@@ -93,6 +94,7 @@ class Prepared:
     stimuli: SessionStimuli
     calibration: object
     screen_px: tuple
+    monitor_profile: Path | None = None
     warnings: list = field(default_factory=list)
 
 
@@ -167,10 +169,11 @@ def prepare_session(req: SessionRequest) -> Prepared:
                 raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
                                      "in the session log)")
             warnings.append(msg)
-    screen = None
+    screen = profile = None
     if len(todo):
         from experiment.display import DisplayError, plan_layout
 
+        profile = check_monitor_profile(req.calibration, cal)
         try:
             plan_layout(design, cal, stim.frame)
         except DisplayError as exc:
@@ -178,7 +181,8 @@ def prepare_session(req: SessionRequest) -> Prepared:
         check_keyboard_libraries()
         screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,
-                    stimuli=stim, calibration=cal, screen_px=screen, warnings=warnings)
+                    stimuli=stim, calibration=cal, screen_px=screen, monitor_profile=profile,
+                    warnings=warnings)
 
 
 class _SessionLock:
@@ -326,7 +330,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, eve
     trials_log: list[dict] = []
     frames_csv = logs / f"{stem}_run{run}_frames.csv"
     with SessionDisplay(design, cal, stim_frame, fullscr=req.fullscr, fast=req.fast,
-                        monitor_folder=Path(str(req.calibration)).parent / "monitors") as disp, \
+                        monitor_profile=prep.monitor_profile) as disp, \
             SessionWriter(req.data_dir, req.participant, prep.session,
                           background_fsync=True) as writer:
         from psychopy import core

@@ -207,3 +207,22 @@ def test_stimulus_too_large_for_the_screen(design, session_files, tmp_path):
     big = make_manifest(tmp_path / "big", design, width_cm=30.0)
     with pytest.raises(PreflightError, match="does not fit above the sliders"):
         prepare_session(_request(design, session_files, manifest=str(big)))
+
+
+def test_monitor_profile_must_match_the_calibration(design, session_files):
+    """The PsychoPy profile saved beside calibration.json (as `calibration run` writes it)."""
+    cal_path = session_files["calibration"]
+    cal = load_calibration(cal_path)
+    folder = cal_path.parent / "monitors"
+    folder.mkdir()
+    entry = {"width": cal.width_cm, "distance": cal.distance_cm,
+             "sizePix": list(cal.resolution_px)}
+    profile = folder / f"{cal.monitor_name}.json"
+    profile.write_text(json.dumps({cal.calibration_id: entry}))
+    assert prepare_session(_request(design, session_files)).monitor_profile == profile
+    profile.write_text(json.dumps({cal.calibration_id: {**entry, "width": 40.0}}))
+    with pytest.raises(PreflightError, match="says width 40 cm"):
+        prepare_session(_request(design, session_files))
+    profile.write_text(json.dumps({"other": entry}))
+    with pytest.raises(PreflightError, match="has no calibration 'test'"):
+        prepare_session(_request(design, session_files))
