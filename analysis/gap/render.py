@@ -28,8 +28,9 @@ With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_
 again per level, as the gloss fit would have done had it known the effect.
 
 Loss: Gaussian NLL per pixel on the sphere (highlight, body, rim; valid pixels), with the noise
-SD of each level estimated without any model from the photo's second differences (median
-absolute deviation), so the floor is ``0.5 log(2 pi sd^2) + 0.5``. Held out: pixels in a
+SD of each level (photo noise and the render's Monte-Carlo noise) estimated from the second
+differences of photo - render (median absolute deviation; a smooth misfit drops out), so the
+floor is ``0.5 log(2 pi sd^2) + 0.5``. Held out: pixels in a
 checkerboard of 4 x 4 blocks (half train, half test) in every level.
 """
 
@@ -156,7 +157,7 @@ def load_render(real_path, sim_path=None) -> RenderData:
                        "P": P, "D": D, "S": S, "cos_t": cos_t, "rho2": rho2,
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
-                       "sd": _noise_sd(P, valid & sph)})
+                       "sd": _noise_sd(P - D - S, valid & sph)})
     return RenderData(levels)
 
 

@@ -59,3 +59,23 @@ def test_cli_render_report(tmp_path):
 def test_render_benchmark_small():
     r = run_benchmark(load_design(), "render", trials=3, seed=4, n_boot=200, log=None)
     assert len(r["records"]) == 3
+
+
+@pytest.mark.slow
+def test_render_layer_reads_the_gloss_fit_output(tmp_path):
+    """The gloss fit's own output folder (synthetic photos, Mitsuba fit) diagnoses end to end."""
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "DRJIT_LIBLLVM_PATH": os.environ.get(
+        "DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")}
+    for cmd in (["synth-photos", str(tmp_path / "photos"), "--levels", "20,60", "--seed", "1",
+                 "--spp", "16"],
+                ["fit-gloss", str(tmp_path / "photos"), "--out", str(tmp_path / "fit"),
+                 "--spp", "16"]):
+        subprocess.run([sys.executable, "-m", "stimuli", *cmd], check=True, env=env,
+                       capture_output=True)
+    diag, local = diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=0, n_boot=300)
+    assert len(diag.heldout) > 500 and diag.gap_before > 0
+    assert {c.split(": ")[0] for c in local["cell"]} == {"gloss_020", "gloss_060"}
