@@ -10,6 +10,10 @@ Observer, make_observer, simulate_dataset, write_simulated_sessions, load_observ
 OBSERVER_KINDS
     Simulated observers (``ideal``, ``humanlike``; parameters in ``observers.toml``).
 
+run_session, SessionRequest, SessionOutcome, PreflightError
+    The session app (``python -m experiment run``); imported on first use, so that
+    ``import experiment`` stays light (no PsychoPy, no stimuli/calibration packages).
+
 Importing this package opens no window and imports no PsychoPy.
 """
 
@@ -40,6 +44,18 @@ from experiment.plan import (
     plan_path,
 )
 
+_LAZY = {"run_session": "experiment.session", "SessionRequest": "experiment.session",
+         "SessionOutcome": "experiment.session", "PreflightError": "experiment.checks"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'experiment' has no attribute {name!r}")
+
+
 __all__ = [
     "OBSERVER_KINDS",
     "PLAN_COLUMNS",
@@ -47,6 +63,9 @@ __all__ = [
     "DataFileError",
     "Observer",
     "PlanError",
+    "PreflightError",
+    "SessionOutcome",
+    "SessionRequest",
     "SessionWriter",
     "app_version",
     "check_participant_id",
@@ -57,6 +76,7 @@ __all__ = [
     "participant_seed",
     "plan_path",
     "read_session",
+    "run_session",
     "session_path",
     "simulate_dataset",
     "sliders_path",
