@@ -298,6 +298,9 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
     logs = Path(req.data_dir) / "logs"
     stem = data.stem
     with _SessionLock(logs, stem):
+        if len(read_session(data)) != len(prep.done):
+            raise PreflightError(f"{data} changed while this run was starting (another run of "
+                                 "the session?); start the session again")
         events = logs / f"{stem}_runs.jsonl"
         run = _run_number(events)
         _append_event(events, {"event": "start", "run": run, "utc": _now(),
