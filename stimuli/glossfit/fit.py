@@ -275,5 +275,7 @@ def _versions() -> dict:
     import mitsuba
     import scipy
 
+    from stimuli.glossfit.mitsuba_setup import FIT_VARIANT
+
     return {"mitsuba": mitsuba.__version__, "numpy": np.__version__, "scipy": scipy.__version__,
-            "variant": mitsuba.variant()}
+            "variant": FIT_VARIANT}
