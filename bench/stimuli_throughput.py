@@ -14,7 +14,8 @@ so in the output). The time per image at the chosen spp is measured in this proc
 and the set's duration is extrapolated for N such workers (no Dask overhead included; see
 bench/stimuli_dask_scaling.py for the measured 2-vs-1 worker figure).
 
-Usage: ``.venv/bin/python bench/stimuli_throughput.py [--size 256] [--ref-spp 256] [--candidates 16,64,144]``
+Usage: ``.venv/bin/python bench/stimuli_throughput.py [--size 256] [--ref-spp 256] [--candidates 16,64,144]
+[--variant llvm_ad_rgb]``
 """
 
 from __future__ import annotations
@@ -53,8 +54,9 @@ def main() -> None:
     ap.add_argument("--size", type=int, default=256)
     ap.add_argument("--ref-spp", type=int, default=256)
     ap.add_argument("--candidates", default="16,64,144")
+    ap.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_spectral)")
     args = ap.parse_args()
-    variant = setup_mitsuba()
+    variant = setup_mitsuba(args.variant)
     design = load_design()
     cam = camera_geometry(design, default_calibration(design))
     level = design.depth.rendered_levels[-1]
