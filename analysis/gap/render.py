@@ -20,8 +20,9 @@ vignetting         R * (1 - c rho^2), rho = distance from the image centre / hal
 veiling_glare      R + c G_s * R: a blurred copy of the image (Gaussian, s from a grid of large
                    widths) spread by the lens
 misregistration    R shifted by (dx, dy) px per gloss level (bilinear)
-long_tail          S + c (G_s * S - S): highlight energy moved into wider wings (Gaussian blur,
-                   s from a grid of 1-16 px)
+long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
+                   blurred (Gaussian, 2-8 px) or raised to a power k < 1 (a Ward lobe of
+                   alpha / sqrt(k)) at the same energy; the form from a grid
 =================  ===========================================================================
 
 With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_s) are fitted
@@ -66,7 +67,7 @@ REGIONS = ("highlight", "body", "rim", "background")
 RENDER_MIN_SHARE = 0.8
 _BLOCK = 4
 _GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
-_TAIL_SIGMAS = (1.0, 2.0, 4.0, 8.0, 16.0)  # px
+_TAIL_WIDTHS = (2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -163,6 +164,19 @@ def load_render(real_path, sim_path=None) -> RenderData:
 
 # --- the extended model -------------------------------------------------------------------
 
+def _wings(S: np.ndarray, width: float) -> np.ndarray:
+    """A wider lobe from the fitted one. ``width`` > 1: Gaussian blur of that many px;
+    ``width`` in (0, 1): the lobe raised to that power (Ward's lobe exp(-tan^2 / alpha^2) raised
+    to alpha^2 / alpha_t^2 is the lobe of the wider alpha_t), rescaled to the same energy."""
+    if width >= 1:
+        return ndimage.gaussian_filter(S, width)
+    top = float(S.max())
+    if top <= 0:
+        return S
+    wide = top * np.clip(S / top, 0, None) ** width
+    return wide * (S.sum() / max(wide.sum(), 1e-12))
+
+
 def _coat_t(cos_t):
     f = 0.04 + 0.96 * (1 - cos_t) ** 5
     return (1 - f) ** 2 / (1 - 0.04) ** 2
@@ -176,7 +190,7 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
         S = S * (1 + p["fresnel"]["c"] * (1 - c) ** 5)
     if "long_tail" in p:
         q = p["long_tail"]
-        S = S + q["c"] * (ndimage.gaussian_filter(S, q["sigma_px"]) - S)
+        S = S + q["c"] * (_wings(S, q["width"]) - S)
     if "clearcoat" in p:
         D = D * (1 + p["clearcoat"]["c"] * (_coat_t(c) - 1))
     out = []
@@ -298,7 +312,7 @@ RENDER_CANDIDATES = [
               "lens glare: a blurred copy of the image added"),
     Candidate("misregistration", _fit_misregistration,
               "photo and render still offset after registration"),
-    Candidate("long_tail", _fit_amp("long_tail", 0.0, 1.0, "sigma_px", _TAIL_SIGMAS),
+    Candidate("long_tail", _fit_amp("long_tail", 0.0, 1.0, "width", _TAIL_WIDTHS),
               "highlight lobe with longer tails than Ward's"),
 ]
 

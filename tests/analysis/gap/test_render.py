@@ -18,8 +18,7 @@ def _diag(tmp_path, effect, seed):
     return diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=seed, n_boot=300)
 
 
-# long_tail is left out: its identification rate is below target (see the benchmark).
-@pytest.mark.parametrize("effect", [e for e in inject.RENDER_EFFECTS if e != "long_tail"])
+@pytest.mark.parametrize("effect", inject.RENDER_EFFECTS)
 def test_injected_render_effect_is_identified(tmp_path, effect):
     diag, local = _diag(tmp_path, effect, 5)
     assert diag.verdict.split(" + ")[0] == effect
