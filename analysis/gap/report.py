@@ -29,9 +29,15 @@ def verdict_text(d: Diagnosis) -> str:
                 f"only {100 * d.explained_share:.0f} % of it (an attribution needs "
                 f"{100 * d.min_share:.0f} %): the gap is <b>unexplained</b> by the catalogue; "
                 "something outside it dominates.")
-    return (f"The gap is best explained by <b>{html.escape(d.verdict)}</b>; adding it shrinks the "
-            f"held-out gap by {d.shrink_abs:.3f} nats per held-out unit ({d.shrink_pct:.0f} %, "
-            f"95 % CI {d.shrink_pct_ci[0]:.0f} to {d.shrink_pct_ci[1]:.0f} %).")
+    text = (f"The gap is best explained by <b>{html.escape(d.verdict)}</b>; adding it shrinks "
+            f"the held-out gap by {d.shrink_abs:.3f} nats per held-out unit "
+            f"({d.shrink_pct:.0f} %, 95 % CI {d.shrink_pct_ci[0]:.0f} to "
+            f"{d.shrink_pct_ci[1]:.0f} %).")
+    if d.gap_after < 0 or d.gap_before <= 0:
+        text += (" The loss fell below the simulation's own noise floor: the effect changes the "
+                 "data's own spread (e.g. rounding, lapses), so the % is not meaningful here; the "
+                 "absolute shrinkage is the measure.")
+    return text
 
 
 def _errorbars(ax, sub, labels):
