@@ -207,7 +207,7 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
     (out / "figures").mkdir(exist_ok=True)
     warnings = list(photo_set.warnings)
     cam = fit_camera(photo_set.setup, resolution_px)
-    rows = []
+    rows, details = [], []
     with SphereScene(photo_set.envmap, cam, spp=spp, seed=seed,
                      envmap_rotation_deg=photo_set.setup.envmap_rotation_deg) as scene:
         reference = scene.render(*REFERENCE_WARD)
@@ -217,7 +217,7 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
             before = scene.n_renders
             base = {"gloss_pct": pct, "method": settings.method}
             try:
-                _reg, _fit, row, arrays = fit_level(
+                reg, fit, row, arrays = fit_level(
                     photo, photo_set.clipped[pct], photo_set, scene, reference, cache, settings,
                     name=name, max_highlight_offset_px=max_highlight_offset_px)
             except GlossFitError as exc:
@@ -229,6 +229,10 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
                            warnings=f"not fitted: {exc}")
                 warnings.append(f"{name}: not fitted: {exc}")
                 arrays = None
+                details.append({"gloss_pct": pct, "error": str(exc)})
+            else:
+                details.append({"gloss_pct": pct, "registration": reg.to_dict(),
+                                "objective": fit.error, "r": fit.r, "iterations": fit.iterations})
             row = {**base, **row, "n_renders": scene.n_renders - before}
             append_fit_row(out / "fits.csv", row)
             if arrays is not None:
@@ -263,6 +267,7 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
             "setup": photo_set.setup.to_dict(), "resolution_px": resolution_px, "spp": spp,
             "seed": seed, "fit_fov_deg": cam.fov_deg, "n_renders": n_renders, "wall_s": wall_s,
             "missing_pct": photo_set.missing_pct, "summary": summary, "warnings": warnings,
+            "levels": details,
             "versions": _versions()}
     write_json(out / "fit.json", info)
     write_report(out / "report.html", info, rows,

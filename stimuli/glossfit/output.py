@@ -6,7 +6,9 @@
                                      linear, photo units), masks highlight, body, rim, background,
                                      sphere, valid (bool, h x w)
     OUT_DIR/figures/gloss_XXX.png    photo | render | residual
-    OUT_DIR/fit.json                 settings, setup, registration, summary, warnings, renders, time
+    OUT_DIR/fit.json                 settings, setup, summary, warnings, renders, time, and per level
+                                     the registration (incl. sse, background ratio and mismatch),
+                                     the objective at the optimum, r and the iterations
     OUT_DIR/report.html              short summary with the figures
 """
 
