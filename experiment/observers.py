@@ -281,8 +281,12 @@ def write_simulated_sessions(folder, design: StudyDesign, observers, rng: np.ran
     Existing session files are never overwritten: ``FileExistsError`` names the first one.
     """
     frame = simulate_dataset(design, observers, rng, **kwargs)
+    groups = list(frame.groupby(["participant", "session"]))
+    exists = [p for p in (session_path(folder, w, int(s)) for (w, s), _ in groups) if p.exists()]
+    if exists:  # checked first, so that nothing is written when anything would be overwritten
+        raise FileExistsError(17, "session file exists", str(exists[0]))
     paths = []
-    for (who, session), rows in frame.groupby(["participant", "session"]):
+    for (who, session), rows in groups:
         path = session_path(folder, who, int(session))
         path.parent.mkdir(parents=True, exist_ok=True)
         with open(path, "x", newline="", encoding="utf-8") as fh:

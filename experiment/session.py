@@ -340,6 +340,10 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, eve
 
         win = disp.win
         log.update(disp.info)
+        out(f"{req.participant} session {prep.session} run {run}: trials "
+            f"{log['first_trial']}-{len(prep.plan)}, {disp.info['n_textures']} textures loaded, "
+            f"calibration {cal.calibration_id} ({cal.age_days():.1f} days old), gamma: no hardware "
+            f"table (stimuli pre-corrected), keyboard {disp.info['keyboard_backend']}")
         log["versions"] = _versions()
         win.refreshThreshold = DROP_FACTOR * frame_s
         if req.simulate is None:

@@ -101,3 +101,17 @@ def test_simulate_dataset_shape(design, rng):
     assert isinstance(frame, pd.DataFrame)
     with pytest.raises(ValueError, match="repeat"):
         simulate_dataset(design, [obs[0], obs[0]], rng)
+
+
+def test_simulate_command_writes_and_never_overwrites(tmp_path, design, capsys):
+    from experiment.__main__ import main
+
+    args = ["simulate", "--observer", "ideal", "--participants", "S01", "S02", "--data",
+            str(tmp_path), "--seed", "3"]
+    assert main(args) == 0
+    files = sorted(p.name for p in (tmp_path / "sessions").iterdir())
+    assert files == ["S01_s1.csv", "S01_s2.csv", "S02_s1.csv", "S02_s2.csv"]
+    before = (tmp_path / "sessions" / "S01_s1.csv").read_bytes()
+    assert main(args) == 1
+    assert "never overwritten" in capsys.readouterr().err
+    assert (tmp_path / "sessions" / "S01_s1.csv").read_bytes() == before
