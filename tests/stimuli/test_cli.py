@@ -135,3 +135,20 @@ def test_export_print_writes_a_watertight_stl(tmp_path, capsys):
     assert info["watertight"].startswith("closed") and out.stat().st_size == 84 + 50 * info["faces"]
     assert main(["export-print", "--depth-level", "42", str(out)]) == 1
     assert "not a depth level" in capsys.readouterr().err
+
+
+def test_imagestats_light_fields_are_rotated_probes(tmp_path, capsys, mitsuba_variant):
+    """Two light fields of one condition: same array and material, probe rotated -> other image."""
+    out = tmp_path / "is"
+    rc = main(["render", "--set", "imagestats", "--filter", "light_field=outdoor_lf00,outdoor_lf03",
+               "--filter", "gloss_level=9", "--filter", "depth_level=6", "--filter",
+               "array_index=4", "--out", str(out), "--workers", "0", *TINY])
+    assert rc == 0, capsys.readouterr().err
+    m = load_manifest(out).set_index("light_field")
+    assert list(m.index) == ["outdoor_lf00", "outdoor_lf03"]
+    assert m.loc["outdoor_lf03", "rotation_deg"] == pytest.approx(3 * 360 / 11)
+    assert m["seed"].nunique() == 1 and m["envmap_sha256"].nunique() == 1
+    a, b = (read_exr(out / p) for p in m["exr_path"])
+    # 8 x 8 blocks average 16 pixels x 4 spp: the lighting pattern, not the sampling noise
+    blocks = [im.reshape(4, 8, 4, 8).mean(axis=(1, 3)) for im in (a, b)]
+    assert np.abs(blocks[0] - blocks[1]).mean() > 0.2 * blocks[0].mean()  # 0.39 when written
