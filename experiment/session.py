@@ -351,8 +351,10 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, eve
                                               threshold=1)
             log["refresh_hz_measured"] = measured
             if measured is None or abs(measured * frame_s - 1) > 0.02:
-                w = (f"measured refresh rate {measured} Hz differs from the calibration's "
-                     f"{cal.refresh_hz:.2f} Hz; check the display mode before going on")
+                got = ("could not be measured (unstable frame intervals: no vsync?)"
+                       if measured is None else f"measured {measured:.2f} Hz")
+                w = (f"refresh rate {got}, the calibration's is {cal.refresh_hz:.2f} Hz; check "
+                     "the display mode and sync-to-vblank before going on")
                 out(f"warning: {w}")
                 log["warnings"].append(w)
         else:
