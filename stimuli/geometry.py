@@ -18,6 +18,7 @@ Two meshes come from one array:
 
 from __future__ import annotations
 
+import functools
 import os
 import struct
 from dataclasses import dataclass
@@ -44,6 +45,7 @@ SEED_BASE = 20261122
 MIN_Z_RADIUS_CM = 1e-3
 
 
+@functools.lru_cache(maxsize=4096)
 def stimulus_seed(depth_level: int, array_index: int = 0) -> int:
     """Seed of the array for a depth level and array index (32-bit, from ``SeedSequence``).
 

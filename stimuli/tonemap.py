@@ -144,7 +144,7 @@ def write_png(path: str | os.PathLike, image_u8: np.ndarray) -> Path:
     tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.png")
     try:
         with open(tmp, "wb") as fh:
-            Image.fromarray(img, mode="L").save(fh, format="PNG")
+            Image.fromarray(img).save(fh, format="PNG")
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
