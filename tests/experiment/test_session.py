@@ -95,3 +95,37 @@ def _check_screenshot(path, design, calibration, first_row):
             * lay.slider_width_px
         assert rx.mean() == pytest.approx(expect_x, abs=3)
     assert not red[: h // 2].any(), "red outside the slider rows"
+
+
+def test_session_without_simulation_quits_on_escape(session_files, small_design_path):
+    """The operator's path (no --simulate, no --fast): the refresh rate is measured (and, with
+    no vsync under Xvfb, found unmeasurable: a warning), Esc pauses, Esc again quits (status
+    3), nothing recorded is lost. Keys come from outside the app, as from a keyboard."""
+    import subprocess
+    import sys
+    import time
+
+    from experiment.simulate import XTestInput
+
+    from .conftest import REPO, app_env
+
+    f = session_files
+    cmd = [sys.executable, "-m", "experiment", "--design", str(small_design_path), "run",
+           "--participant", "H1", "--session", "1", "--stimuli", str(f["manifest"]),
+           "--calibration", str(f["calibration"]), "--data", str(f["data"])]
+    proc = subprocess.Popen(cmd, cwd=REPO, env=app_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    t_end = time.monotonic() + 90
+    with XTestInput() as x:
+        while proc.poll() is None and time.monotonic() < t_end:
+            x.key("escape", True)
+            time.sleep(0.05)
+            x.key("escape", False)
+            time.sleep(0.5)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 3, err
+    assert "run the same command to continue" in err
+    log = json.loads((f["data"] / "logs" / "H1_s1_run1.json").read_text())
+    assert log["status"] == "quit" and "refresh_hz_measured" in log
+    assert any("refresh rate" in w for w in log["warnings"])
+    assert read_session(f["data"] / "sessions" / "H1_s1.csv").empty
