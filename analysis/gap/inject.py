@@ -137,7 +137,7 @@ def write_sessions(frame: pd.DataFrame, folder: Path) -> None:
 DISPLAY_EFFECTS = ("black_offset", "nonuniformity", "warmup_drift", "quantisation")
 DISPLAY_OUT_OF_CATALOGUE = ("gamma_change", "local_blemish")
 #: Moderate strength of each display effect (the benchmark draws 0.5-1.5 times this).
-DISPLAY_STRENGTH = {"black_offset": 0.05, "nonuniformity": 0.03, "warmup_drift": 0.03,
+DISPLAY_STRENGTH = {"black_offset": 0.05, "nonuniformity": 0.06, "warmup_drift": 0.03,
                     "quantisation": 2.0, "gamma_change": 0.03, "local_blemish": 0.03}
 _SECONDS_PER_READING = 3.0
 _BLEMISH_AT = (0.6, 0.6)
