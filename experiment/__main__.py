@@ -101,6 +101,41 @@ def _cmd_run(args) -> int:
     return main_run(req)
 
 
+def _cmd_status(args) -> int:
+    import json
+    from pathlib import Path
+
+    from experiment.datafile import DataFileError, read_session, session_path
+    from experiment.participants import check_participant_id
+    from experiment.plan import plan_path
+
+    design = load_design(args.design)
+    try:
+        check_participant_id(args.participant)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    plan = plan_path(args.data, args.participant)
+    print(f"{args.participant}: plan {plan if plan.exists() else '(none yet)'}")
+    n = design.sessions.trials_per_session
+    for session in range(1, design.sessions.n_sessions + 1):
+        path = session_path(args.data, args.participant, session)
+        try:
+            done = len(read_session(path))
+        except DataFileError as exc:
+            print(f"  session {session}: DAMAGED: {exc}")
+            continue
+        events = Path(args.data) / "logs" / f"{path.stem}_runs.jsonl"
+        runs = ([json.loads(line) for line in events.read_text().splitlines() if line.strip()]
+                if events.exists() else [])
+        starts = sum(1 for e in runs if e["event"] == "start")
+        last = runs[-1]["event"] if runs else "-"
+        state = "complete" if done == n else ("not started" if done == 0 else "to resume")
+        print(f"  session {session}: {done}/{n} trials, {state}; {starts} run(s), last event "
+              f"{last!r}")
+    return 0
+
+
 def _cmd_simulate(args) -> int:
     import numpy as np
 
@@ -164,6 +199,11 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--simulate-early-space", type=float, default=0.0, metavar="P",
                    help="(tests) chance per trial of pressing space with one slider set")
     r.set_defaults(func=_cmd_run)
+
+    st = sub.add_parser("status", help="how far a participant's sessions are")
+    st.add_argument("--participant", required=True)
+    st.add_argument("--data", default="data", help="data folder (default: data)")
+    st.set_defaults(func=_cmd_status)
 
     s = sub.add_parser("simulate", help="write simulated session CSVs (observer model, no app)")
     s.add_argument("--observer", choices=["ideal", "humanlike"], required=True)

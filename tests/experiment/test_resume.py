@@ -94,7 +94,7 @@ def test_kill_then_resume_shows_every_stimulus_once(seed, small_design, small_de
     assert not both.duplicated(["participant", "stimulus_id"]).any()
 
 
-def test_quit_from_pause_then_resume(small_design, small_design_path, session_files):
+def test_quit_from_pause_then_resume(small_design, small_design_path, session_files, capsys):
     """Esc, Esc at trial 3 (after early space presses that must not count), then the same
     command continues at trial 3; a finished session is not run again."""
     f = session_files
@@ -108,6 +108,12 @@ def test_quit_from_pause_then_resume(small_design, small_design_path, session_fi
     hist = [json.loads(line) for line in
             (f["data"] / "sliders" / "Q1_s1.jsonl").read_text().splitlines()]
     assert all(len(h["early_space_s"]) == 1 for h in hist), "early space presses not seen"
+    from experiment.__main__ import main
+
+    assert main(["--design", str(small_design_path), "status", "--participant", "Q1",
+                 "--data", str(f["data"])]) == 0
+    assert f"session 1: 2/{n} trials, to resume; 1 run(s), last event 'quit'" in \
+        capsys.readouterr().out
     res = _run(cmd)
     assert res.returncode == 0, res.stderr
     assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
