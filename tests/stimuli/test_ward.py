@@ -168,3 +168,19 @@ def test_fixed_lobe_probability_makes_sampling_weights_linear_in_rho(mitsuba_var
                                rtol=1e-5, atol=1e-6)
     with pytest.raises(Exception, match="lobe_probability"):
         mi.load_dict({"type": "ward", "lobe_probability": 1.5})
+
+
+def test_chi2_has_power_against_a_wrong_pdf(mitsuba_variant):
+    """The chi-square test above can fail: sampling alpha=0.1 against the pdf of alpha=0.15."""
+    from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
+
+    def adapter(alpha):
+        return BSDFAdapter("ward", f"<float name='rho_d' value='0.3'/><float name='rho_s' "
+                                   f"value='0.5'/><float name='alpha' value='{alpha}'/>",
+                           wi=[0.5, 0.0, float(np.sqrt(0.75))])
+
+    sample_func, _ = adapter(0.1)
+    _, wrong_pdf = adapter(0.15)
+    chi2 = ChiSquareTest(domain=SphericalDomain(), sample_func=sample_func, pdf_func=wrong_pdf,
+                         sample_dim=3, sample_count=200_000, res=101)
+    assert not chi2.run()
