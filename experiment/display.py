@@ -59,6 +59,9 @@ class Layout:
     gloss_y_px, depth_y_px : float
         Slider centres; gloss above depth.
     label_height_px : float
+        Height of the slider titles; tick labels are 0.8 of it.
+    text_y_px : float
+        Where the hint line goes (top of the screen).
     """
 
     stim_centre_px: tuple
