@@ -140,3 +140,23 @@ def test_one_and_two_dask_workers_give_the_same_table(tmp_path, rng, design, sch
     assert [r.workers for r in runs] == [1, 2]
     one, two = (load_stats(r.path).drop(columns="stats_s") for r in runs)
     pd.testing.assert_frame_equal(one, two, check_exact=True)
+
+
+def test_a_table_from_other_files_is_refused(tmp_path, rng, capsys, scheduler):
+    folder = tmp_path / "r"
+    write_render_set(folder, rng, n_images=2)
+    out = tmp_path / "stats.parquet"
+    args = [str(folder), "--out", str(out), "--scheduler", scheduler, "--quiet", "--no-ps"]
+    assert main(args) == 0
+    sid = load_manifest(folder)["stimulus_id"].iloc[0]
+    write_exr(folder / "exr" / f"{sid}.exr", np.full((144, 160), 2.0, np.float32))
+    _rewrite_manifest(folder, sid, exr_sha256=sha256_file(folder / "exr" / f"{sid}.exr"))
+    before = sha256_file(out)
+    assert main(args) == 1
+    assert "computed from other files" in capsys.readouterr().err
+    other = tmp_path / "other"
+    write_render_set(other, np.random.default_rng(5), n_images=1,
+                     cells=[("outdoor", 3, 3)])
+    assert main([str(other)] + args[1:]) == 1
+    assert "not in this manifest" in capsys.readouterr().err
+    assert sha256_file(out) == before  # the table is never touched by a refused run

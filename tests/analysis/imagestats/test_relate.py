@@ -113,3 +113,12 @@ def test_relate_cli_writes_a_report_and_never_overwrites_it(tmp_path, design, rn
     assert main(["relate", str(tmp_path / "missing.parquet"), "--out",
                  str(tmp_path / "rep2")]) == 1
     assert "not found" in capsys.readouterr().err
+
+
+def test_relate_without_ps_columns_uses_the_pixel_statistics(tmp_path, design, rng):
+    stats = _write_table(tmp_path / "s.parquet", design, rng, n_images_per_cell=1)
+    frame, names = stat_table(stats.drop(columns=[c for c in stats if c.startswith("ps_")]))
+    assert names == ["mean_luminance", "rms_contrast", "skewness", "kurtosis",
+                     "highlight_coverage"]
+    effects, _ = depth_effects(frame, names)
+    assert [e.statistic for e in effects] == names
