@@ -53,6 +53,12 @@ def test_cli_computes_known_statistics_keyed_by_the_manifest(tmp_path, rng, caps
     # other options on the same table are refused
     assert main(args + ["--no-ps"]) == 1
     assert "other options" in capsys.readouterr().err
+    # new renders in the folder: only they are computed, merged into a new table
+    params |= write_render_set(tmp_path / "r", rng, n_images=2,
+                               cells=[("outdoor", 9, 9), ("outdoor", 10, 10)])
+    assert main(args) == 0
+    assert "5 already done, 2 computed" in capsys.readouterr().out
+    _check_known(load_stats(out), params)
 
 
 def _rewrite_manifest(folder: Path, sid: str, **changes) -> None:
