@@ -19,7 +19,14 @@ import pandas as pd
 from analysis.imagestats.config import StatsConfig
 from analysis.imagestats.images import ImageStatsError
 from analysis.imagestats.measure import measure_batch
-from analysis.imagestats.store import consolidate, discard_parts, read_done, start, write_part
+from analysis.imagestats.store import (
+    consolidate,
+    discard_parts,
+    has_parts,
+    read_done,
+    start,
+    write_part,
+)
 from stimuli import MANIFEST_COLUMNS, ManifestError, load_manifest
 from studydesign import StudyDesign
 
@@ -216,9 +223,9 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
                 bar.update(len(batch_records) + len(batch_problems))
                 future.release()
     stats_columns = list(MANIFEST_COLUMNS)
-    if len(done) + n_computed:
+    if n_computed or (len(done) and has_parts(out)):
         consolidate(out, meta, stats_columns)
-    else:
+    else:  # nothing new: the table (if any) stays as it is
         discard_parts(out)
     _write_problems(problems_path(out), problems)
     return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),

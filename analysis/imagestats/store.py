@@ -24,6 +24,7 @@ __all__ = [
     "META_KEY",
     "consolidate",
     "discard_parts",
+    "has_parts",
     "load_stats",
     "parts_dir",
     "read_done",
@@ -122,14 +123,21 @@ def _part_files(parts: Path) -> list[Path]:
     return sorted(parts.glob("part-*.parquet")) if parts.is_dir() else []
 
 
+def has_parts(out: Path) -> bool:
+    """Whether an interrupted run left batches not yet merged into ``out``."""
+    return bool(_part_files(parts_dir(out)))
+
+
 def read_done(out: Path) -> pd.DataFrame:
-    """Every row already computed: ``out`` (if it exists) and the parts of an interrupted run."""
+    """Every row already computed: ``out`` (if it exists) and the parts of an interrupted run
+    (a row can appear in both after a kill during `consolidate`; it is then kept once)."""
     frames = [pd.read_parquet(out)] if out.is_file() else []
     frames += [pd.read_parquet(p) for p in _part_files(parts_dir(out))]
     frames = [f for f in frames if len(f)]
     if not frames:
-        return pd.DataFrame(columns=["stimulus_id"])
-    return pd.concat(frames, ignore_index=True)
+        return pd.DataFrame(columns=["stimulus_id", "exr_sha256"])
+    return pd.concat(frames, ignore_index=True).drop_duplicates(
+        subset=["stimulus_id", "exr_sha256"], keep="first").reset_index(drop=True)
 
 
 def write_part(out: Path, records: list[dict]) -> Path:
@@ -158,6 +166,9 @@ def consolidate(out: Path, meta: dict, columns: list[str]) -> int:
         Rows in the table.
     """
     frame = read_done(out)
+    # a kill between the rename of the new table and the removal of the parts leaves rows twice;
+    # the same image measured from the same file is the same row
+    frame = frame.drop_duplicates(subset=["stimulus_id", "exr_sha256"], keep="first")
     dup = frame["stimulus_id"][frame["stimulus_id"].duplicated()].tolist()
     if dup:
         raise ImageStatsError(

@@ -3,6 +3,7 @@ known statistics, bad input listed per image, a kill and a resume, 1 vs 2 Dask w
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -14,7 +15,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.imagestats import compute_stats, load_stats, problems_path
+from analysis.imagestats import StatsConfig, compute_stats, load_stats, problems_path
 from analysis.imagestats.__main__ import main
 from stimuli import MANIFEST_COLUMNS, load_manifest, sha256_file
 from tests.analysis.imagestats.renders import expected_stats, write_exr, write_render_set
@@ -166,3 +167,25 @@ def test_a_table_from_other_files_is_refused(tmp_path, rng, capsys, scheduler):
     assert main([str(other)] + args[1:]) == 1
     assert "not in this manifest" in capsys.readouterr().err
     assert sha256_file(out) == before  # the table is never touched by a refused run
+
+
+def test_a_kill_between_table_and_part_removal_keeps_each_row_once(tmp_path, rng, design,
+                                                                   scheduler):
+    """Parts left beside a finished table (a kill inside consolidate) are merged, not doubled."""
+    folder = tmp_path / "r"
+    params = write_render_set(folder, rng, n_images=3)
+    out = tmp_path / "stats.parquet"
+    compute_stats(folder, out, design=design, scheduler=scheduler, progress=False,
+                  config=StatsConfig(ps=False))
+    parts = tmp_path / "stats.parquet.partial"
+    parts.mkdir()
+    (parts / "meta.json").write_text(json.dumps(load_stats(out).attrs["imagestats"],
+                                                sort_keys=True))
+    load_stats(out).iloc[:2].to_parquet(parts / "part-000000.parquet", index=False)
+    run = compute_stats(folder, out, design=design, scheduler=scheduler, progress=False,
+                        config=StatsConfig(ps=False))
+    assert run.ok and run.n_skipped == 3 and run.n_computed == 0
+    frame = load_stats(out)
+    assert len(frame) == 3
+    _check_known(frame, params)
+    assert not parts.exists()
