@@ -4,7 +4,8 @@ next stimulus is ready for the first flip after a response.
 Measured in the real session window (``experiment.display.SessionDisplay``) with all 81 textures
 of a session preloaded, stimuli at the lab's size (8 cm, 512 px PNGs), both sliders set:
 
-* per frame: drawing the trial screen (stimulus, two Sliders with 11 labelled ticks, titles),
+* per frame: drawing the trial screen (stimulus, two Sliders, their tick labels and titles as
+  one texture captured at the start),
   timed on the CPU and to ``glFinish`` (the GPU done), without the flip;
 * per trial transition: what happens between a response and the next onset flip: the CSV row
   and slider histories appended and fsynced, the sliders reset, the next stimulus drawn (a
@@ -116,20 +117,30 @@ def main(argv=None) -> int:
                                 pos=(0, disp.layout.gloss_y_px), units="pix", style="rating",
                                 font=disp.info["font"], autoLog=False)
             own.rating = 4.2
-            ours, theirs = [], []
+            # One slider and its labels, three ways: CPU time of the draw calls, then to glFinish.
+            variants = {
+                "labels as one texture (the app)": lambda: disp.static_layer.draw(),
+                "11 TextStim labels": lambda: [lab.draw() for lab in
+                                               disp.tick_labels[:len(design.slider.ticks)]],
+            }
+            cost = {name: ([], []) for name in [*variants, "own TextBox2 labels"]}
             for _ in range(args.frames // 2):
-                disp.flip()
-                t0 = time.perf_counter()
-                disp.gloss_slider.draw()
-                for label in disp.tick_labels[: len(design.slider.ticks)]:
-                    label.draw()
-                gl.glFinish()
-                ours.append(time.perf_counter() - t0)
+                for name, extra in variants.items():
+                    disp.flip()
+                    t0 = time.perf_counter()
+                    disp.gloss_slider.draw()
+                    extra()
+                    t1 = time.perf_counter()
+                    gl.glFinish()
+                    cost[name][0].append(t1 - t0)
+                    cost[name][1].append(time.perf_counter() - t0)
                 disp.flip()
                 t0 = time.perf_counter()
                 own.draw()
+                t1 = time.perf_counter()
                 gl.glFinish()
-                theirs.append(time.perf_counter() - t0)
+                cost["own TextBox2 labels"][0].append(t1 - t0)
+                cost["own TextBox2 labels"][1].append(time.perf_counter() - t0)
     print(f"frame budget at {design.display.nominal_refresh_hz:g} Hz: {budget * 1000:.2f} ms")
     rows_out = [("trial screen, CPU (draw calls)", cpu), ("trial screen, to glFinish", gpu),
                 ("stimulus alone, to glFinish", stim_only),
@@ -139,13 +150,14 @@ def main(argv=None) -> int:
                 ("  of which: next trial drawn (texture swap), glFinish", draw),
                 ("response -> next screen ready (all of the above)", trans),
                 ("response -> next screen ready and row fsynced", later),
-                ("one slider, TextStim tick labels (the app)", ours),
-                ("one slider, Slider's own TextBox2 labels", theirs)]
+                *[(f"one slider, {name}, {kind}", cost[name][k])
+                  for name in cost for k, kind in enumerate(("CPU", "to glFinish"))]]
     for name, v in rows_out:
         print(f"{name:55s} {_ms(v)}  / frame: median {np.median(v) / budget:4.2f}, "
               f"p95 {np.percentile(v, 95) / budget:4.2f}")
-    print(f"TextBox2 labels / TextStim labels (median): "
-          f"{np.median(theirs) / np.median(ours):.1f}x slower")
+    app = np.median(cost["labels as one texture (the app)"][0])
+    print("slider + labels, CPU time relative to the app's (median): " + ", ".join(
+        f"{name} {np.median(v[0]) / app:.1f}x" for name, v in cost.items()))
     for what, v in (("per-frame cost (CPU)", cpu), ("per-frame cost (to glFinish)", gpu),
                     ("response -> next screen ready", trans)):
         print(f"{what} / frame budget: median {np.median(v) / budget:.2f}, "

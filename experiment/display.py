@@ -212,7 +212,8 @@ class SessionDisplay:
         lay = self.layout
         # Tick labels are TextStims, not the Slider's own labels: those are TextBox2 objects
         # whose draw() costs ~2.5 ms of Python each per frame (colour-palette copies; 22 labels
-        # = two frames at 85 Hz). bench/experiment_frame_cost.py measures both side by side.
+        # = two frames at 85 Hz). The TextStims, with the titles, are then drawn once into one
+        # texture (_capture_static_layer). bench/experiment_frame_cost.py measures all three.
         slider_kw = {"ticks": list(self.design.slider.ticks), "labels": None,
                      "granularity": 0, "size": (lay.slider_width_px, lay.slider_height_px),
                      "units": "pix", "style": "rating", "markerColor": "Red",
@@ -242,6 +243,7 @@ class SessionDisplay:
         self.message = visual.TextStim(self.win, "", pos=(0, 0), height=1.2 * title, font=font,
                                        units="pix", color="White", wrapWidth=0.8 * w,
                                        autoLog=False)
+        self.static_layer = self._capture_static_layer()
         t0 = time.perf_counter()
         logging.console.setLevel(logging.ERROR)
         for row in self.stimuli.itertuples(index=False):
@@ -254,6 +256,35 @@ class SessionDisplay:
         self.info["preload_s"] = time.perf_counter() - t0
         self.info["n_textures"] = len(self.textures)
         self.win.recordFrameIntervals = False
+
+    def _capture_static_layer(self):
+        """Tick labels and slider titles, drawn once and kept as one texture.
+
+        They never change during a session, and drawing 24 TextStims costs ~3.5 ms of Python per
+        frame against ~0.2 ms for one texture (bench/experiment_frame_cost.py). The back buffer
+        is captured (``getMovieFrame``) and the slider band at the bottom, which the stimulus
+        never overlaps (``plan_layout``), becomes an ImageStim drawn pixel for pixel where it
+        was taken. (``BufferImageStim`` would do the capture, but in this PsychoPy its draw
+        ignores ``pos``.)
+        """
+        from psychopy import visual
+
+        w, h = self.design.display.resolution_px
+        lay = self.layout
+        top_px = min(h / 2, lay.gloss_y_px + 2.2 * lay.label_height_px)
+        self.win.clearBuffer()
+        for stim in (*self.tick_labels, self.gloss_title, self.depth_title):
+            stim.draw()
+        frame = self.win.getMovieFrame(buffer="back")
+        self.win.movieFrames.remove(frame)
+        self.win.clearBuffer()
+        rows = round(h / 2 - top_px)  # image rows above the band
+        # Columns: the slider width and room for the end labels, symmetric about the centre.
+        cols = max(0, int(w / 2 - lay.slider_width_px / 2 - 2 * lay.label_height_px))
+        band = frame.convert("RGB").crop((cols, rows, w - cols, h))
+        # Centred at (0, -rows / 2), its edges fall on pixel boundaries.
+        return visual.ImageStim(self.win, image=band, units="pix", size=band.size,
+                                pos=(0, -rows / 2), interpolate=False, autoLog=False)
 
     def _tick_x(self, value: float) -> float:
         """Window x (px) of a slider value (both sliders span the same x range)."""
@@ -268,13 +299,10 @@ class SessionDisplay:
     # --- drawing ----------------------------------------------------------------------------
     def draw_trial(self, stimulus_id: str, *, hint: bool = False) -> None:
         """Draw one trial screen into the back buffer (no flip)."""
+        self.static_layer.draw()
         self.textures[stimulus_id].draw()
-        self.gloss_title.draw()
-        self.depth_title.draw()
         self.gloss_slider.draw()
         self.depth_slider.draw()
-        for label in self.tick_labels:
-            label.draw()
         if hint:
             self.hint.draw()
 

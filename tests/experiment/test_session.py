@@ -87,6 +87,11 @@ def _check_screenshot(path, design, calibration, first_row):
         # the slider's line spans the slider width
         line_cols = np.nonzero(white[row - 2:row + 3].any(axis=0))[0]
         assert line_cols.max() - line_cols.min() == pytest.approx(lay.slider_width_px, abs=4)
+        # one tick label under each tick (the labels are light text below the line)
+        light = (r > 120) & (g > 120) & (b > 120)
+        cols = np.nonzero(light[row + 6: row + 34].any(axis=0))[0]
+        groups = 1 + int(np.sum(np.diff(cols) > 6)) if cols.size else 0
+        assert groups == len(design.slider.ticks), f"{name}: {groups} tick labels"
         # one red marker, centred on the recorded answer
         _ry, rx = np.nonzero(red[band])
         assert rx.size > 20, f"no red marker on the {name} slider"
