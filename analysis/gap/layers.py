@@ -5,7 +5,8 @@ nats per unit (trial, reading, pixel): an estimate of the Kullback-Leibler diver
 data to the simulation per observation, so layers compare on one scale. Where the catalogue
 removes more held-out loss than that, the removed loss is used (a floor-free lower bound). A layer carries a gap
 when the lower end of its 95 % bootstrap CI lies above ``tolerance`` nats per unit; the
-carrying layer is the one with the largest gap among those. The pipeline runs display ->
+carrying layer is the one with the largest gap among those whose gap the catalogue attributes
+(if none is attributed, the largest gap); the others are listed with their gaps. The pipeline runs display ->
 render (photos of printed objects are not shown on the display) -> observer; an observer gap
 next to a display or render gap may in part be inherited, which the verdict says.
 """
@@ -60,15 +61,27 @@ def which_layer(diags: dict[str, Diagnosis], tolerance: float = TOLERANCE_NATS) 
         text = (f"No layer shows a held-out gap above {tolerance} nats per unit (lower 95 % "
                 "bound): the simulation matches the data at every layer given.")
         return {"layer": None, "carrying": [], "text": text, "gaps": gaps}
-    top = max(carrying, key=lambda n: gaps[n][0])
+    # An attributed gap outranks an unexplained one: a layer's unexplained gap is often the
+    # estimation error of its own simulation (a calibration or fit from noisy data), which
+    # nats per unit weigh very differently between layers (a photometer reading holds far
+    # more information than a slider setting); it is reported beside the verdict.
+    explained = [n for n in carrying if diags[n].verdict != "unexplained"]
+    pool = explained or carrying
+    top = max(pool, key=lambda n: gaps[n][0])
     d = diags[top]
-    cause = ("unexplained by its catalogue" if d.verdict == "unexplained"
-             else f"explained by {d.verdict}")
-    text = (f"The gap lies mainly in the {top} layer ({gaps[top][0]:.3f} nats per unit, 95 % CI "
-            f"{gaps[top][1]:.3f} to {gaps[top][2]:.3f}), {cause}.")
+    size = (f"{gaps[top][0]:.3f} nats per unit, 95 % CI {gaps[top][1]:.3f} to "
+            f"{gaps[top][2]:.3f}")
+    if explained:
+        text = (f"The gap is carried by the {top} layer ({size}), explained by {d.verdict}.")
+    else:
+        text = (f"The gap is carried by the {top} layer ({size}), unexplained by its "
+                "catalogue (no layer's gap is explained).")
     others = [n for n in carrying if n != top]
     if others:
-        text += f" Also above tolerance: {', '.join(others)}."
+        text += " Also above tolerance: " + ", ".join(
+            f"{n} ({gaps[n][0]:.3f} nats per unit, "
+            f"{'unexplained' if diags[n].verdict == 'unexplained' else diags[n].verdict})"
+            for n in others) + "."
     if top == "observer" and any(n in carrying for n in ("display", "render")):
         text += (" The observer's gap may in part be inherited from the display or render "
                  "layer, which sits upstream.")

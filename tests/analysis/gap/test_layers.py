@@ -25,7 +25,7 @@ def test_all_layers_names_the_injected_one(tmp_path, capsys):
     assert main(["diagnose", "--layer", "all", "--real", real, "--sim", sim,
                  "--out", str(tmp_path / "rep")]) == 0
     out = capsys.readouterr().out
-    assert "mainly in the display layer" in out and "black_offset" in out
+    assert "carried by the display layer" in out and "black_offset" in out
     page = (tmp_path / "rep" / "index.html").read_text()
     assert "display/localisation.png" in page and "render layer" in page
 
