@@ -18,7 +18,12 @@ import pytest
 from analysis.imagestats import StatsConfig, compute_stats, load_stats, problems_path
 from analysis.imagestats.__main__ import main
 from stimuli import MANIFEST_COLUMNS, load_manifest, sha256_file
-from tests.analysis.imagestats.renders import expected_stats, write_exr, write_render_set
+from tests.analysis.imagestats.renders import (
+    EXTENT_CM,
+    expected_stats,
+    write_exr,
+    write_render_set,
+)
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -189,3 +194,34 @@ def test_a_kill_between_table_and_part_removal_keeps_each_row_once(tmp_path, rng
     assert len(frame) == 3
     _check_known(frame, params)
     assert not parts.exists()
+
+
+@pytest.mark.slow
+def test_statistics_of_real_mitsuba_renders(tmp_path, design, scheduler):
+    """The contract with the renderer: its manifest, EXR channel and image geometry."""
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    env.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+    render = subprocess.run(
+        [sys.executable, "-m", "stimuli", "render", "--set", "preview", "--filter",
+         "illumination=indoor", "--size", "192", "--spp", "4", "--workers", "0", "--out",
+         str(tmp_path / "r"), "--no-progress"],
+        cwd=REPO, env=env, capture_output=True, text=True, timeout=300, check=False)
+    assert render.returncode == 0, render.stderr[-2000:]
+    run = compute_stats(tmp_path / "r", tmp_path / "s.parquet", design=design,
+                        scheduler=scheduler, progress=False)
+    assert run.ok, run.problems
+    frame = load_stats(run.path)
+    manifest = load_manifest(tmp_path / "r")
+    assert sorted(frame["stimulus_id"]) == sorted(manifest["stimulus_id"]) and len(frame) == 4
+    side = round(EXTENT_CM * 192 / float(manifest["image_width_cm"].iloc[0]))
+    assert (frame["region_px"] == side).all() and (frame["texture_window_px"] == 128).all()
+    stats = frame[["mean_luminance", "rms_contrast", "skewness", "kurtosis",
+                   "highlight_coverage"]].to_numpy()
+    assert np.isfinite(stats).all() and (frame["mean_luminance"] > 0).all()
+    assert ((frame["highlight_coverage"] >= 0) & (frame["highlight_coverage"] < 0.5)).all()
+    # glossier arrays of the same depth have more highlight pixels (preview: lowest and highest
+    # rendered gloss at the lowest and highest rendered depth)
+    by = frame.set_index(["gloss_level", "depth_level"])["highlight_coverage"]
+    g_lo, g_hi = sorted(frame["gloss_level"].unique())
+    for d in frame["depth_level"].unique():
+        assert by[(g_hi, d)] > by[(g_lo, d)]
