@@ -54,6 +54,8 @@ def _relate_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="report folder (must not hold an index.html)")
     p.add_argument("--n-boot", type=int, default=1000, help="bootstrap resamples for CIs")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
+    p.add_argument("--ps-components", type=int, default=3, metavar="K",
+                   help="principal components of the PS statistics analysed (default 3; 0 = none)")
     p.add_argument("--design", help="a design.toml (default: the shipped one)")
     return p
 
@@ -91,7 +93,8 @@ def _relate(argv: list[str]) -> int:
     args = _relate_parser().parse_args(argv)
     try:
         index = build_relate_report(args.stats, args.out, load_design(args.design),
-                                    data_dir=args.sessions, n_boot=args.n_boot, seed=args.seed)
+                                    data_dir=args.sessions, n_boot=args.n_boot, seed=args.seed,
+                                    n_ps_components=args.ps_components)
     except (ImageStatsError, ReportExistsError, SessionDataError, DesignError,
             ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
