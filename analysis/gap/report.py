@@ -70,7 +70,7 @@ def _plot_generic(local, path) -> None:
         sub = local[local["axis"] == name].reset_index(drop=True)
         _errorbars(ax, sub, list(sub["cell"]))
         ax.set_xlabel(name)
-        ax.set_ylabel(f"residual ({sub['unit'].iloc[0]}), 95 % CI")
+        ax.set_ylabel(f"residual, 95 % CI\n({sub['unit'].iloc[0]})")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
