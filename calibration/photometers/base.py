@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import termios
 from dataclasses import dataclass
 
 import serial
@@ -117,7 +118,7 @@ class Photometer:
                 return self._measure_once()
             except NoReply as exc:
                 last = exc.partial
-            except (serial.SerialException, OSError) as exc:
+            except (serial.SerialException, OSError, termios.error) as exc:
                 raise PhotometerError(
                     f"{self.device} on {self.port}: serial line lost ({exc}); readings so far "
                     "are kept: reconnect the instrument and rerun the same command to resume"

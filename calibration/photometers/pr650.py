@@ -11,6 +11,7 @@ instrument answers; ``s01,,,,,,01,1`` (measurement set-up); ``m0`` (measure and 
 from __future__ import annotations
 
 import os
+import termios
 import time
 
 import serial
@@ -53,7 +54,7 @@ class PR650Photometer(Photometer):
             self._com.flush()
             self._com.timeout = timeout_s
             return self._com.readline().decode("ascii", errors="replace")
-        except (serial.SerialException, OSError) as exc:
+        except (serial.SerialException, OSError, termios.error) as exc:
             raise PhotometerError(
                 f"{self.device} on {self.port}: serial line lost during {command!r} ({exc}); "
                 "readings so far are kept; reconnect and rerun to resume"
