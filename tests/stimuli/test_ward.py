@@ -133,8 +133,9 @@ def test_importance_and_uniform_estimates_agree(mitsuba_variant, rng):
 
 
 @pytest.mark.parametrize("alpha,theta_deg", [(0.1, 30), (0.4, 70)])
-def test_chi2_sample_matches_pdf(mitsuba_variant, alpha, theta_deg):
+def test_chi2_sample_matches_pdf(mitsuba_variant, alpha, theta_deg, tmp_path, monkeypatch):
     """Mitsuba's chi-square test: the directions `sample` draws follow the density `pdf` returns."""
+    monkeypatch.chdir(tmp_path)  # on failure ChiSquareTest writes chi2_data.py into the cwd
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
     t = np.radians(theta_deg)
@@ -170,8 +171,9 @@ def test_fixed_lobe_probability_makes_sampling_weights_linear_in_rho(mitsuba_var
         mi.load_dict({"type": "ward", "lobe_probability": 1.5})
 
 
-def test_chi2_has_power_against_a_wrong_pdf(mitsuba_variant):
+def test_chi2_has_power_against_a_wrong_pdf(mitsuba_variant, tmp_path, monkeypatch):
     """The chi-square test above can fail: sampling alpha=0.1 against the pdf of alpha=0.15."""
+    monkeypatch.chdir(tmp_path)  # a failing ChiSquareTest writes chi2_data.py into the cwd
     from mitsuba.chi2 import BSDFAdapter, ChiSquareTest, SphericalDomain
 
     def adapter(alpha):
