@@ -75,7 +75,7 @@ def _cmd_run(args) -> int:
             design, device=args.device, port=args.port, out_dir=args.out,
             settings=_settings(args), width_cm=args.width_cm, monitor_name=args.monitor_name,
             timeout_s=timeout_s, retries=args.retries, fullscr=not args.windowed,
-            sim_aim=args.sim_aim)
+            refresh_hz=args.refresh_hz, sim_aim=args.sim_aim)
     except CalibrationError as exc:
         print(f"calibration stopped: {exc}", file=sys.stderr)
         return 2
@@ -157,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--monitor-name", default="glossdepth-crt",
                    help="name of the PsychoPy monitor profile written")
     p.add_argument("--windowed", action="store_true", help="not full screen (debugging)")
+    p.add_argument("--refresh-hz", type=float, default=None,
+                   help="record this refresh rate instead of measuring it, for a display that "
+                        "does not sync to the vertical blank (a virtual X display); flagged in "
+                        "the record")
     p.add_argument("--sim-aim", default=None,
                    help="simulation only: write the photometer's aim here for the fake "
                         "instrument instead of asking the experimenter")

@@ -89,7 +89,7 @@ def refit(out_dir, *, progress=print):
 def run_calibration(design, *, device: str, port: str, out_dir, settings: ProcedureSettings,
                     width_cm: float | None = None, monitor_name: str = "glossdepth-crt",
                     timeout_s: float = 30.0, retries: int = 2, fullscr: bool = True,
-                    sim_aim=None, progress=print):
+                    refresh_hz: float | None = None, sim_aim=None, progress=print):
     """Measure (resuming), fit, validate, and write the outputs into ``out_dir``.
 
     Parameters
@@ -105,6 +105,10 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
     width_cm : float or None
         Visible picture width measured with a ruler; None records the default (32 cm) with a
         warning.
+    refresh_hz : float or None
+        Refresh rate to record instead of measuring it (Hz), for a display that does not sync
+        to the vertical blank (a virtual X display in tests and the demo measures hundreds of
+        Hz). The record carries a warning that it was given, not measured.
     sim_aim : path or None
         Simulation only (see :mod:`calibration.fake_instrument`).
 
@@ -112,6 +116,8 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
     -------
     (Calibration, dict of paths)
     """
+    if refresh_hz is not None and not refresh_hz > 0:
+        raise CalibrationError(f"--refresh-hz {refresh_hz}: give the CRT's rate in Hz (> 0)")
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     settings = load_or_create_settings(out_dir, settings)
@@ -122,9 +128,15 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
                     "(measure the visible picture and pass --width-cm)")
     with open_photometer(device, port, timeout_s=timeout_s, retries=retries) as phot, \
             calibration_window(fullscr=fullscr, size_px=design.display.resolution_px) as win:
-        measured_hz = win.getActualFrameRate(nIdentical=10, nMaxFrames=120, nWarmUpFrames=10)
         res = tuple(int(v) for v in win.size)
-        dwarn, refresh_hz = display_warnings(design, res, measured_hz)
+        if refresh_hz is None:
+            measured_hz = win.getActualFrameRate(nIdentical=10, nMaxFrames=120,
+                                                 nWarmUpFrames=10)
+            dwarn, refresh_hz = display_warnings(design, res, measured_hz)
+        else:
+            dwarn, _ = display_warnings(design, res, float(refresh_hz))
+            dwarn.append(f"refresh rate {refresh_hz:g} Hz was given (--refresh-hz), not measured")
+            refresh_hz = float(refresh_hz)
         meta = {"calibration_id": settings.calibration_id, "fit": {
             "calibration_id": settings.calibration_id, "device": device,
             "monitor_name": monitor_name, "resolution_px": list(res), "width_cm": width_cm,

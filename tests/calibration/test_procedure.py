@@ -89,6 +89,18 @@ def test_bad_replies_are_flagged_and_remeasured(fake_proc, tmp_path):
     assert any("3 photometer replies rejected" in w for w in cal.warnings)
 
 
+def test_given_refresh_rate_is_recorded_and_flagged(fake_proc, tmp_path, design):
+    """A virtual display without vertical blank: --refresh-hz is recorded, with a warning."""
+    out = tmp_path / "cal"
+    hz = design.display.nominal_refresh_hz
+    with fake_proc("pr655") as (port, aim, _):
+        res = _run(port, aim, out, *SMALL, "--refresh-hz", str(hz))
+    assert res.returncode == 0, res.stderr
+    cal = load_calibration(out)
+    assert cal.refresh_hz == hz
+    assert any("was given (--refresh-hz), not measured" in w for w in cal.warnings)
+
+
 def test_wrong_port_lists_ports(tmp_path):
     res = run_cli(["run", "--device", "ls100", "--port", tmp_path / "ttyUSB7", "--out",
                    tmp_path / "cal", *SMALL])
