@@ -128,7 +128,7 @@ fi
 step "image statistics: a stratified subset of the imagestats set, statistics on Dask, relation to gloss"
 # 2 illuminations x 1 light field x 1 array x gloss levels 2,6,10 x depth levels 2,6,10 = 18
 # images at 192 px (the smallest size whose array square suits the Portilla-Simoncelli pyramid),
-# 16 spp; the full set is 58,564 images (protocol.md, 7.x).
+# 16 spp; the full set is 58,564 images (protocol.md, 7.1).
 IS="$RUN/imagestats"
 if "$PY" -m stimuli list --set imagestats --limit 1 >/dev/null 2>&1; then
   "$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
