@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stimuli.atomic import atomic_open
 from stimuli.manifest import load_manifest
 
 __all__ = ["contact_sheet"]
@@ -54,14 +55,6 @@ def contact_sheet(folder: str | os.PathLike, out_png: str | os.PathLike, *, colu
         draw.text((x + 2, y + tile_px + 1), label, fill=0)
     out = Path(out_png)
     out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = out.with_name(f".{out.stem}.tmp-{os.getpid()}.png")
-    try:
-        with open(tmp, "wb") as fh:
-            sheet.save(fh, format="PNG")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, out)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_open(out, "wb") as fh:
+        sheet.save(fh, format="PNG")
     return out

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stimuli.atomic import atomic_open
 from studydesign import StudyDesign
 
 __all__ = [
@@ -258,31 +259,23 @@ def write_mesh(mesh: Mesh, path: str | os.PathLike) -> Path:
         raise ValueError(f"mesh file {path} must end in .stl or .ply")
     v = np.asarray(mesh.vertices, dtype=np.float64)
     f = np.asarray(mesh.faces, dtype=np.int64)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as fh:
-            if suffix == ".stl":
-                tri = v[f].astype(np.float32)
-                nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-                nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-                header = b"glossdepth ellipsoid array, units cm"
-                fh.write(header.ljust(80, b" "))
-                fh.write(struct.pack("<I", len(f)))
-                rec = np.zeros(len(f), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
-                rec["n"], rec["v"] = nrm, tri
-                fh.write(rec.tobytes())
-            else:
-                lines = ["ply", "format ascii 1.0", "comment units cm",
-                         f"element vertex {len(v)}", "property float x", "property float y",
-                         "property float z", f"element face {len(f)}",
-                         "property list uchar int vertex_indices", "end_header"]
-                fh.write(("\n".join(lines) + "\n").encode())
-                np.savetxt(fh, v, fmt="%.6f")
-                np.savetxt(fh, np.column_stack([np.full(len(f), 3), f]), fmt="%d")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_open(path, "wb") as fh:
+        if suffix == ".stl":
+            tri = v[f].astype(np.float32)
+            nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+            nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+            header = b"glossdepth ellipsoid array, units cm"
+            fh.write(header.ljust(80, b" "))
+            fh.write(struct.pack("<I", len(f)))
+            rec = np.zeros(len(f), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+            rec["n"], rec["v"] = nrm, tri
+            fh.write(rec.tobytes())
+        else:
+            lines = ["ply", "format ascii 1.0", "comment units cm",
+                     f"element vertex {len(v)}", "property float x", "property float y",
+                     "property float z", f"element face {len(f)}",
+                     "property list uchar int vertex_indices", "end_header"]
+            fh.write(("\n".join(lines) + "\n").encode())
+            np.savetxt(fh, v, fmt="%.6f")
+            np.savetxt(fh, np.column_stack([np.full(len(f), 3), f]), fmt="%d")
     return path

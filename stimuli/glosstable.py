@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stimuli.atomic import atomic_open
 from stimuli.errors import GlossTableError
 from stimuli.ward import check_ward_params
 
@@ -115,16 +116,8 @@ def write_gloss_table(frame: pd.DataFrame, path: str | os.PathLike) -> Path:
     """Validate and write a gloss table atomically (temporary file, fsync, ``os.replace``)."""
     path = Path(path)
     table = validate_gloss_table(frame, source="gloss table to write")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "w", newline="", encoding="utf-8") as fh:
-            table.to_csv(fh, index=False, float_format="%.10g")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
+        table.to_csv(fh, index=False, float_format="%.10g")
     return path
 
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stimuli.atomic import atomic_path
 from stimuli.errors import IlluminationError
 from stimuli.manifest import sha256_file
 
@@ -141,16 +142,8 @@ def write_exr(path: str | os.PathLike, image: np.ndarray) -> Path:
     else:
         raise ValueError(f"write_exr needs shape (h, w) or (h, w, 3), got {image.shape}")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.exr")
-    try:
-        with OpenEXR.File(header, channels) as f:
-            f.write(str(tmp))
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_path(path) as tmp, OpenEXR.File(header, channels) as f:
+        f.write(str(tmp))
     return path
 
 

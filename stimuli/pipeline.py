@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from stimuli.atomic import TEMPORARY_GLOB
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss
@@ -129,7 +130,7 @@ def _append_csv(path: Path, columns: list[str], row: dict) -> None:
 def _remove_stale_temporaries(out: Path) -> int:
     n = 0
     for sub in ("exr", "png"):
-        for f in (out / sub).rglob(".*.tmp-*"):
+        for f in (out / sub).rglob(TEMPORARY_GLOB):
             f.unlink()
             n += 1
     return n

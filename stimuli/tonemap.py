@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from stimuli.atomic import atomic_open
 from studydesign import ToneMapSpec
 
 __all__ = [
@@ -141,14 +142,6 @@ def write_png(path: str | os.PathLike, image_u8: np.ndarray) -> Path:
     img = np.asarray(image_u8)
     if img.dtype != np.uint8 or img.ndim != 2:
         raise ValueError(f"write_png needs a 2-D uint8 image, got {img.dtype} {img.shape}")
-    tmp = path.with_name(f".{path.stem}.tmp-{os.getpid()}.png")
-    try:
-        with open(tmp, "wb") as fh:
-            Image.fromarray(img).save(fh, format="PNG")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    with atomic_open(path, "wb") as fh:
+        Image.fromarray(img).save(fh, format="PNG")
     return path

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import numpy as np
 import OpenEXR
+
+from stimuli.atomic import atomic_path
 
 __all__ = ["read_exr", "write_exr"]
 
@@ -65,7 +66,6 @@ def write_exr(path: str | Path, image: np.ndarray) -> None:
     if image.ndim != 3 or image.shape[2] != 3:
         raise ValueError(f"image of shape {image.shape}; expected (height, width, 3)")
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    with OpenEXR.File(header, {"RGB": np.ascontiguousarray(image)}) as f:
+    with atomic_path(path) as tmp, \
+            OpenEXR.File(header, {"RGB": np.ascontiguousarray(image)}) as f:
         f.write(str(tmp))
-    os.replace(tmp, path)

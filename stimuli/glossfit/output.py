@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from stimuli.atomic import atomic_path
+
 __all__ = ["FITS_COLUMNS", "append_fit_row", "write_json", "write_level_figure",
            "write_report", "write_residuals"]
 
@@ -45,13 +47,8 @@ def append_fit_row(path: Path, row: dict) -> None:
 
 
 def _atomic(path: Path, write) -> None:
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
+    with atomic_path(path) as tmp:  # a temporary file, fsync, os.replace
         write(tmp)
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
 
 
 def write_residuals(path: Path, arrays: dict[str, np.ndarray]) -> None:

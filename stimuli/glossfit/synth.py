@@ -24,12 +24,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
+from stimuli.atomic import atomic_open
 from stimuli.glossfit.exr import write_exr
 from stimuli.glossfit.photoset import PhotoSetup, photo_name, write_setup
 from stimuli.glossfit.scene import SphereScene, photo_camera, ward_bsdf
@@ -223,7 +223,6 @@ def synth_photo_set(out: str | Path, gloss_pct: tuple[float, ...], *, material: 
         photo, drawn = _apply_effects(image, effects, rng, setup)
         write_exr(out / "photos" / photo_name(pct), photo)
         truth["levels"].append({"gloss_pct": pct, "material": params, "drawn": drawn})
-    tmp = out / f".truth.json.tmp{os.getpid()}"
-    tmp.write_text(json.dumps(truth, indent=2))
-    os.replace(tmp, out / "truth.json")
+    with atomic_open(out / "truth.json", "w", encoding="utf-8") as fh:
+        fh.write(json.dumps(truth, indent=2))
     return out
