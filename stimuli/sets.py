@@ -4,11 +4,11 @@
   9 depth). One array per depth level (array index 0), shared by all gloss levels and both
   illuminations, so stimuli of one depth differ only in material and light.
 * ``imagestats``: for the image-statistics analysis, every physical gloss and depth level (11 x 11)
-  x :data:`IMAGESTATS_ARRAYS` arrays x :data:`IMAGESTATS_LIGHT_FIELDS` light fields per
-  illumination condition (2) = 58,564 images. A condition's light fields are its probe rotated
-  about the vertical by ``k * 360 / n`` degrees (k = 0..n-1): the project ships one probe per
-  condition, and a rotation moves every light source; a lab with more probes can point the
-  conditions at them. Select subsets with filters.
+  x ``design.imagestats.n_arrays`` arrays x ``design.imagestats.n_light_fields`` light fields
+  per illumination condition (seed: 2 x 11 x 11 x 11 x 22 = 58,564 images). A condition's light
+  fields are its probe rotated about the vertical by ``k * 360 / n`` degrees (k = 0..n-1): the
+  project ships one probe per condition, and a rotation moves every light source; a lab with
+  more probes can point the conditions at them. Select subsets with filters.
 * ``preview``: the lowest and highest rendered gloss and depth under both illuminations (8),
   for the demo and tests.
 
@@ -24,8 +24,6 @@ from stimuli.geometry import stimulus_seed
 from studydesign import StudyDesign
 
 __all__ = [
-    "IMAGESTATS_ARRAYS",
-    "IMAGESTATS_LIGHT_FIELDS",
     "SET_COLUMNS",
     "SET_NAMES",
     "apply_filters",
@@ -34,10 +32,6 @@ __all__ = [
 ]
 
 SET_NAMES = ("experiment", "imagestats", "preview")
-#: Light fields per illumination condition in the image-statistics set (the seed's 11).
-IMAGESTATS_LIGHT_FIELDS = 11
-#: Random arrays per (light field, gloss, depth) in the image-statistics set (the seed's 22).
-IMAGESTATS_ARRAYS = 22
 SET_COLUMNS = ["stimulus_id", "illumination", "gloss_level", "depth_level", "true_gloss_pct",
                "true_depth_cm", "light_field", "array_index", "seed", "envmap", "rotation_deg"]
 
@@ -54,13 +48,13 @@ def _experiment(design: StudyDesign) -> pd.DataFrame:
 
 def _imagestats(design: StudyDesign) -> pd.DataFrame:
     rows = []
-    n_lf = IMAGESTATS_LIGHT_FIELDS
+    n_lf = design.imagestats.n_light_fields
     for il in design.illuminations:
         for k in range(n_lf):
             lf = f"{il.name}_lf{k:02d}"
             for g in design.gloss.labels:
                 for d in design.depth.labels:
-                    for a in range(IMAGESTATS_ARRAYS):
+                    for a in range(design.imagestats.n_arrays):
                         rows.append((f"{lf}_g{g:02d}_d{d:02d}_a{a:02d}", il.name, g, d,
                                      float(design.gloss.pct(g)), float(design.depth.cm(d)), lf, a,
                                      stimulus_seed(d, a), il.envmap, 360.0 * k / n_lf))

@@ -39,6 +39,11 @@ def _summary(design) -> str:
             f"{design.sessions.trials_per_session} trials"
         ),
         (
+            f"image-statistics set: {design.imagestats.n_light_fields} light fields x "
+            f"{design.imagestats.n_arrays} arrays per gloss x depth x illumination = "
+            f"{design.n_imagestats_images} images"
+        ),
+        (
             f"display: {design.display.resolution_px[0]}x{design.display.resolution_px[1]} px at "
             f"{design.display.viewing_distance_cm:g} cm"
         ),

@@ -282,6 +282,18 @@ class AnalysisSpec:
 
 
 @dataclass(frozen=True)
+class ImageStatsSpec:
+    """The large render set of the image-statistics analysis (seed: 2 x 11 x 11 x 11 x 22)."""
+
+    n_light_fields: int
+    n_arrays: int
+
+    def __post_init__(self) -> None:
+        _require(self.n_light_fields >= 1, "imagestats.n_light_fields must be >= 1")
+        _require(self.n_arrays >= 1, "imagestats.n_arrays must be >= 1")
+
+
+@dataclass(frozen=True)
 class StudyDesign:
     """The whole study design. Build it with :func:`load_design`."""
 
@@ -294,6 +306,7 @@ class StudyDesign:
     display: DisplaySpec
     slider: SliderSpec
     analysis: AnalysisSpec
+    imagestats: ImageStatsSpec
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -335,6 +348,13 @@ class StudyDesign:
             * len(self.gloss.rendered_levels)
             * len(self.depth.rendered_levels)
         )
+
+    @property
+    def n_imagestats_images(self) -> int:
+        """Images in the image-statistics set: illuminations x light fields x every physical
+        gloss and depth level x arrays."""
+        return (len(self.illuminations) * self.imagestats.n_light_fields * self.gloss.n_levels
+                * self.depth.n_levels * self.imagestats.n_arrays)
 
     def illumination(self, name: str) -> Illumination:
         for il in self.illuminations:
@@ -477,11 +497,14 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     an = _section(raw, "analysis", path)
     analysis = _build(
         AnalysisSpec, an, "analysis", path,
-        depth_bins_cm={k: tuple(float(x) for x in v) for k, v in an.get("depth_bins_cm", {}).items()},
+        depth_bins_cm={
+            k: tuple(float(x) for x in v) for k, v in an.get("depth_bins_cm", {}).items()
+        },
         gloss_bins_pct={
             k: tuple(float(x) for x in v) for k, v in an.get("gloss_bins_pct", {}).items()
         },
     )
+    imagestats = _build(ImageStatsSpec, _section(raw, "imagestats", path), "imagestats", path)
     return StudyDesign(
         gloss=gloss,
         depth=depth,
@@ -492,5 +515,6 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         display=display,
         slider=slider,
         analysis=analysis,
+        imagestats=imagestats,
         source=str(path),
     )

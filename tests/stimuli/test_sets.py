@@ -5,7 +5,6 @@ from __future__ import annotations
 import pytest
 
 from stimuli import apply_filters, parse_filters, stimulus_set
-from stimuli.sets import IMAGESTATS_ARRAYS, IMAGESTATS_LIGHT_FIELDS
 
 
 def test_experiment_set_is_the_design_with_one_array_per_depth(design):
@@ -17,11 +16,11 @@ def test_experiment_set_is_the_design_with_one_array_per_depth(design):
 
 def test_imagestats_set_size_and_ids(design):
     t = stimulus_set(design, "imagestats")
-    n = (len(design.illuminations) * IMAGESTATS_LIGHT_FIELDS * design.gloss.n_levels
-         * design.depth.n_levels * IMAGESTATS_ARRAYS)
+    n = design.n_imagestats_images
     assert len(t) == n == 58_564
     assert t["stimulus_id"].is_unique
-    assert t["light_field"].nunique() == len(design.illuminations) * IMAGESTATS_LIGHT_FIELDS
+    assert t["light_field"].nunique() == (len(design.illuminations)
+                                          * design.imagestats.n_light_fields)
     sub = apply_filters(t, parse_filters(["depth_level=2,5", "light_field=indoor_lf00"]))
     assert set(sub["depth_level"]) == {2, 5} and len(sub) == 2 * 11 * 22
 

@@ -50,6 +50,11 @@ def test_stimulus_set_is_two_by_nine_by_nine(design):
     assert set(table["true_gloss_pct"]) == set(design.gloss.rendered_pct)
 
 
+def test_imagestats_set_is_the_seeds_58564_images(design):
+    assert design.imagestats.n_light_fields == 11 and design.imagestats.n_arrays == 22
+    assert design.n_imagestats_images == 2 * 11 * 11 * 11 * 22 == 58_564
+
+
 def test_display_matches_seed(design):
     assert design.display.resolution_px == (1024, 768)
     assert design.display.viewing_distance_cm == 55.0
@@ -108,6 +113,7 @@ def _write_variant(tmp_path, old, new):
         ("jitter_cm = 0.2", "jitter_cm = 0.2\ncolour = 3", r"unknown key\(s\) \['colour'\]"),
         ("[display]", "[displays]", r"missing section \[display\]"),
         ("n_x = 5", "n_x = ", "not valid TOML"),
+        ("n_arrays = 22", "n_arrays = 0", r"imagestats\.n_arrays must be >= 1"),
     ],
 )
 def test_invalid_design_is_rejected_with_the_fix(tmp_path, old, new, message):
