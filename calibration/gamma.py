@@ -141,6 +141,9 @@ class GammaFit:
         The readings.
     residuals_cd_m2 : tuple[float, ...]
         Reading minus fitted luminance.
+    heldout_rms_pct : float
+        The held-out error relative to each reading (:func:`error_scale`), RMS in %: what the
+        fit minimises and the model choice compares (NaN in records written before it existed).
     """
 
     model: str
@@ -150,6 +153,7 @@ class GammaFit:
     levels: tuple
     luminance_cd_m2: tuple
     residuals_cd_m2: tuple
+    heldout_rms_pct: float = float("nan")
 
     def luminance(self, drive) -> np.ndarray:
         """Fitted luminance in cd/m^2 at ``drive`` in [0, 1]."""
@@ -169,6 +173,7 @@ class GammaFit:
                 levels=tuple(float(v) for v in d["levels"]),
                 luminance_cd_m2=tuple(float(v) for v in d["luminance_cd_m2"]),
                 residuals_cd_m2=tuple(float(v) for v in d["residuals_cd_m2"]),
+                heldout_rms_pct=float(d.get("heldout_rms_pct", float("nan"))),
             )
         except (KeyError, TypeError, AttributeError, ValueError) as exc:
             raise CalibrationError(f"gamma fit record is malformed ({exc!r})") from exc
@@ -215,11 +220,29 @@ def _starts(model: str, x: np.ndarray, y: np.ndarray) -> list[tuple[np.ndarray, 
     return starts
 
 
+#: Floor of the error scale as a fraction of the brightest reading (see :func:`error_scale`).
+ERROR_FLOOR_FRACTION = 1e-3
+
+
+def error_scale(luminance_cd_m2) -> np.ndarray:
+    """Scale of each reading's error, cd/m^2: the reading, floored at 0.1 % of the brightest.
+
+    Photometer error is proportional to the reading (a spot photometer's precision is a fraction
+    of what it reads) above a small absolute floor, so the fit weights each residual by
+    ``1 / error_scale``: an unweighted fit lets the 0.3 cd/m^2 noise at white outweigh the
+    0.6 cd/m^2 black level and biases the black (sim-to-real issue 8).
+    """
+    y = np.abs(np.asarray(luminance_cd_m2, dtype=float))
+    floor = ERROR_FLOOR_FRACTION * max(float(y.max(initial=0.0)), 1e-6)
+    return np.maximum(y, floor)
+
+
 def _fit_params(model: str, x: np.ndarray, y: np.ndarray) -> dict:
     names = GAMMA_MODELS[model]
+    scale = error_scale(y)
 
     def resid(p):
-        return gamma_luminance(x, model=model, params=dict(zip(names, p))) - y
+        return (gamma_luminance(x, model=model, params=dict(zip(names, p))) - y) / scale
 
     best = None
     for p0, bounds in _starts(model, x, y):
@@ -231,7 +254,11 @@ def _fit_params(model: str, x: np.ndarray, y: np.ndarray) -> dict:
 
 
 def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power") -> GammaFit:
-    """Fit a display transfer function to photometer readings by least squares.
+    """Fit a display transfer function to photometer readings by weighted least squares.
+
+    Each residual is divided by the reading's error scale (:func:`error_scale`: the reading,
+    floored at 0.1 % of the brightest), so the fit minimises relative error and the black level
+    is fitted as well as white.
 
     Parameters
     ----------
@@ -270,6 +297,7 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power") -> Gamm
         levels=tuple(float(v) for v in x),
         luminance_cd_m2=tuple(float(v) for v in y),
         residuals_cd_m2=tuple(float(v) for v in y - fitted),
+        heldout_rms_pct=float(100 * np.sqrt(np.mean(((y - heldout) / error_scale(y)) ** 2))),
     )
 
 
@@ -281,6 +309,9 @@ def fit_gamma_models(levels, luminance_cd_m2) -> tuple[GammaFit, ...]:
 def choose_gamma_model(fits, *, tolerance: float = 0.02) -> GammaFit:
     """The fit with the smallest held-out error; near-ties go to the model with fewer parameters.
 
+    The error compared is the relative one the fits minimise (``heldout_rms_pct``); records
+    written before it existed fall back to ``heldout_rmse_cd_m2``.
+
     Parameters
     ----------
     fits : sequence of GammaFit
@@ -288,11 +319,17 @@ def choose_gamma_model(fits, *, tolerance: float = 0.02) -> GammaFit:
         A model with more parameters must beat a simpler one's held-out RMS error by more than
         this fraction (default 2 %) to be chosen.
     """
-    fits = sorted(fits, key=lambda f: (len(GAMMA_MODELS[f.model]), f.heldout_rmse_cd_m2))
+    fits = list(fits)
     if not fits:
         raise CalibrationError("no gamma fits to choose from")
+    relative = all(np.isfinite(f.heldout_rms_pct) for f in fits)
+
+    def err(f: GammaFit) -> float:
+        return f.heldout_rms_pct if relative else f.heldout_rmse_cd_m2
+
+    fits = sorted(fits, key=lambda f: (len(GAMMA_MODELS[f.model]), err(f)))
     best = fits[0]
     for f in fits[1:]:
-        if f.heldout_rmse_cd_m2 < best.heldout_rmse_cd_m2 * (1 - tolerance):
+        if err(f) < err(best) * (1 - tolerance):
             best = f
     return best

@@ -11,6 +11,7 @@ from calibration import (
     SimulatedCRT,
     fit_uniformity,
     load_calibration,
+    load_crt,
 )
 from calibration.fit import fit_calibration, monotonicity_warnings, validation_deviation_pct
 from calibration.report import report_text, write_outputs
@@ -54,6 +55,27 @@ def test_fit_calibration_recovers_the_crt(rng):
     x = np.linspace(0, 1, 21)
     assert cal.luminance_for_drive(x) == pytest.approx(crt.luminance(x), rel=0.02, abs=0.1)
     assert cal.warnings == ()
+
+
+# Seed 20 gives the demo's failure under the unweighted fit (eq. 1 chosen, black 0.37 cd/m^2).
+@pytest.mark.parametrize("seed", [*range(8), 20])
+def test_fit_reproduces_black_and_curve_of_the_shipped_crt(seed):
+    # Sim-to-real issue 8: the demo's run (9 levels x 2 repeats, crt.toml) once chose eq. 1 with
+    # black 0.38 cd/m^2 against 0.60 measured, because unweighted least squares let the noise at
+    # white (0.3 cd/m^2 SD) outweigh the black level. Tolerances: black within 3 % (about 5 s.e.
+    # of the mean of its 2 readings), drive 0.125 within 3 %, drive >= 0.25 within 0.6 % (the
+    # photometer's relative noise is 0.3 % per reading; the unweighted fit erred by 1-5 %).
+    crt = load_crt()
+    readings = _readings(crt, np.random.default_rng(seed), n_levels=9)
+    # The procedure records the drive it showed (the 8-bit grid); the CRT quantises the same way.
+    readings["level"] = np.round(readings["level"] * 255) / 255
+    cal = fit_calibration(readings, **META)
+    assert cal.min_luminance_cd_m2 == pytest.approx(crt.black_total_cd_m2, rel=0.03)
+    assert cal.luminance_for_drive(0.0) == pytest.approx(crt.luminance(0.0), rel=0.03)
+    low = np.array([0.125])
+    assert cal.luminance_for_drive(low) == pytest.approx(crt.luminance(low), rel=0.03)
+    x = np.round(np.linspace(0.25, 1, 13) * 255) / 255
+    assert cal.luminance_for_drive(x) == pytest.approx(crt.luminance(x), rel=0.006)
 
 
 def test_non_monotonic_curve_is_warned_in_the_report(rng, tmp_path):
