@@ -45,15 +45,24 @@ def _diagnose(args, design) -> int:
         path = write_multi_report(results, which, args.out)
         for name, (diag, _) in results.items():
             print(f"{name}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
-                  f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %)")
+                  f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %){_no_gap_note(diag)}")
         print(f"{which['text']}\nreport {path}")
         return 0
 
     diag, local = diagnose_files(args.layer, args.real, args.sim, design, seed=args.seed)
     path = write_report(diag, local, args.out)
     print(f"{diag.layer}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
-          f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %); report {path}")
+          f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %){_no_gap_note(diag)}; report {path}")
     return 0
+
+
+def _no_gap_note(diag) -> str:
+    from analysis.gap.report import no_significant_gap
+
+    if not no_significant_gap(diag):
+        return ""
+    lo, hi = diag.gap_before_ci
+    return f" - no significant gap (95 % CI {lo:.3f} to {hi:.3f})"
 
 
 def main(argv=None) -> int:

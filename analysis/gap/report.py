@@ -15,11 +15,21 @@ import matplotlib.pyplot as plt
 
 from analysis.gap.engine import Diagnosis, GapError
 
-__all__ = ["verdict_text", "write_multi_report", "write_report"]
+__all__ = ["no_significant_gap", "verdict_text", "write_multi_report", "write_report"]
+
+
+def no_significant_gap(d: Diagnosis) -> bool:
+    """True when nothing was attributed and the held-out gap's 95 % CI reaches 0."""
+    return not d.steps and bool(d.gap_before_ci) and d.gap_before_ci[0] <= 0
 
 
 def verdict_text(d: Diagnosis) -> str:
     """Plain-language verdict (HTML)."""
+    if no_significant_gap(d):
+        lo, hi = d.gap_before_ci
+        return (f"The simulation matches the data: the held-out gap ({d.gap_before:.3f} nats per "
+                f"unit, 95 % CI {lo:.3f} to {hi:.3f}) is not significantly above the data's own "
+                "noise floor, so there is <b>no significant gap</b> to explain.")
     if not d.steps:
         return ("No candidate in the catalogue reduces the held-out gap significantly "
                 "(Holm-corrected, alpha 0.05): the gap is <b>unexplained</b> by the catalogue.")

@@ -107,3 +107,21 @@ def test_benchmark_targets():
     assert r["false_attribution"] <= 0.34
     assert r["top1"] >= 0.8
     assert r["shrink_error"] <= 0.10
+
+
+def _diagnosis(**kw):
+    from analysis.gap.engine import Diagnosis
+
+    base = dict(layer="display", ranking=(), steps=(), verdict="unexplained", gap_before=0.3,
+                gap_after=0.3, shrink_abs=0.0, shrink_abs_ci=(0.0, 0.0), shrink_pct=0.0,
+                shrink_pct_ci=(0.0, 0.0), seed=1)
+    return Diagnosis(**(base | kw))
+
+
+def test_verdict_says_no_significant_gap_when_the_gap_ci_reaches_zero():
+    from analysis.gap.report import no_significant_gap, verdict_text
+
+    none = _diagnosis(gap_before_ci=(-0.09, 0.88))
+    some = _diagnosis(gap_before_ci=(0.2, 0.9))
+    assert no_significant_gap(none) and "no significant gap" in verdict_text(none)
+    assert not no_significant_gap(some) and "unexplained" in verdict_text(some)
