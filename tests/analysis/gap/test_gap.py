@@ -112,9 +112,9 @@ def test_benchmark_targets():
 def _diagnosis(**kw):
     from analysis.gap.engine import Diagnosis
 
-    base = {"layer": "display", "ranking": (), "steps": (), "verdict": "unexplained", "gap_before": 0.3,
-                "gap_after": 0.3, "shrink_abs": 0.0, "shrink_abs_ci": (0.0, 0.0), "shrink_pct": 0.0,
-                "shrink_pct_ci": (0.0, 0.0), "seed": 1}
+    base = {"layer": "display", "ranking": (), "steps": (), "verdict": "unexplained",
+            "gap_before": 0.3, "gap_after": 0.3, "shrink_abs": 0.0, "shrink_abs_ci": (0.0, 0.0),
+            "shrink_pct": 0.0, "shrink_pct_ci": (0.0, 0.0), "seed": 1}
     return Diagnosis(**(base | kw))
 
 
