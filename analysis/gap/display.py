@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from analysis.gap.engine import Candidate, GapError
+from analysis.gap.engine import Candidate, GapError, split_held_out
 from calibration import CalibrationError, load_calibration, load_readings
 
 __all__ = [
@@ -179,14 +179,7 @@ def split_display(data: pd.DataFrame, rng: np.random.Generator):
     """Held-out split: odd repeats held out (even ones train) when patches are repeated, else
     half the readings at random."""
     reps = data["repeat"].to_numpy(int)
-    if np.unique(reps).size >= 2:
-        mask = reps % 2 == 1
-    else:
-        mask = np.zeros(len(data), bool)
-        mask[rng.permutation(len(data))[: len(data) // 2]] = True
-    train, test = data[~mask].copy(), data[mask].copy()
-    train.attrs, test.attrs = dict(data.attrs), dict(data.attrs)
-    return train, test
+    return split_held_out(data, reps % 2 == 1 if np.unique(reps).size >= 2 else None, rng)
 
 
 def _wls(res, x, w):

@@ -13,11 +13,23 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "diagnose_losses", "holm"]
+__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "diagnose_losses", "holm",
+           "split_held_out"]
 
 
 class GapError(ValueError):
     """Bad input to the sim-to-real gap diagnosis."""
+
+
+def split_held_out(data, held_out, rng: np.random.Generator):
+    """(train, test) rows of a data frame; ``held_out`` is a boolean mask, or None for a random
+    half of the rows. Both parts keep ``data.attrs`` (the loaders' metadata)."""
+    if held_out is None:
+        held_out = np.zeros(len(data), bool)
+        held_out[rng.permutation(len(data))[: len(data) // 2]] = True
+    train, test = data[~held_out].copy(), data[held_out].copy()
+    train.attrs, test.attrs = dict(data.attrs), dict(data.attrs)
+    return train, test
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, stats
 
-from analysis.gap.engine import Candidate, GapError
+from analysis.gap.engine import Candidate, GapError, split_held_out
 
 __all__ = [
     "OBSERVER_CANDIDATES",
@@ -165,15 +165,11 @@ def observer_loss(train: pd.DataFrame):
 def split_observer(data: pd.DataFrame, rng: np.random.Generator):
     """Held-out split: by participant when there are >= 4, else half the trials at random."""
     parts = data["participant"].unique()
+    mask = None
     if parts.size >= 4:
         test_p = rng.choice(parts, size=parts.size // 2, replace=False)
         mask = data["participant"].isin(test_p).to_numpy()
-    else:
-        mask = np.zeros(len(data), bool)
-        mask[rng.permutation(len(data))[: len(data) // 2]] = True
-    train, test = data[~mask].copy(), data[mask].copy()
-    train.attrs, test.attrs = dict(data.attrs), dict(data.attrs)
-    return train, test
+    return split_held_out(data, mask, rng)
 
 
 def localise_observer(data: pd.DataFrame, design, rng: np.random.Generator,
