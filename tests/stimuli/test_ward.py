@@ -186,3 +186,26 @@ def test_chi2_has_power_against_a_wrong_pdf(mitsuba_variant, tmp_path, monkeypat
     chi2 = ChiSquareTest(domain=SphericalDomain(), sample_func=sample_func, pdf_func=wrong_pdf,
                          sample_dim=3, sample_count=200_000, res=101)
     assert not chi2.run()
+
+
+def test_fresnel_term_matches_schlick_and_leaves_normal_incidence_alone(mitsuba_variant, rng):
+    """fresnel_f0: lobe x F(o.h)/F0 (Schlick); rho_s keeps its value at normal incidence."""
+    import mitsuba as mi
+
+    n = np.array([0.0, 0.0, 1.0])
+    assert ward_brdf(n, n, 0.0, 0.3, 0.1, fresnel_f0=0.04) == pytest.approx(
+        ward_brdf(n, n, 0.0, 0.3, 0.1))
+    # mirror geometry at 80 degrees: h = n, o.h = cos 80 deg
+    t = np.radians(80)
+    wi, wo = np.array([np.sin(t), 0, np.cos(t)]), np.array([-np.sin(t), 0, np.cos(t)])
+    schlick = 0.04 + 0.96 * (1 - np.cos(t)) ** 5
+    assert ward_brdf(wi, wo, 0.0, 0.3, 0.1, fresnel_f0=0.04) == pytest.approx(
+        ward_brdf(wi, wo, 0.0, 0.3, 0.1) * schlick / 0.04)
+    bsdf = mi.load_dict({"type": "ward", "rho_d": 0.2, "rho_s": 0.3, "alpha": 0.2,
+                         "fresnel_f0": 0.1})
+    a, b = _hemisphere(rng, 200), _hemisphere(rng, 200)
+    value, _ = _plugin_eval(bsdf, a, b)
+    np.testing.assert_allclose(value, ward_brdf(a, b, 0.2, 0.3, 0.2, fresnel_f0=0.1) * b[:, 2],
+                               rtol=2e-4, atol=1e-5)
+    with pytest.raises(Exception, match="fresnel_f0"):
+        mi.load_dict({"type": "ward", "fresnel_f0": 0.0})
