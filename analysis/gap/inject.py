@@ -260,11 +260,31 @@ def write_readings(frame: pd.DataFrame, folder: Path) -> Path:
 
 
 # --- render layer -------------------------------------------------------------------------
-# Pseudo-real photos of spheres from an analytic renderer (one directional light + ambient,
-# Lambert diffuse, isotropic Ward specular), written in the gloss fit's residual-file format.
-# The effects are computed physically here (half-vector Fresnel, coat transmission on the light
-# and the view path, cos^4 vignetting, a long-tailed glare PSF, exact resampling, a GGX tail),
-# not with the diagnosis's image-space approximations.
+# Pseudo-real photos of the gloss spheres rendered with Mitsuba (stimuli.glossfit.SphereScene,
+# the gloss fit's own scene: a sphere in the room panorama), written in the gloss fit's
+# residual-file format. The sim renders are the plain Ward fit's diffuse and specular basis
+# renders; the photos are rendered with the effect built into the material or the camera, with
+# Mitsuba's own plugins where it has one, never with the diagnosis's image-space forms:
+#
+# fresnel         the Ward lobe with a Schlick term on the half vector (plugin ward, fresnel_f0
+#                 = 1 / (1 + strength))
+# clearcoat       a share ``strength`` of the diffuse light through a clear coat (Mitsuba's
+#                 ``plastic``, IOR 1.5: Fresnel on the way in and out, internal reflections)
+# long_tail       a share ``strength`` of the lobe's energy moved into a haze: a GGX lobe
+#                 (Mitsuba's ``roughconductor``) of 2.5 times the Ward alpha, as in two-lobe
+#                 fits of measured gloss (a sharp core and a broad, long-tailed haze)
+# vignetting      cos^4-like natural vignetting 1 / (1 + (strength rho)^2)^2 of the photo
+# veiling_glare   a long-tailed (Cauchy-like) lens PSF, a share ``strength`` of the light
+# misregistration a sub-pixel shift of ``strength`` px in a random direction (cubic)
+# albedo_texture  (outside the catalogue) a surface texture: the diffuse albedo times
+#                 1 + strength sin(6 pi u) sin(4 pi v) in the sphere's uv
+# anisotropy      (outside the catalogue) the lobe made anisotropic: alpha_u = alpha (1 + s),
+#                 alpha_v = alpha / (1 + s) (Beckmann ``roughconductor`` renders, the change only)
+#
+# The panorama is the synthetic photo sets' room, its lamp softened (Gaussian, 1.5 px) so that
+# 4,096 samples per pixel leave Monte-Carlo noise well below the photos' sensor noise (1 % of
+# the sphere's mean). Photos and sim share the effect-free renders, so effects made in the
+# camera carry no render noise at all.
 
 RENDER_EFFECTS = ("fresnel", "clearcoat", "vignetting", "veiling_glare", "misregistration",
                   "long_tail")
@@ -272,67 +292,126 @@ RENDER_OUT_OF_CATALOGUE = ("albedo_texture", "anisotropy")
 RENDER_STRENGTH = {"fresnel": 6.0, "clearcoat": 0.6, "vignetting": 0.5, "veiling_glare": 0.15,
                    "misregistration": 0.6, "long_tail": 0.6, "albedo_texture": 0.06,
                    "anisotropy": 0.6}
-_LIGHT = np.array([-0.45, 0.55, 0.70]) / np.linalg.norm([-0.45, 0.55, 0.70])
-_LEVELS = ((0.55, 0.04, 0.20), (0.45, 0.08, 0.12), (0.35, 0.12, 0.07))  # rho_d, rho_s, alpha
+#: (rho_d, rho_s, alpha) of the benchmark's three spheres: the synthetic Ward sets' 20, 50 and
+#: 80 % gloss levels (stimuli.glossfit.synth: rho_s = 0.01 + 0.09 g, alpha 0.30 -> 0.04).
+_LEVELS = ((0.4, 0.028, 0.200), (0.4, 0.055, 0.110), (0.4, 0.082, 0.060))
+_RENDER_SPP = 4096
+_SIZE, _PAD = 64, 8  # the residual files' size; rendered 8 px larger, cropped off-centre
+_OFFSET = (2, 6)  # crop origin (y, x): the sphere sits off the image centre, as in a fit crop
+_SPHERE_RADIUS_PX = 23.0
+_NOISE_REL = 0.01
+_REC709 = np.array([0.2126, 0.7152, 0.0722])
+_base_cache: dict = {}
 
 
-def _schlick(cos, f0):
-    return f0 + (1 - f0) * (1 - np.clip(cos, 0, 1)) ** 5
+def _render_camera():
+    """A camera whose sphere spans 23 px in radius on a 72 px square image."""
+    import math
+
+    from stimuli.glossfit import Camera
+
+    size = _SIZE + _PAD
+    focal = _SPHERE_RADIUS_PX / math.tan(math.asin(2.0 / 27.5))
+    fov = 2 * math.degrees(math.atan(size / 2 / focal))
+    return Camera(fov, (size, size), 27.5, 2.0)
 
 
-def _sphere_render(size, rho_d, rho_s, alpha, effect="none", strength=0.0, rng=None):
-    """Diffuse and specular luminance of a sphere (radius 0.36 size, centred a little off the
-    image centre), orthographic view along +z."""
-    h = w = size
-    yy, xx = np.mgrid[0:h, 0:w].astype(float)
-    cy, cx, rad = 0.48 * h, 0.52 * w, 0.36 * size
-    x, y = (xx - cx) / rad, -(yy - cy) / rad
-    r2 = x**2 + y**2
-    inside = r2 < 1
-    z = np.sqrt(np.clip(1 - r2, 0, 1))
-    n = np.stack([x, y, z], -1)
-    v = np.array([0.0, 0.0, 1.0])
-    cos_i = np.clip(n @ _LIGHT, 0, 1)
-    cos_o = np.clip(z, 1e-3, 1)
-    hv = (_LIGHT + v) / np.linalg.norm(_LIGHT + v)
-    cos_h = np.clip(n @ hv, 1e-6, 1)
-    tan2 = (1 - cos_h**2) / cos_h**2
-    e_dir, e_amb = 1.0, 0.25
-    diffuse = rho_d * (cos_i * e_dir + e_amb)
-    if effect == "anisotropy":
-        # Anisotropic Ward: alpha_x != alpha_y (out of the catalogue).
-        ax, ay = alpha * (1 + strength), alpha / (1 + strength)
-        tx = np.stack([np.ones_like(x), np.zeros_like(x), -x / np.maximum(z, 1e-3)], -1)
-        tx /= np.linalg.norm(tx, axis=-1, keepdims=True)
-        ty = np.cross(n, tx)
-        hx, hy = tx @ hv, ty @ hv
-        expo = -((hx / ax) ** 2 + (hy / ay) ** 2) / cos_h**2
-        lobe = np.exp(expo) / (4 * np.pi * ax * ay * np.sqrt(cos_i * cos_o + 1e-9))
-    else:
-        lobe = np.exp(-tan2 / alpha**2) / (4 * np.pi * alpha**2 * np.sqrt(cos_i * cos_o + 1e-9))
-    spec = rho_s * e_dir * cos_i * lobe
-    env = rho_s * 0.3 * np.ones_like(z)  # the uniform surround, mirrored
+def _render(material: dict, spp: int, seed: int, *, background: bool = False) -> np.ndarray:
+    """Luminance of the sphere with a Mitsuba material, cropped to the residual files' size,
+    minus the background (the panorama around a black sphere) unless ``background``."""
+    from scipy import ndimage as ndi
+
+    from stimuli.glossfit import SphereScene, room_panorama
+
+    env = ndi.gaussian_filter(room_panorama(), (1.5, 1.5, 0), mode="wrap")
+    with SphereScene(env, _render_camera(), spp=spp, seed=seed,
+                     bsdf=lambda *_a: material) as scene:
+        img = scene.render(0.0, 0.0, 0.0) @ _REC709
+    y0, x0 = _OFFSET
+    img = img[y0:y0 + _SIZE, x0:x0 + _SIZE].astype(float)
+    return img if background else img - _background(spp)
+
+
+def _background(spp: int) -> np.ndarray:
+    """B: the render of a black sphere (cached per process)."""
+    if ("B", spp) not in _base_cache:
+        _base_cache[("B", spp)] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True)
+    return _base_cache[("B", spp)]
+
+
+def _ward(rho_d, rho_s, alpha, **extra):
+    return {"type": "ward", "rho_d": rho_d, "rho_s": rho_s, "alpha": alpha,
+            "lobe_probability": 0.5, **extra}
+
+
+def _rgb(v):
+    return {"type": "rgb", "value": float(v)}
+
+
+def _base(level: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
+    """The plain Ward fit's diffuse and specular renders of one level, each minus the
+    background (cached per process)."""
+    key = (level, spp)
+    if key not in _base_cache:
+        rho_d, rho_s, alpha = _LEVELS[level]
+        _base_cache[key] = (_render(_ward(rho_d, 0.0, alpha), spp, 11 + level),
+                            _render(_ward(0.0, rho_s, alpha), spp, 21 + level))
+    return _base_cache[key]
+
+
+def _sphere_r() -> np.ndarray:
+    """Distance from the sphere's centre in sphere radii on the cropped grid."""
+    size = _SIZE + _PAD
+    yy, xx = np.mgrid[0:_SIZE, 0:_SIZE] + 0.5
+    cy, cx = size / 2 - _OFFSET[0], size / 2 - _OFFSET[1]
+    return np.hypot(yy - cy, xx - cx) / _SPHERE_RADIUS_PX
+
+
+def _mean_ratio(a, b, where):
+    return float(a[where].sum() / max(b[where].sum(), 1e-12))
+
+
+def _effect_components(level: int, effect: str, strength: float, spp: int):
+    """Diffuse and specular luminance of the photographed sphere with the effect."""
+    rho_d, rho_s, alpha = _LEVELS[level]
+    d0, s0 = _base(level, spp)
+    sph = _sphere_r() < 1
+    s = float(strength)
     if effect == "fresnel":
-        # Schlick on each path's own angle: the light's lobe at the half vector (fixed light
-        # and view: a constant), the surround's mirror reflection at the view angle.
-        f0 = 1 / (1 + strength)
-        spec = spec * _schlick(float(hv @ v), f0) / f0
-        env = env * _schlick(cos_o, f0) / f0
-    if effect == "long_tail":
-        a_t = 2.5 * alpha
-        d_ggx = a_t**2 / (np.pi * (cos_h**2 * (a_t**2 - 1) + 1) ** 2)
-        tail = rho_s * e_dir * cos_i * d_ggx / (4 * cos_o + 1e-9)
-        spec = (1 - strength) * spec + strength * tail * (spec.sum() / max(tail.sum(), 1e-12))
+        # The same sampler seed as the plain lobe: the Fresnel term does not change sampling.
+        return d0, _render(_ward(0.0, rho_s, alpha, fresnel_f0=1 / (1 + s)), spp, 21 + level)
     if effect == "clearcoat":
-        # Light enters through the coat (its transmission averaged over the incident
-        # directions, 1 - 0.09 for n = 1.5: the lab's surround is diffuse) and leaves towards
-        # the camera through it at the view angle.
-        t = (1 - 0.09) * (1 - _schlick(cos_o, 0.04))
-        diffuse = diffuse * (1 - strength + strength * t)
+        coat = _render({"type": "plastic", "diffuse_reflectance": _rgb(rho_d),
+                        "specular_reflectance": _rgb(0.0), "int_ior": 1.5, "nonlinear": False},
+                       spp, 31 + level)
+        # The coat's light loss at normal view is absorbed by the fit's rho_d: match the centre.
+        coat *= _mean_ratio(d0, coat, _sphere_r() < 0.3)
+        return (1 - s) * d0 + s * coat, s0
+    if effect == "long_tail":
+        ggx = _render({"type": "roughconductor", "distribution": "ggx", "alpha": 2.5 * alpha,
+                       "material": "none", "specular_reflectance": _rgb(rho_s)}, spp, 41 + level)
+        ggx *= _mean_ratio(s0, ggx, sph)
+        return d0, (1 - s) * s0 + s * ggx
     if effect == "albedo_texture":
-        diffuse = diffuse * (1 + strength * np.sin(2 * np.pi * 3 * x) * np.sin(2 * np.pi * 2 * y))
-    return (np.where(inside, diffuse, 0.0), np.where(inside, spec + env, 0.0), inside,
-            np.sqrt(r2))
+        import mitsuba as mi
+
+        u = (np.arange(256) + 0.5) / 256
+        v = (np.arange(128) + 0.5)[:, None] / 128
+        half = 0.5 * (1 + np.sin(6 * np.pi * u)[None, :] * np.sin(4 * np.pi * v))
+        tex = np.repeat((rho_d * half)[..., None], 3, axis=-1).astype(np.float32)
+        # Rendered linearly: albedo rho_d (1 + s p) = (1 - s) rho_d + 2 s rho_d (1 + p) / 2.
+        textured = _render({"type": "diffuse", "reflectance": {
+            "type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True,
+            "filter_type": "bilinear"}}, spp, 51 + level)
+        return (1 - s) * d0 + 2 * s * textured, s0
+    if effect == "anisotropy":
+        def beckmann(au, av):
+            return _render({"type": "roughconductor", "distribution": "beckmann",
+                            "alpha_u": au, "alpha_v": av, "material": "none",
+                            "specular_reflectance": _rgb(rho_s)}, spp, 61 + level)
+        change = beckmann(alpha * (1 + s), alpha / (1 + s)) - beckmann(alpha, alpha)
+        return d0, s0 + change
+    return d0, s0
 
 
 def _camera(img, effect, strength, rng):
@@ -360,42 +439,45 @@ def _camera(img, effect, strength, rng):
 
 
 def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",
-                     strength: float = 0.0, size: int = 64, noise: float = 0.004) -> Path:
+                     strength: float = 0.0, spp: int = _RENDER_SPP) -> dict:
     """A gloss fit's output folder (fits.csv, residuals/gloss_XXX.npz in its format) whose
-    photos carry the effect and whose renders are the plain analytic renders, scaled to the
-    photos. Returns the noiseless photos {level name: luminance image} (the truth, kept from
-    the diagnosis)."""
+    photos are Mitsuba renders with the effect (plus sensor noise) and whose renders are the
+    plain Ward renders, their diffuse and specular scales fitted to the photos by least squares
+    (as the fit's basis method does). Returns the noiseless photos {level name: luminance}
+    (the truth, kept from the diagnosis)."""
     folder = Path(folder)
     (folder / "residuals").mkdir(parents=True, exist_ok=True)
-    rows = []
-    truth = {}
+    r = _sphere_r()
+    edge = 1 + 1 / _SPHERE_RADIUS_PX
+    rows, truth = [], {}
     for k, (rho_d, rho_s, alpha) in enumerate(_LEVELS):
-        d0, s0, _inside, r = _sphere_render(size, rho_d, rho_s, alpha)
-        d1, s1, _, _ = _sphere_render(size, rho_d, rho_s, alpha, effect, strength, rng)
-        clean = _camera(d1 + s1, effect, strength, rng)
-        photo = clean + noise * rng.standard_normal(clean.shape)
-        # The gloss fit scales the diffuse and specular renders to the photo (its basis fit is
-        # linear in rho_d, rho_s); the same least-squares fit here, on the sphere.
-        fitm = r < 1
-        (a, b), *_ = np.linalg.lstsq(np.c_[d0[fitm], s0[fitm]], photo[fitm], rcond=None)
-        d0, s0 = a * d0, b * s0
-        render = d0 + s0
-        spec_in = np.where(r < 0.85, s0, 0)
+        d0, s0 = _base(k, spp)
+        bg = _background(spp)
+        d1, s1 = _effect_components(k, effect, strength, spp)
+        clean = _camera(bg + d1 + s1, effect, strength, rng)
+        noise_sd = _NOISE_REL * float(clean[r < 1].mean())
+        photo = clean + noise_sd * rng.standard_normal(clean.shape)
+        fitm = r < 1 - 1 / _SPHERE_RADIUS_PX
+        (a, b), *_ = np.linalg.lstsq(np.c_[d0[fitm], s0[fitm]], (photo - bg)[fitm], rcond=None)
+        d, s = a * d0, b * s0
+        # The fit's regions (stimuli.glossfit residuals: rim from 0.85 radii, highlight where
+        # the fitted lobe is >= half its maximum inside the rim).
+        spec_in = np.where(r < 0.85, s, 0)
         hl = (r < 0.85) & (spec_in >= 0.5 * spec_in.max())
-        edge = 1 + 1 / (0.36 * size)
         masks = {"highlight": hl, "body": (r < 0.85) & ~hl, "rim": (r >= 0.85) & (r < edge),
-                 "background": r >= edge, "sphere": r < 1 - 1 / (0.36 * size),
+                 "background": r >= edge, "sphere": r < 1 - 1 / _SPHERE_RADIUS_PX,
                  "valid": np.ones_like(hl)}
 
-        def rgb(a):
-            return np.repeat(a[..., None], 3, axis=-1).astype(np.float32)
+        def rgb(img):
+            return np.repeat(img[..., None], 3, axis=-1).astype(np.float32)
 
-        gloss = 20 * (k + 1)
+        gloss = (20, 50, 80)[k]
         np.savez_compressed(folder / "residuals" / f"gloss_{gloss:03d}.npz",
-                            photo=rgb(photo), render=rgb(render), residual=rgb(photo - render),
-                            diffuse=rgb(d0), specular=rgb(s0), **masks)
-        rows.append({"gloss_pct": gloss, "method": "basis", "rho_d": rho_d, "rho_s": rho_s,
-                     "alpha": alpha})
+                            photo=rgb(photo), render=rgb(bg + d + s),
+                            residual=rgb(photo - bg - d - s),
+                            diffuse=rgb(d), specular=rgb(s), **masks)
+        rows.append({"gloss_pct": gloss, "method": "basis", "rho_d": rho_d * a,
+                     "rho_s": rho_s * b, "alpha": alpha})
         truth[f"gloss_{gloss:03d}"] = clean
     pd.DataFrame(rows).to_csv(folder / "fits.csv", index=False)
     return truth

@@ -5,7 +5,8 @@ float32 ``photo``, ``render``, ``diffuse``, ``specular`` (h x w x 3, linear, pho
 boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``). Everything
 is compared in Rec. 709 luminance.
 
-The plain simulation predicts the photo by the render ``R = D + S`` (diffuse + specular). Each
+The plain simulation predicts the photo by the render ``R = B + D + S`` (background, the
+panorama around the sphere, which reaches into the rim's edge pixels; diffuse; specular). Each
 candidate is an image-space or component-space extension (approximations, documented):
 
 =================  ===========================================================================
@@ -22,7 +23,8 @@ veiling_glare      R + c G_s * R: a blurred copy of the image (Gaussian, s from 
 misregistration    R shifted by (dx, dy) px per gloss level (bilinear)
 long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
                    blurred (Gaussian, 2-8 px) or raised to a power k < 1 (a Ward lobe of
-                   alpha / sqrt(k)) at the same energy; the form from a grid
+                   alpha / sqrt(k)) at the same energy; c and the form (from a grid) per
+                   gloss level, as the tails' width follows the lobe's
 =================  ===========================================================================
 
 With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_s) are fitted
@@ -67,7 +69,11 @@ REGIONS = ("highlight", "body", "rim", "background")
 RENDER_MIN_SHARE = 0.8
 _BLOCK = 4
 _GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
-_TAIL_WIDTHS = (2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
+#: Caps kappa on the view cosine of the Fresnel rise (a grid; 0 = plain Schlick at the view
+#: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
+#: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
+_FRESNEL_CAPS = (0.0, 0.15, 0.3)
+_TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -136,6 +142,9 @@ def load_render(real_path, sim_path=None) -> RenderData:
                                f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
             P = _lum(a["photo"])
             D, S = _lum(b["diffuse"]), _lum(b["specular"])
+            # The fit's render is B + D + S, B the panorama around the (black) sphere: it
+            # reaches into the rim's edge pixels, which the sphere covers only in part.
+            B = _lum(b["render"]) - D - S
             masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
             valid = np.asarray(a["valid"], bool) if "valid" in a.files else np.isfinite(P)
         if P.shape != D.shape:
@@ -150,26 +159,55 @@ def load_render(real_path, sim_path=None) -> RenderData:
         radius = np.sqrt(sph.sum() / np.pi) + 1.0
         r = np.hypot(yy - cy, xx - cx) / radius
         cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
+        fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
         rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
         fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
         train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
         m = re.search(r"(\d+(?:\.\d+)?)", f.stem)
         levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
-                       "P": P, "D": D, "S": S, "cos_t": cos_t, "rho2": rho2,
+                       "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
+                       "coat": coat, "cover": cover, "rho2": rho2,
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
-                       "sd": _noise_sd(P - D - S, valid & sph)})
+                       "sd": _noise_sd(P - B - D - S, valid & sph)})
     return RenderData(levels)
+
+
+def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
+    """Per-pixel means of the Fresnel rise (1 - max(cos t, kappa))^5 (one image per kappa of
+    ``_FRESNEL_CAPS``) and of the coat's transmission T(t) / T(0) over the part of each pixel
+    the sphere covers (n x n sub-pixels): at the rim cos t changes steeply within one pixel,
+    and the pixel's value averages it. Also returns the covered share of each pixel."""
+    offs = (np.arange(n) + 0.5) / n - 0.5
+    fres = {k: np.zeros(yy.shape) for k in _FRESNEL_CAPS}
+    coat = np.zeros(yy.shape)
+    cover = np.zeros(yy.shape)
+    for dy in offs:
+        for dx in offs:
+            r2 = ((yy + dy - cy) ** 2 + (xx + dx - cx) ** 2) / radius**2
+            inside = r2 < 1
+            c = np.sqrt(np.clip(1 - r2, 0.0, 1.0))
+            for k in _FRESNEL_CAPS:
+                fres[k] += np.where(inside, (1 - np.maximum(c, k)) ** 5, 0.0)
+            coat += np.where(inside, _coat_t(c), 0.0)
+            cover += inside
+    share = cover / n**2
+    cover = np.maximum(cover, 1)
+    return {k: v / cover for k, v in fres.items()}, coat / cover, share
 
 
 # --- the extended model -------------------------------------------------------------------
 
-def _wings(S: np.ndarray, width: float) -> np.ndarray:
-    """A wider lobe from the fitted one. ``width`` > 1: Gaussian blur of that many px;
-    ``width`` in (0, 1): the lobe raised to that power (Ward's lobe exp(-tan^2 / alpha^2) raised
-    to alpha^2 / alpha_t^2 is the lobe of the wider alpha_t), rescaled to the same energy."""
+def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
+    """A wider lobe from the fitted one. ``width`` >= 1: Gaussian blur of that many px within
+    the sphere (``inside``: the share of each pixel the sphere covers; a wider lobe moves light
+    across the sphere, not onto the background); ``width`` in (0, 1): the lobe raised to that
+    power (Ward's lobe exp(-tan^2 / alpha^2) raised to alpha^2 / alpha_t^2 is the lobe of the
+    wider alpha_t), rescaled to the same energy."""
     if width >= 1:
-        return ndimage.gaussian_filter(S, width)
+        blurred = ndimage.gaussian_filter(S * inside, width)
+        weight = ndimage.gaussian_filter(inside, width)
+        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
     top = float(S.max())
     if top <= 0:
         return S
@@ -182,19 +220,24 @@ def _coat_t(cos_t):
     return (1 - f) ** 2 / (1 - 0.04) ** 2
 
 
-def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
-    """Diffuse and specular images after every fitted extension (before the scales)."""
+def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Diffuse, specular and background images after every fitted extension (before the
+    diffuse and specular scales)."""
     p = dict(fitted)
-    D, S, c = lv["D"], lv["S"], lv["cos_t"]
+    D, S = lv["D"], lv["S"]
     if "fresnel" in p:
-        S = S * (1 + p["fresnel"]["c"] * (1 - c) ** 5)
+        q = p["fresnel"]
+        S = S * (1 + q["c"] * lv["fres5"][q.get("kappa", 0.0)])
     if "long_tail" in p:
         q = p["long_tail"]
-        S = S + q["c"] * (_wings(S, q["width"]) - S)
+        c, width = q["c"], q["width"]
+        if isinstance(c, dict):  # per gloss level: the lobe's width differs between levels
+            c, width = c.get(lv["name"], 0.0), width.get(lv["name"], 1.0)
+        S = S + c * (_wings(S, width, lv["cover"]) - S)
     if "clearcoat" in p:
-        D = D * (1 + p["clearcoat"]["c"] * (_coat_t(c) - 1))
+        D = D * (1 + p["clearcoat"]["c"] * (lv["coat"] - 1))
     out = []
-    for img in (D, S):  # the image-space effects are linear: apply them to each component
+    for img in (D, S, lv["B"]):  # the image-space effects are linear: apply them to each
         if "veiling_glare" in p:
             q = p["veiling_glare"]
             img = img + q["c"] * ndimage.gaussian_filter(img, q["sigma_frac"] * lv["width"],
@@ -205,16 +248,16 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
             dy, dx = p["misregistration"]["shift_px"].get(lv["name"], (0.0, 0.0))
             img = ndimage.shift(img, (dy, dx), order=1, mode="nearest")
         out.append(img)
-    return out[0], out[1]
+    return out[0], out[1], out[2]
 
 
 def _predict(lv: dict, fitted: list) -> np.ndarray:
     """The extended render: the Ward fit's diffuse and specular scales re-fitted with the
     extension (``scale`` of the last fitted step, per level; 1 for the plain render)."""
-    D, S = _basis(lv, fitted)
+    D, S, B = _basis(lv, fitted)
     scale = next((q["scale"] for _, q in reversed(fitted) if "scale" in q), {})
     a, b = scale.get(lv["name"], (1.0, 1.0))
-    return a * D + b * S
+    return B + a * D + b * S
 
 
 def render_loss(data: RenderData, fitted: list) -> np.ndarray:
@@ -251,11 +294,12 @@ def _scaled_sse(train: RenderData, fitted: list):
     sse, scale = 0.0, {}
     for lv in train.levels:
         m = lv["use"]
-        D, S = _basis(lv, fitted)
+        D, S, B = _basis(lv, fitted)
         a = np.c_[D[m], S[m]]
-        coef, *_ = np.linalg.lstsq(a, lv["P"][m], rcond=None)
+        y = (lv["P"] - B)[m]
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         scale[lv["name"]] = (float(coef[0]), float(coef[1]))
-        sse += float(np.sum((lv["P"][m] - a @ coef) ** 2)) / lv["sd"] ** 2
+        sse += float(np.sum((y - a @ coef) ** 2)) / lv["sd"] ** 2
     return sse, scale
 
 
@@ -290,8 +334,8 @@ def _fit_misregistration(train, chosen):
             p = [("misregistration", {"shift_px": {lv["name"]: (dy, dx)}})]
             _, scale = _scaled_sse(one, base + p)
             a, b = scale[lv["name"]]
-            D, S = _basis(lv, base + p)
-            pred = a * D + b * S
+            D, S, B = _basis(lv, base + p)
+            pred = B + a * D + b * S
             gy, gx = np.gradient(pred)
             step, *_ = np.linalg.lstsq(np.c_[-gy[m], -gx[m]], (lv["P"] - pred)[m], rcond=None)
             dy, dx = float(np.clip(dy + step[0], -3, 3)), float(np.clip(dx + step[1], -3, 3))
@@ -301,8 +345,30 @@ def _fit_misregistration(train, chosen):
     return params
 
 
+def _fit_long_tail(train, chosen):
+    """Amplitude and wing form per gloss level: the tails' width follows the lobe's, which
+    differs between the levels (each level's loss depends on its own parameters only)."""
+    base = [f for f in chosen if f[0] != "long_tail"]
+    cs, widths = {}, {}
+    for lv in train.levels:
+        one = RenderData([lv])
+        best = None
+        for g in _TAIL_WIDTHS:
+            def f(c, g=g):
+                q = {"c": {lv["name"]: float(c)}, "width": {lv["name"]: float(g)}}
+                return _scaled_sse(one, base + [("long_tail", q)])[0]
+            res = optimize.minimize_scalar(f, bounds=(0.0, 1.0), method="bounded",
+                                           options={"xatol": 1e-4})
+            if best is None or res.fun < best[0]:
+                best = (res.fun, float(res.x), float(g))
+        cs[lv["name"]], widths[lv["name"]] = best[1], best[2]
+    params = {"c": cs, "width": widths}
+    params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]
+    return params
+
+
 RENDER_CANDIDATES = [
-    Candidate("fresnel", _fit_amp("fresnel", 0.0, 50.0),
+    Candidate("fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
               "specular reflectance rising towards grazing angles (Schlick)"),
     Candidate("clearcoat", _fit_amp("clearcoat", 0.0, 1.0),
               "diffuse light attenuated by a clear coat (twice through its Fresnel interface)"),
@@ -312,7 +378,7 @@ RENDER_CANDIDATES = [
               "lens glare: a blurred copy of the image added"),
     Candidate("misregistration", _fit_misregistration,
               "photo and render still offset after registration"),
-    Candidate("long_tail", _fit_amp("long_tail", 0.0, 1.0, "width", _TAIL_WIDTHS),
+    Candidate("long_tail", _fit_long_tail,
               "highlight lobe with longer tails than Ward's"),
 ]
 
@@ -324,7 +390,7 @@ def localise_render(data: RenderData, rng: np.random.Generator,
     independent)."""
     rows = []
     for lv in data.levels:
-        R = lv["D"] + lv["S"]
+        R = lv["B"] + lv["D"] + lv["S"]
         sph = lv["regions"]["highlight"] | lv["regions"]["body"] | lv["regions"]["rim"]
         scale = float(np.mean(lv["P"][sph])) if sph.any() else 1.0
         res = 100 * (lv["P"] - R) / max(scale, 1e-12)
