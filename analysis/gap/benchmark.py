@@ -31,7 +31,7 @@ from analysis.gap.diagnose import (
 )
 from analysis.gap.observer import load_sessions, observer_frame, observer_nll
 
-__all__ = ["TARGETS", "format_scores", "run_benchmark", "run_layer_benchmark",
+__all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
            "run_observer_benchmark", "run_thresholds"]
 
 #: The issue's targets.
@@ -150,22 +150,31 @@ def _run_one(design, layer, effect, strength, rng, n_boot):
             "true_shrink": true_shrink, "shrink_pct": diag.shrink_pct}
 
 
+def draw_schedule(rng: np.random.Generator, trials: int, effects, out) -> list[tuple[str, str]]:
+    """The hidden (effect, kind) of each run, in random order: a quarter 'none', a quarter
+    out-of-catalogue, the rest catalogue effects, each effect of a kind as often as the others
+    (up to one; which ones get the extra runs is drawn), so that every effect is scored."""
+    n_none, n_out = trials // 4, trials // 4
+    n_in = trials - n_none - n_out
+
+    def balanced(names, n):
+        reps = -(-n // len(names)) if n else 0
+        pool = [str(e) for _ in range(reps) for e in rng.permutation(list(names))]
+        return pool[:n]
+    runs = ([("none", "none")] * n_none + [(e, "out") for e in balanced(out, n_out)]
+            + [(e, "in") for e in balanced(effects, n_in)])
+    return [runs[i] for i in rng.permutation(len(runs))]
+
+
 def run_benchmark(design, layer: str, *, trials: int, seed: int, n_boot: int = 500,
                   log=print) -> dict:
-    """Score one layer over ``trials`` runs. Each run draws: none (1/4), out-of-catalogue
-    (1/4), or a catalogue effect (1/2) at 0.5-1.5 times its moderate strength; only the
-    written files reach the diagnosis."""
+    """Score one layer over ``trials`` runs (:func:`draw_schedule`: none, out-of-catalogue and
+    catalogue effects, the latter at 0.5-1.5 times their moderate strength); only the written
+    files reach the diagnosis."""
     effects, out, strength0, _ = _LAYERS[layer]
     rng = np.random.default_rng(seed)
     records = []
-    for t in range(trials):
-        u = rng.random()
-        if u < 0.25:
-            effect, kind = "none", "none"
-        elif u < 0.5:
-            effect, kind = str(rng.choice(out)), "out"
-        else:
-            effect, kind = str(rng.choice(effects)), "in"
+    for t, (effect, kind) in enumerate(draw_schedule(rng, trials, effects, out)):
         strength = 0.0 if effect == "none" else strength0[effect] * rng.uniform(0.5, 1.5)
         rec = _run_one(design, layer, effect, strength, rng, n_boot) | {"kind": kind}
         records.append(rec)
@@ -246,7 +255,15 @@ def _score(records):
     unexpl, n_out = rate(lambda r: r["kind"] == "out", lambda r: r["top"] == "unexplained")
     errs = [abs(r["pred_shrink"] - r["true_shrink"]) / r["true_shrink"] for r in records
             if r["kind"] == "in" and r["top"] == r["effect"] and r["true_shrink"] > 0]
+    per_effect = {}
+    for r in records:
+        if r["kind"] != "none":
+            hit = r["top"] == (r["effect"] if r["kind"] == "in" else "unexplained")
+            k = per_effect.setdefault(r["effect"], [0, 0])
+            k[0] += hit
+            k[1] += 1
     return {"top1": top1, "n_in": n_in, "false_attribution": false_attr, "n_none": n_none,
+            "per_effect": per_effect,
             "unexplained_out": unexpl, "n_out": n_out,
             "shrink_error": float(np.median(errs)) if errs else float("nan"),
             "shrink_error_p90": float(np.percentile(errs, 90)) if errs else float("nan"),
@@ -271,6 +288,10 @@ def format_scores(layer: str, r: dict, thresholds: dict | None = None) -> str:
         f"{100 * TARGETS['shrink_error']:.0f} %) "
         f"{mark(r['shrink_error'] <= TARGETS['shrink_error'])}"),
     ]
+    if r.get("per_effect"):
+        lines.append(f"{layer}: right verdict per effect (catalogue: the effect; outside: "
+                     "'unexplained'): " + ", ".join(
+                         f"{e} {k[0]}/{k[1]}" for e, k in sorted(r["per_effect"].items())))
     for effect, t in (thresholds or {}).items():
         rates = ", ".join(f"{s:.3g}: {v:.2f}" for s, v in t["hit_rate"].items())
         thr = "none in the tested range" if t["threshold"] is None else f"{t['threshold']:.3g}"
