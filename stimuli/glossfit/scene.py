@@ -57,12 +57,18 @@ class Camera:
         Centre of projection to sphere centre (cm).
     radius_cm : float
         Sphere radius (cm).
+    shift_px : (float, float)
+        Sub-pixel shift (x right, y down, px) of the image content, rendered by moving the
+        principal point (Mitsuba's ``principal_point_offset_x/y``), so each pixel still
+        integrates the scene over its own area; (0, 0) by default. ``centre_px`` does not
+        include it.
     """
 
     fov_deg: float
     resolution_px: tuple[int, int]
     distance_cm: float
     radius_cm: float
+    shift_px: tuple[float, float] = (0.0, 0.0)
 
     @property
     def focal_px(self) -> float:
@@ -210,6 +216,9 @@ class SphereScene:
             "sensor": {
                 "type": "perspective", "fov": cam.fov_deg, "fov_axis": "x",
                 "to_world": to_world,
+                # An offset of 1 / width moves the content 1 px left (1 / height: 1 px up).
+                "principal_point_offset_x": -float(cam.shift_px[0]) / w,
+                "principal_point_offset_y": -float(cam.shift_px[1]) / h,
                 "film": {"type": "hdrfilm", "width": w, "height": h,
                          "rfilter": {"type": "box"}, "pixel_format": "rgb"},
                 "sampler": {"type": "multijitter", "sample_count": self.spp},
