@@ -113,16 +113,20 @@ def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
                                     n_boot=n_boot)
     if effect in inject.RENDER_OUT_OF_CATALOGUE:
         return diag, float("nan")
-    photos = {}
+    photos, renders = {}, {}
     for name in truth:
         with np.load(tmp / "fit" / "residuals" / f"{name}.npz") as a:
             photos[name] = a["photo"][..., 0].astype(float)
-    sd = diag.loss_info["noise_sd"]
+            renders[name] = a["render"][..., 0].astype(float)
+    # The diagnosis's noise model (read and shot noise, reported in loss_info) at each pixel.
+    noise = diag.loss_info["noise_a2_b"]
     nll = []
     for u in diag.heldout:
         name, y, x = u.split("|")
-        r = (photos[name][int(y), int(x)] - truth[name][int(y), int(x)]) / sd[name]
-        nll.append(0.5 * np.log(2 * np.pi * sd[name] ** 2) + 0.5 * r**2)
+        a2, b = noise[name]
+        var = max(a2 + b * max(renders[name][int(y), int(x)], 0.0), 1e-30)
+        r = photos[name][int(y), int(x)] - truth[name][int(y), int(x)]
+        nll.append(0.5 * np.log(2 * np.pi * var) + 0.5 * r**2 / var)
     return diag, float(diag.loss_before - np.mean(nll))
 
 

@@ -92,7 +92,8 @@ def diagnose_render(data, *, rng: np.random.Generator, seed: int,
     diag = diagnose_losses("render", RENDER_CANDIDATES, train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
                            min_share=RENDER_MIN_SHARE,
-                           loss_info={"noise_sd": {lv["name"]: lv["sd"] for lv in data.levels}})
+                           loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
+                                                     for lv in data.levels}})
     return diag, localise_render(data, rng, n_boot=min(n_boot, 500))
 
 

@@ -116,7 +116,7 @@ def diagnose_losses(
     seed: int,
     alpha: float = 0.05,
     n_boot: int = 2000,
-    max_steps: int = 3,
+    max_steps: int | None = None,
     unit_ids: Callable | None = None,
     min_share: float = 0.0,
     loss_info: dict | None = None,
@@ -133,6 +133,11 @@ def diagnose_losses(
     unit_ids : callable ``unit_ids(test) -> sequence of str``, optional
         Names of the held-out units, recorded in ``Diagnosis.heldout`` so a reader (or the
         benchmark's scorer) can evaluate other models on exactly the same units.
+    max_steps : int, optional
+        Most candidates the greedy combination adds (default: the whole catalogue). Each step
+        must reduce the held-out loss of the combination so far significantly (one-sided
+        bootstrap p times the number of candidates left < alpha), so it stops by itself when
+        nothing more helps; real photos often carry several effects at once.
     min_share : float
         An attribution needs the chosen candidates to remove at least this share of the
         held-out gap; below it the verdict is 'unexplained' (the partial steps are kept). 0:
@@ -161,6 +166,8 @@ def diagnose_losses(
         ),
         key=lambda s: -s.gain,
     )
+    if max_steps is None:
+        max_steps = len(candidates)
     chosen: list = []
     steps = []
     current = base

@@ -5,6 +5,7 @@ observers, calibration.SimulatedCRT); tests/analysis/gap/test_gap.py checks the 
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -275,14 +276,15 @@ def write_readings(frame: pd.DataFrame, folder: Path) -> Path:
 #                 fits of measured gloss (a sharp core and a broad, long-tailed haze)
 # vignetting      cos^4-like natural vignetting 1 / (1 + (strength rho)^2)^2 of the photo
 # veiling_glare   a long-tailed (Cauchy-like) lens PSF, a share ``strength`` of the light
-# misregistration a sub-pixel shift of ``strength`` px in a random direction (cubic)
+# misregistration a sub-pixel shift of ``strength`` px in a random direction, rendered (the
+#                 camera's principal point moved: every pixel integrates the shifted scene)
 # albedo_texture  (outside the catalogue) a surface texture: the diffuse albedo times
 #                 1 + strength sin(6 pi u) sin(4 pi v) in the sphere's uv
 # anisotropy      (outside the catalogue) the lobe made anisotropic: alpha_u = alpha (1 + s),
 #                 alpha_v = alpha / (1 + s) (Beckmann ``roughconductor`` renders, the change only)
 #
 # The panorama is the synthetic photo sets' room, its lamp softened (Gaussian, 1.5 px) so that
-# 4,096 samples per pixel leave Monte-Carlo noise well below the photos' sensor noise (1 % of
+# 4,096 samples per pixel leave Monte-Carlo noise well below the photos' camera noise (1 % of
 # the sphere's mean). Photos and sim share the effect-free renders, so effects made in the
 # camera carry no render noise at all.
 
@@ -299,13 +301,14 @@ _RENDER_SPP = 4096
 _SIZE, _PAD = 64, 8  # the residual files' size; rendered 8 px larger, cropped off-centre
 _OFFSET = (2, 6)  # crop origin (y, x): the sphere sits off the image centre, as in a fit crop
 _SPHERE_RADIUS_PX = 23.0
-_NOISE_REL = 0.01
+_PHOTONS, _READ_REL = 10_000.0, 0.003  # 1.04 % noise at the sphere's mean, 4.5 % at 20x it
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 _base_cache: dict = {}
 
 
-def _render_camera():
-    """A camera whose sphere spans 23 px in radius on a 72 px square image."""
+def _render_camera(shift=(0.0, 0.0)):
+    """A camera whose sphere spans 23 px in radius on a 72 px square image, its content
+    shifted by ``shift`` (x, y) px."""
     import math
 
     from stimuli.glossfit import Camera
@@ -313,10 +316,11 @@ def _render_camera():
     size = _SIZE + _PAD
     focal = _SPHERE_RADIUS_PX / math.tan(math.asin(2.0 / 27.5))
     fov = 2 * math.degrees(math.atan(size / 2 / focal))
-    return Camera(fov, (size, size), 27.5, 2.0)
+    return Camera(fov, (size, size), 27.5, 2.0, shift_px=tuple(float(v) for v in shift))
 
 
-def _render(material: dict, spp: int, seed: int, *, background: bool = False) -> np.ndarray:
+def _render(material: dict, spp: int, seed: int, *, background: bool = False,
+            shift=(0.0, 0.0)) -> np.ndarray:
     """Luminance of the sphere with a Mitsuba material, cropped to the residual files' size,
     minus the background (the panorama around a black sphere) unless ``background``."""
     from scipy import ndimage as ndi
@@ -324,19 +328,28 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False) ->
     from stimuli.glossfit import SphereScene, room_panorama
 
     env = ndi.gaussian_filter(room_panorama(), (1.5, 1.5, 0), mode="wrap")
-    with SphereScene(env, _render_camera(), spp=spp, seed=seed,
-                     bsdf=lambda *_a: material) as scene:
-        img = scene.render(0.0, 0.0, 0.0) @ _REC709
+    with warnings.catch_warnings():
+        # Dr.Jit warns once a process has traced the Python Ward plugin 1,000 times (a
+        # benchmark loads hundreds of scenes); the cost is known (protocol, issue 3).
+        warnings.filterwarnings("ignore", message="The AST-transforming decorator",
+                                category=RuntimeWarning)
+        with SphereScene(env, _render_camera(shift), spp=spp, seed=seed,
+                         bsdf=lambda *_a: material) as scene:
+            img = scene.render(0.0, 0.0, 0.0) @ _REC709
     y0, x0 = _OFFSET
     img = img[y0:y0 + _SIZE, x0:x0 + _SIZE].astype(float)
-    return img if background else img - _background(spp)
+    return img if background else img - _background(spp, shift)
 
 
-def _background(spp: int) -> np.ndarray:
+def _background(spp: int, shift=(0.0, 0.0)) -> np.ndarray:
     """B: the render of a black sphere (cached per process)."""
-    if ("B", spp) not in _base_cache:
-        _base_cache[("B", spp)] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True)
-    return _base_cache[("B", spp)]
+    key = ("B", spp, tuple(shift))
+    if key not in _base_cache:
+        img = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
+        if tuple(shift) != (0.0, 0.0):
+            return img
+        _base_cache[key] = img
+    return _base_cache[key]
 
 
 def _ward(rho_d, rho_s, alpha, **extra):
@@ -414,10 +427,8 @@ def _effect_components(level: int, effect: str, strength: float, spp: int):
     return d0, s0
 
 
-def _camera(img, effect, strength, rng):
-    """Image-space effects of the camera and the residual registration."""
-    from scipy import ndimage as ndi
-
+def _camera(img, effect, strength):
+    """The lens's effects on the photo: veiling glare, vignetting."""
     h, w = img.shape
     if effect == "veiling_glare":
         k = 2 * max(h, w) + 1
@@ -431,18 +442,14 @@ def _camera(img, effect, strength, rng):
         yy, xx = np.mgrid[0:h, 0:w].astype(float)
         rho = np.hypot(yy - (h - 1) / 2, xx - (w - 1) / 2) / np.hypot(h / 2, w / 2)
         img = img / (1 + (strength * rho) ** 2) ** 2
-    if effect == "misregistration":
-        ang = rng.uniform(0, 2 * np.pi)
-        img = ndi.shift(img, (strength * np.sin(ang), strength * np.cos(ang)), order=3,
-                        mode="nearest")
     return img
 
 
 def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",
                      strength: float = 0.0, spp: int = _RENDER_SPP) -> dict:
     """A gloss fit's output folder (fits.csv, residuals/gloss_XXX.npz in its format) whose
-    photos are Mitsuba renders with the effect (plus sensor noise) and whose renders are the
-    plain Ward renders, their diffuse and specular scales fitted to the photos by least squares
+    photos are Mitsuba renders with the effect (plus a camera's shot and read noise) and
+    whose renders are the plain Ward renders, their diffuse and specular scales fitted to the photos by least squares
     (as the fit's basis method does). Returns the noiseless photos {level name: luminance}
     (the truth, kept from the diagnosis)."""
     folder = Path(folder)
@@ -453,10 +460,20 @@ def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none
     for k, (rho_d, rho_s, alpha) in enumerate(_LEVELS):
         d0, s0 = _base(k, spp)
         bg = _background(spp)
-        d1, s1 = _effect_components(k, effect, strength, spp)
-        clean = _camera(bg + d1 + s1, effect, strength, rng)
-        noise_sd = _NOISE_REL * float(clean[r < 1].mean())
-        photo = clean + noise_sd * rng.standard_normal(clean.shape)
+        if effect == "misregistration":
+            ang = rng.uniform(0, 2 * np.pi)
+            shift = (strength * np.cos(ang), strength * np.sin(ang))
+            d1 = _render(_ward(rho_d, 0.0, alpha), spp, 11 + k, shift=shift)
+            s1 = _render(_ward(0.0, rho_s, alpha), spp, 21 + k, shift=shift)
+            clean = _background(spp, shift) + d1 + s1
+        else:
+            d1, s1 = _effect_components(k, effect, strength, spp)
+            clean = _camera(bg + d1 + s1, effect, strength)
+        # A camera's Poisson-Gaussian noise: shot noise of _PHOTONS photons at the sphere's
+        # mean level, read noise _READ_REL of that level.
+        mean = float(clean[r < 1].mean())
+        var = (_READ_REL * mean) ** 2 + mean * np.maximum(clean, 0.0) / _PHOTONS
+        photo = clean + np.sqrt(var) * rng.standard_normal(clean.shape)
         fitm = r < 1 - 1 / _SPHERE_RADIUS_PX
         (a, b), *_ = np.linalg.lstsq(np.c_[d0[fitm], s0[fitm]], (photo - bg)[fitm], rcond=None)
         d, s = a * d0, b * s0

@@ -15,12 +15,15 @@ candidate          extension (c = fitted amplitude; geometry from the sphere mas
 fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
                    view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
                    radii) standing in for the half-vector angle
-clearcoat          D * (1 + c (T(t) / T(0) - 1)), T = (1 - F_0.04(t))^2: diffuse light passes the
-                   coat twice, attenuated more at grazing angles
+clearcoat          D * (1 + c (T(t) / T(0) - 1)), T = (1 - F_0.04(t))^k: diffuse light leaves
+                   through the coat at the view angle t, attenuated more at grazing angles;
+                   k = 1 (light from a diffuse surround, whose own entry loss goes into rho_d)
+                   or 2 (light along the view), chosen by the fit
 vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
 veiling_glare      R + c G_s * R: a blurred copy of the image (Gaussian, s from a grid of large
                    widths) spread by the lens
-misregistration    R shifted by (dx, dy) px per gloss level (bilinear)
+misregistration    R shifted by (dx, dy) px per gloss level: the radiance by cubic splines, the
+                   silhouette's pixel coverage recomputed at the shifted sphere
 long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
                    blurred (Gaussian, 2-8 px) or raised to a power k < 1 (a Ward lobe of
                    alpha / sqrt(k)) at the same energy; c and the form (from a grid) per
@@ -30,11 +33,12 @@ long_tail          S + c (W - S): highlight energy moved into wider wings W, eit
 With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_s) are fitted
 again per level, as the gloss fit would have done had it known the effect.
 
-Loss: Gaussian NLL per pixel on the sphere (highlight, body, rim; valid pixels), with the noise
-SD of each level (photo noise and the render's Monte-Carlo noise) estimated from the second
-differences of photo - render (median absolute deviation; a smooth misfit drops out), so the
-floor is ``0.5 log(2 pi sd^2) + 0.5``. Held out: pixels in a
-checkerboard of 4 x 4 blocks (half train, half test) in every level.
+Loss: Gaussian NLL per pixel on the sphere (highlight, body, rim; valid pixels) with a
+Poisson-Gaussian noise model per level, ``sd^2 = a2 + b R`` (read noise and shot noise of the
+camera; the render's Monte-Carlo noise grows with the signal too), measured from the second
+differences of photo - render (:func:`noise_model`; a smooth misfit drops out), so the floor is
+``0.5 log(2 pi sd^2) + 0.5`` per pixel. A constant SD would count a highlight's shot noise as a
+gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) in every level.
 """
 
 from __future__ import annotations
@@ -56,6 +60,8 @@ __all__ = [
     "RenderData",
     "load_render",
     "localise_render",
+    "noise_model",
+    "noise_sd",
     "render_floor",
     "render_loss",
     "render_unit_ids",
@@ -73,6 +79,7 @@ _GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
 #: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
+_COAT_PATHS = (1.0, 2.0)  # passes through the coat at the view angle (see _coat_t)
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
 _REC709 = np.array([0.2126, 0.7152, 0.0722])
 
@@ -106,18 +113,67 @@ class RenderData:
         return RenderData(out)
 
 
-def _noise_sd(img: np.ndarray, mask: np.ndarray) -> float:
-    """Model-free noise SD: MAD of horizontal and vertical second differences / sqrt(6)."""
-    vals = []
+def noise_model(resid: np.ndarray, render: np.ndarray, mask: np.ndarray,
+                n_bins: int = 8) -> tuple[float, float]:
+    """Poisson-Gaussian noise of a photo, ``var = a2 + b * max(render, 0)`` (photo units).
+
+    A camera's raw values carry read noise (constant variance ``a2``) and shot noise (variance
+    proportional to the signal, ``b``); a Monte-Carlo render's noise also grows with the
+    signal. Both are measured without a model of the scene from the second differences of
+    ``resid`` = photo - render along rows and columns (a smooth misfit drops out):
+    ``d2 = r[i-1] - 2 r[i] + r[i+1]`` has variance ``6 a2 + b w``, ``w = R[i-1] + 4 R[i] +
+    R[i+1]``. The variance of ``d2`` is measured robustly (MAD) in ``n_bins`` quantile bins of
+    ``w`` and the line fitted by non-negative least squares weighted by each bin's count
+    (a highlight's residual curvature affects a few pixels, which MAD ignores).
+
+    Returns
+    -------
+    (a2, b) : tuple of float
+        Read-noise variance (photo units^2) and shot-noise gain (photo units).
+
+    Raises
+    ------
+    GapError
+        If fewer than 10 stencils lie inside ``mask``.
+    """
+    d2s, ws = [], []
     for ax in (0, 1):
-        d2 = np.diff(img, 2, axis=ax)
-        m = mask[2:, :] if ax == 0 else mask[:, 2:]
-        m = m & (mask[:-2, :] if ax == 0 else mask[:, :-2])
-        vals.append(d2[m])
-    v = np.concatenate(vals)
-    if v.size < 10:
+        lo, mid, hi = ((slice(None, -2), slice(1, -1), slice(2, None)) if ax == 0 else
+                       ((slice(None), slice(None, -2)), (slice(None), slice(1, -1)),
+                        (slice(None), slice(2, None))))
+        m = mask[lo] & mask[mid] & mask[hi]
+        d2s.append((resid[lo] - 2 * resid[mid] + resid[hi])[m])
+        rr = np.maximum(render, 0.0)
+        ws.append((rr[lo] + 4 * rr[mid] + rr[hi])[m])
+    d2, w = np.concatenate(d2s), np.concatenate(ws)
+    if d2.size < 10:
         raise GapError("too few valid sphere pixels to measure the photo's noise")
-    return float(1.4826 * np.median(np.abs(v - np.median(v))) / np.sqrt(6.0))
+    edges = np.unique(np.quantile(w, np.linspace(0, 1, n_bins + 1)))
+    which = np.clip(np.searchsorted(edges, w, side="right") - 1, 0, max(edges.size - 2, 0))
+    rows, var, cnt = [], [], []
+    for k in np.unique(which):
+        sel = which == k
+        if sel.sum() < 5:
+            continue
+        v = d2[sel]
+        mad = 1.4826 * np.median(np.abs(v - np.median(v)))
+        rows.append([6.0, float(np.mean(w[sel]))])
+        var.append(mad**2)
+        cnt.append(np.sqrt(sel.sum()))
+    a_mat, var, cnt = np.asarray(rows), np.asarray(var), np.asarray(cnt)
+    if a_mat.shape[0] >= 2 and np.ptp(a_mat[:, 1]) > 0:
+        (a2, b), _ = optimize.nnls(a_mat * cnt[:, None], var * cnt)
+    else:
+        a2, b = float(np.average(var, weights=cnt)) / 6.0, 0.0
+    if a2 <= 0 and b <= 0:  # a noiseless photo: keep the loss finite
+        a2 = max(float(np.mean(var)) / 6.0, 1e-12 * max(float(np.mean(render**2)), 1e-24))
+    return float(a2), float(b)
+
+
+def noise_sd(render: np.ndarray, a2: float, b: float) -> np.ndarray:
+    """Per-pixel noise SD of the Poisson-Gaussian model (:func:`noise_model`); the read-noise
+    part keeps it above 0 where the render is black."""
+    return np.sqrt(np.maximum(a2 + b * np.maximum(render, 0.0), 1e-30))
 
 
 def load_render(real_path, sim_path=None) -> RenderData:
@@ -164,12 +220,15 @@ def load_render(real_path, sim_path=None) -> RenderData:
         fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
         train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
         m = re.search(r"(\d+(?:\.\d+)?)", f.stem)
+        R0 = B + D + S
+        noise = noise_model(P - R0, R0, valid & sph)
         levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
                        "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
                        "coat": coat, "cover": cover, "rho2": rho2,
+                       "geometry": (cy, cx, radius),
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
-                       "sd": _noise_sd(P - B - D - S, valid & sph)})
+                       "noise": noise, "sd": noise_sd(R0, *noise)})
     return RenderData(levels)
 
 
@@ -180,7 +239,7 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
     and the pixel's value averages it. Also returns the covered share of each pixel."""
     offs = (np.arange(n) + 0.5) / n - 0.5
     fres = {k: np.zeros(yy.shape) for k in _FRESNEL_CAPS}
-    coat = np.zeros(yy.shape)
+    coat = {k: np.zeros(yy.shape) for k in _COAT_PATHS}
     cover = np.zeros(yy.shape)
     for dy in offs:
         for dx in offs:
@@ -189,11 +248,13 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
             c = np.sqrt(np.clip(1 - r2, 0.0, 1.0))
             for k in _FRESNEL_CAPS:
                 fres[k] += np.where(inside, (1 - np.maximum(c, k)) ** 5, 0.0)
-            coat += np.where(inside, _coat_t(c), 0.0)
+            for k in _COAT_PATHS:
+                coat[k] += np.where(inside, _coat_t(c, k), 0.0)
             cover += inside
     share = cover / n**2
     cover = np.maximum(cover, 1)
-    return {k: v / cover for k, v in fres.items()}, coat / cover, share
+    return ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
+            share)
 
 
 # --- the extended model -------------------------------------------------------------------
@@ -215,9 +276,13 @@ def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
     return wide * (S.sum() / max(wide.sum(), 1e-12))
 
 
-def _coat_t(cos_t):
+def _coat_t(cos_t, paths: float = 1.0):
+    """Transmission of a clear coat (Schlick, F0 = 0.04) relative to normal view, on ``paths``
+    passes at the view angle: 1 when the light enters from a diffuse surround (its own
+    transmission, averaged over the directions, goes into rho_d), 2 when it enters along the
+    view (a light at the camera)."""
     f = 0.04 + 0.96 * (1 - cos_t) ** 5
-    return (1 - f) ** 2 / (1 - 0.04) ** 2
+    return ((1 - f) / (1 - 0.04)) ** paths
 
 
 def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -235,7 +300,8 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             c, width = c.get(lv["name"], 0.0), width.get(lv["name"], 1.0)
         S = S + c * (_wings(S, width, lv["cover"]) - S)
     if "clearcoat" in p:
-        D = D * (1 + p["clearcoat"]["c"] * (lv["coat"] - 1))
+        q = p["clearcoat"]
+        D = D * (1 + q["c"] * (lv["coat"][q.get("paths", 2.0)] - 1))
     out = []
     for img in (D, S, lv["B"]):  # the image-space effects are linear: apply them to each
         if "veiling_glare" in p:
@@ -244,11 +310,52 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
                                                          mode="constant")
         if "vignetting" in p:
             img = img * (1 - p["vignetting"]["c"] * lv["rho2"])
-        if "misregistration" in p:
-            dy, dx = p["misregistration"]["shift_px"].get(lv["name"], (0.0, 0.0))
-            img = ndimage.shift(img, (dy, dx), order=1, mode="nearest")
         out.append(img)
+    if "misregistration" in p:
+        dy, dx = p["misregistration"]["shift_px"].get(lv["name"], (0.0, 0.0))
+        out = _shift_scene(lv, out, dy, dx)
     return out[0], out[1], out[2]
+
+
+def _coverage(shape, cy: float, cx: float, radius: float, n: int = 8) -> np.ndarray:
+    """Share of each pixel (centres at integers) inside the sphere's silhouette (n x n
+    sub-pixels)."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    offs = (np.arange(n) + 0.5) / n - 0.5
+    cover = np.zeros(shape)
+    for oy in offs:
+        for ox in offs:
+            cover += ((yy + oy - cy) ** 2 + (xx + ox - cx) ** 2) < radius**2
+    return cover / n**2
+
+
+def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """``values`` with the pixels outside ``known`` set to their nearest known pixel's."""
+    if known.all() or not known.any():
+        return values
+    idx = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+    return values[tuple(idx)]
+
+
+def _shift_scene(lv: dict, images: list, dy: float, dx: float) -> list:
+    """Diffuse, specular and background images of the scene shifted by (dy, dx) px.
+
+    A pixel on the silhouette mixes the sphere and the background by the share it covers; a
+    shift changes that share as geometry, not as an interpolation of a step. So each image is
+    split into radiance (sphere parts: image / coverage; background: image / (1 - coverage),
+    edge pixels filled from their nearest well-covered neighbour), the radiance shifted by
+    cubic-spline interpolation, and the shares recomputed at the shifted silhouette."""
+    cy, cx, radius = lv["geometry"]
+    shape = lv["P"].shape
+    cov = _coverage(shape, cy, cx, radius)
+    cov_s = _coverage(shape, cy + dy, cx + dx, radius)
+    out = []
+    for k, img in enumerate(images):
+        share, share_s = (cov, cov_s) if k < 2 else (1 - cov, 1 - cov_s)
+        known = share > 0.5
+        rad = _fill(np.where(known, img / np.maximum(share, 1e-6), 0.0), known)
+        out.append(share_s * ndimage.shift(rad, (dy, dx), order=3, mode="nearest"))
+    return out
 
 
 def _predict(lv: dict, fitted: list) -> np.ndarray:
@@ -266,13 +373,14 @@ def render_loss(data: RenderData, fitted: list) -> np.ndarray:
     for lv in data.levels:
         m = lv["use"]
         r = (lv["P"] - _predict(lv, fitted))[m]
-        out.append(0.5 * np.log(2 * np.pi * lv["sd"] ** 2) + 0.5 * (r / lv["sd"]) ** 2)
+        sd = lv["sd"][m]
+        out.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * (r / sd) ** 2)
     return np.concatenate(out)
 
 
 def render_floor(data: RenderData) -> np.ndarray:
-    return np.concatenate([np.full(int(lv["use"].sum()), 0.5 * np.log(2 * np.pi * lv["sd"] ** 2)
-                                   + 0.5) for lv in data.levels])
+    return np.concatenate([0.5 * np.log(2 * np.pi * lv["sd"][lv["use"]] ** 2) + 0.5
+                           for lv in data.levels])
 
 
 def render_unit_ids(data: RenderData) -> list[str]:
@@ -295,11 +403,12 @@ def _scaled_sse(train: RenderData, fitted: list):
     for lv in train.levels:
         m = lv["use"]
         D, S, B = _basis(lv, fitted)
-        a = np.c_[D[m], S[m]]
-        y = (lv["P"] - B)[m]
+        w = 1 / lv["sd"][m]
+        a = np.c_[D[m], S[m]] * w[:, None]
+        y = (lv["P"] - B)[m] * w
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         scale[lv["name"]] = (float(coef[0]), float(coef[1]))
-        sse += float(np.sum((y - a @ coef) ** 2)) / lv["sd"] ** 2
+        sse += float(np.sum((y - a @ coef) ** 2))
     return sse, scale
 
 
@@ -337,7 +446,9 @@ def _fit_misregistration(train, chosen):
             D, S, B = _basis(lv, base + p)
             pred = B + a * D + b * S
             gy, gx = np.gradient(pred)
-            step, *_ = np.linalg.lstsq(np.c_[-gy[m], -gx[m]], (lv["P"] - pred)[m], rcond=None)
+            w = 1 / lv["sd"][m]
+            step, *_ = np.linalg.lstsq(np.c_[-gy[m], -gx[m]] * w[:, None],
+                                       (lv["P"] - pred)[m] * w, rcond=None)
             dy, dx = float(np.clip(dy + step[0], -3, 3)), float(np.clip(dx + step[1], -3, 3))
         shifts[lv["name"]] = (dy, dx)
     params = {"shift_px": shifts}
@@ -370,8 +481,8 @@ def _fit_long_tail(train, chosen):
 RENDER_CANDIDATES = [
     Candidate("fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
               "specular reflectance rising towards grazing angles (Schlick)"),
-    Candidate("clearcoat", _fit_amp("clearcoat", 0.0, 1.0),
-              "diffuse light attenuated by a clear coat (twice through its Fresnel interface)"),
+    Candidate("clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "paths", _COAT_PATHS),
+              "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)"),
     Candidate("vignetting", _fit_amp("vignetting", -1.0, 1.0),
               "the camera darkens towards the image corners"),
     Candidate("veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
