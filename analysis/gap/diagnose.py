@@ -36,6 +36,7 @@ from analysis.gap.render import (
     render_floor,
     render_loss,
     render_unit_ids,
+    residual_maps,
     split_render,
 )
 
@@ -94,7 +95,9 @@ def diagnose_render(data, *, rng: np.random.Generator, seed: int,
                            min_share=RENDER_MIN_SHARE,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
-    return diag, localise_render(data, rng, n_boot=min(n_boot, 500))
+    local = localise_render(data, rng, n_boot=min(n_boot, 500))
+    local.attrs["maps"] = residual_maps(data, [(s["added"], s["params"]) for s in diag.steps])
+    return diag, local
 
 
 def diagnose_render_files(real_path: str | Path, sim_path: str | Path, *, seed: int,

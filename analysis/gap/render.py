@@ -65,6 +65,7 @@ __all__ = [
     "render_floor",
     "render_loss",
     "render_unit_ids",
+    "residual_maps",
     "split_render",
 ]
 
@@ -521,3 +522,24 @@ def localise_render(data: RenderData, rng: np.random.Generator,
                          "mean_residual": float(res[m].mean()), "ci_low": float(lo),
                          "ci_high": float(hi), "unit": "% of mean sphere luminance"})
     return pd.DataFrame(rows)
+
+
+def residual_maps(data: RenderData, fitted: list) -> dict:
+    """Residual maps in noise SDs, (photo - render) / sd, per gloss level: of the plain render
+    and of the render extended by ``fitted`` (the diagnosis's chosen steps, parameters as in
+    ``Diagnosis.steps``). NaN outside the pixels the loss uses (the sphere's valid pixels).
+
+    Returns
+    -------
+    dict
+        ``{level name: {"photo": P, "before": z, "after": z}}``, each (h, w) float.
+    """
+    out = {}
+    for lv in data.levels:
+        valid = lv["fit"]
+        maps = {"photo": lv["P"]}
+        for key, steps in (("before", []), ("after", fitted)):
+            z = (lv["P"] - _predict(lv, steps)) / lv["sd"]
+            maps[key] = np.where(valid, z, np.nan)
+        out[lv["name"]] = maps
+    return out

@@ -86,7 +86,40 @@ def _plot_generic(local, path) -> None:
     plt.close(fig)
 
 
-def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png") -> str:
+def _plot_maps(maps: dict, path) -> None:
+    """Per gloss level: the photo, and the residual in noise SDs before and after the chosen
+    extensions (the same colour scale, +-5 SD)."""
+    names = list(maps)
+    fig, axes = plt.subplots(len(names), 3, figsize=(7.5, 2.5 * len(names)), squeeze=False)
+    for row, name in zip(axes, names):
+        m = maps[name]
+        row[0].imshow(m["photo"], cmap="gray")
+        row[0].set_ylabel(name)
+        for ax, key in zip(row[1:], ("before", "after")):
+            im = ax.imshow(m[key], cmap="RdBu_r", vmin=-5, vmax=5)
+        for ax, title in zip(row, ("photo", "residual, plain render", "residual, extended")):
+            ax.set_title(title, fontsize=8)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="(photo - render) / noise SD")
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def _figures(local, folder: Path) -> str:
+    """Write the layer's figures into ``folder``; returns the extra HTML for the maps."""
+    if "axis" in local.columns:
+        _plot_generic(local, folder / "localisation.png")
+    else:
+        _plot_observer(local, folder / "localisation.png")
+    if local.attrs.get("maps"):
+        _plot_maps(local.attrs["maps"], folder / "residual_maps.png")
+        return "residual_maps.png"
+    return ""
+
+
+def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
+                   maps: str = "") -> str:
     """The body of one layer's report section."""
     rows = "".join(
         f"<tr><td>{html.escape(s['name'])}</td><td>{s['gain']:.4f}</td>"
@@ -96,6 +129,8 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png") -> 
                     f"(p={s['p']:.4f}), parameters {html.escape(json.dumps(s['params']))}</li>"
                     for s in diag.steps) or "<li>none</li>"
     img = f'<h3>Where</h3><img src="{figure}" alt="localisation">' if figure else ""
+    maps_html = (f'<h3>Residual maps (noise SDs; before and after the chosen extensions)</h3>'
+                 f'<img src="{maps}" alt="residual maps">' if maps else "")
     return f"""<p>{verdict_text(diag)}</p>
 <h3>Before / after (held-out mean NLL above the simulation's noise floor, nats per unit)</h3>
 <p>before {diag.gap_before:.4f}; after {diag.gap_after:.4f}; shrink {diag.shrink_abs:.4f}
@@ -104,7 +139,7 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png") -> 
 <h3>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h3>
 <table border="1"><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>
 <th>significant</th></tr>{rows}</table>
-<h3>Greedy combination</h3><ol>{steps}</ol>{img}"""
+<h3>Greedy combination</h3><ol>{steps}</ol>{img}{maps_html}"""
 
 
 def _atomic_page(out: Path, page: str) -> Path:
@@ -129,14 +164,11 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
     report."""
     out = Path(out_dir)
     _check_new(out)
-    if "axis" in local.columns:
-        _plot_generic(local, out / "localisation.png")
-    else:
-        _plot_observer(local, out / "localisation.png")
+    maps = _figures(local, out)
     page = f"""<!doctype html><html><head><meta charset="utf-8">
 <title>Sim-to-real gap: {html.escape(diag.layer)}</title></head><body>
 <h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
-{diagnosis_html(diag)}
+{diagnosis_html(diag, maps=maps)}
 <p>seed {diag.seed}</p></body></html>"""
     (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
     local.to_csv(out / "localisation.csv", index=False)
@@ -152,14 +184,12 @@ def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
     for name, (diag, local) in results.items():
         sub = out / name
         sub.mkdir(exist_ok=True)
-        if "axis" in local.columns:
-            _plot_generic(local, sub / "localisation.png")
-        else:
-            _plot_observer(local, sub / "localisation.png")
+        maps = _figures(local, sub)
         (sub / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
         local.to_csv(sub / "localisation.csv", index=False)
         sections.append(f"<h2>{html.escape(name)} layer</h2>"
-                        + diagnosis_html(diag, f"{name}/localisation.png"))
+                        + diagnosis_html(diag, f"{name}/localisation.png",
+                                         f"{name}/{maps}" if maps else ""))
     rows = "".join(f"<tr><td>{html.escape(n)}</td><td>{g[0]:.4f}</td><td>[{g[1]:.4f}, "
                    f"{g[2]:.4f}]</td></tr>" for n, g in which["gaps"].items())
     page = f"""<!doctype html><html><head><meta charset="utf-8">

@@ -52,7 +52,10 @@ def test_cli_render_report(tmp_path):
     args = ["diagnose", "--layer", "render", "--real", str(tmp_path / "fit"), "--sim",
             str(tmp_path / "fit"), "--out", str(tmp_path / "rep")]
     assert main(args) == 0
-    assert "vignetting" in (tmp_path / "rep" / "index.html").read_text()
+    page = (tmp_path / "rep" / "index.html").read_text()
+    assert "vignetting" in page
+    # Where in image space: residual maps before and after the chosen extension.
+    assert 'src="residual_maps.png"' in page and (tmp_path / "rep" / "residual_maps.png").is_file()
 
 
 def test_render_benchmark_small():
