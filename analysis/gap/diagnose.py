@@ -20,6 +20,7 @@ from analysis.gap.display import (
 from analysis.gap.engine import Diagnosis, GapError, diagnose_losses
 from analysis.gap.observer import (
     OBSERVER_CANDIDATES,
+    OBSERVER_MIN_GAIN,
     load_sessions,
     localise_observer,
     observer_floor,
@@ -52,7 +53,8 @@ def diagnose_observer(real, sim, design, *, rng: np.random.Generator, seed: int,
     train, test = split_observer(real_u, rng)
     diag = diagnose_losses("observer", OBSERVER_CANDIDATES, train, test, observer_loss(train),
                            lambda d: observer_floor(d, sim_u), rng=rng, seed=seed,
-                           n_boot=n_boot, unit_ids=observer_unit_ids)
+                           n_boot=n_boot, unit_ids=observer_unit_ids,
+                           min_gain=OBSERVER_MIN_GAIN)
     return diag, localise_observer(real_u, design, rng, n_boot=min(n_boot, 500))
 
 

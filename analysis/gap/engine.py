@@ -76,6 +76,7 @@ class Diagnosis:
     heldout: tuple = ()
     explained_share: float = float("nan")
     min_share: float = 0.0
+    min_gain: float = 0.0
     loss_info: dict | None = None
     gap_before_ci: tuple = ()
     gap_after_ci: tuple = ()
@@ -119,6 +120,7 @@ def diagnose_losses(
     max_steps: int | None = None,
     unit_ids: Callable | None = None,
     min_share: float = 0.0,
+    min_gain: float = 0.0,
     loss_info: dict | None = None,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, and measure the held-out gap before and after.
@@ -142,6 +144,10 @@ def diagnose_losses(
         An attribution needs the chosen candidates to remove at least this share of the
         held-out gap; below it the verdict is 'unexplained' (the partial steps are kept). 0:
         any significant gain attributes.
+    min_gain : float
+        A candidate (or a greedy step) counts only if its held-out gain is also at least this
+        many nats per unit: a significant but negligible gain (a few thousandths of a nat per
+        trial, which a large data set makes significant) is no cause of a gap. 0: none.
     loss_info : dict, optional
         Parameters of the loss itself (e.g. the noise model), recorded as given.
     """
@@ -161,7 +167,8 @@ def diagnose_losses(
     p_adj = holm(np.array([s[4] for s in scores]))
     ranking = sorted(
         (
-            CandidateScore(n, g, float(lo), float(hi), float(p), float(pa), bool(pa < alpha))
+            CandidateScore(n, g, float(lo), float(hi), float(p), float(pa),
+                           bool(pa < alpha and g >= min_gain))
             for (n, g, lo, hi, p), pa in zip(scores, p_adj)
         ),
         key=lambda s: -s.gain,
@@ -182,7 +189,8 @@ def diagnose_losses(
             b = _boot(diff, rng, n_boot)
             p = (np.sum(b <= 0) + 1) / (n_boot + 1)
             # Later steps are tested against the remaining count (Holm-like step-down).
-            if p * len(remaining) < alpha and (best is None or diff.mean() > best[1]):
+            if (p * len(remaining) < alpha and diff.mean() >= min_gain
+                    and (best is None or diff.mean() > best[1])):
                 best = (name, float(diff.mean()), params, trial, p)
         if best is None:
             break
@@ -219,6 +227,7 @@ def diagnose_losses(
         heldout=tuple(str(u) for u in unit_ids(test)) if unit_ids is not None else (),
         explained_share=float(share),
         min_share=float(min_share),
+        min_gain=float(min_gain),
         loss_info=loss_info,
         gap_before_ci=tuple(float(x) for x in np.percentile(gap_b[idx].mean(axis=1),
                                                               [2.5, 97.5])),

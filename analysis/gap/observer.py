@@ -18,6 +18,7 @@ from analysis.gap.engine import Candidate, GapError, split_held_out
 
 __all__ = [
     "OBSERVER_CANDIDATES",
+    "OBSERVER_MIN_GAIN",
     "load_sessions",
     "localise_observer",
     "observer_floor",
@@ -32,6 +33,10 @@ SESSION_COLUMNS = ("participant", "session", "trial", "order", "stimulus_id", "i
                    "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm",
                    "gloss_match", "depth_match")
 RESP = ("gloss", "depth")
+#: A candidate must remove >= 0.02 nats per held-out trial (the tolerance below which
+#: analysis.gap.layers treats a gap as none): with thousands of trials a gain of a few
+#: thousandths of a nat is significant, and one such was attributed on effect-free data.
+OBSERVER_MIN_GAIN = 0.02
 _LABEL_HALF_WIDTH = 0.025  # slider units: a response this close to a tick label counts as on it
 
 

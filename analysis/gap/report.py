@@ -31,8 +31,10 @@ def verdict_text(d: Diagnosis) -> str:
                 f"unit, 95 % CI {lo:.3f} to {hi:.3f}) is not significantly above the data's own "
                 "noise floor, so there is <b>no significant gap</b> to explain.")
     if not d.steps:
+        least = (f" by at least {d.min_gain:g} nats per unit" if d.min_gain > 0 else "")
         return ("No candidate in the catalogue reduces the held-out gap significantly "
-                "(Holm-corrected, alpha 0.05): the gap is <b>unexplained</b> by the catalogue.")
+                f"(Holm-corrected, alpha 0.05){least}: the gap is <b>unexplained</b> by the "
+                "catalogue.")
     if d.verdict == "unexplained":
         names = " + ".join(s["added"] for s in d.steps)
         return (f"{html.escape(names)} reduce(s) the held-out gap significantly but remove(s) "
@@ -131,14 +133,17 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
     img = f'<h3>Where</h3><img src="{figure}" alt="localisation">' if figure else ""
     maps_html = (f'<h3>Residual maps (noise SDs; before and after the chosen extensions)</h3>'
                  f'<img src="{maps}" alt="residual maps">' if maps else "")
+    min_gain = (f" and its gain is at least {diag.min_gain:g} nats per unit"
+                if diag.min_gain > 0 else "")
     return f"""<p>{verdict_text(diag)}</p>
 <h3>Before / after (held-out mean NLL above the simulation's noise floor, nats per unit)</h3>
 <p>before {diag.gap_before:.4f}; after {diag.gap_after:.4f}; shrink {diag.shrink_abs:.4f}
 (95 % CI {diag.shrink_abs_ci[0]:.4f} to {diag.shrink_abs_ci[1]:.4f}),
 {diag.shrink_pct:.1f} % (95 % CI {diag.shrink_pct_ci[0]:.1f} to {diag.shrink_pct_ci[1]:.1f} %)</p>
 <h3>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h3>
+<p>A candidate counts when its Holm p is below 0.05{min_gain}.</p>
 <table border="1"><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>
-<th>significant</th></tr>{rows}</table>
+<th>counts</th></tr>{rows}</table>
 <h3>Greedy combination</h3><ol>{steps}</ol>{img}{maps_html}"""
 
 
