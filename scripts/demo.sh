@@ -183,7 +183,7 @@ if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
     --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"
 fi
-echo "blind benchmark (not run here, ~15 min): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5"
+echo "blind benchmark (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5"
 # --- end sim-to-real gap ---
 
 step "done"
