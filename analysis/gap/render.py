@@ -466,8 +466,8 @@ def _fit_long_tail(train, chosen):
         one = RenderData([lv])
         best = None
         for g in _TAIL_WIDTHS:
-            def f(c, g=g):
-                q = {"c": {lv["name"]: float(c)}, "width": {lv["name"]: float(g)}}
+            def f(c, g=g, name=lv["name"], one=one):
+                q = {"c": {name: float(c)}, "width": {name: float(g)}}
                 return _scaled_sse(one, base + [("long_tail", q)])[0]
             res = optimize.minimize_scalar(f, bounds=(0.0, 1.0), method="bounded",
                                            options={"xatol": 1e-4})
