@@ -30,6 +30,7 @@ from analysis.gap.diagnose import (
     diagnose_render_files,
 )
 from analysis.gap.observer import load_sessions, observer_frame, observer_nll
+from analysis.gap.render import noise_sd
 
 __all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
            "run_observer_benchmark", "run_thresholds"]
@@ -123,10 +124,10 @@ def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
     nll = []
     for u in diag.heldout:
         name, y, x = u.split("|")
-        a2, b = noise[name]
-        var = max(a2 + b * max(renders[name][int(y), int(x)], 0.0), 1e-30)
-        r = photos[name][int(y), int(x)] - truth[name][int(y), int(x)]
-        nll.append(0.5 * np.log(2 * np.pi * var) + 0.5 * r**2 / var)
+        at = (int(y), int(x))
+        sd = float(noise_sd(renders[name][at], *noise[name]))
+        r = (photos[name][at] - truth[name][at]) / sd
+        nll.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * r**2)
     return diag, float(diag.loss_before - np.mean(nll))
 
 

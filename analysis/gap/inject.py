@@ -336,20 +336,17 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False,
         with SphereScene(env, _render_camera(shift), spp=spp, seed=seed,
                          bsdf=lambda *_a: material) as scene:
             img = scene.render(0.0, 0.0, 0.0) @ _REC709
-    y0, x0 = _OFFSET
-    img = img[y0:y0 + _SIZE, x0:x0 + _SIZE].astype(float)
+    img = _crop(img).astype(float)
     return img if background else img - _background(spp, shift)
 
 
 def _background(spp: int, shift=(0.0, 0.0)) -> np.ndarray:
-    """B: the render of a black sphere (cached per process)."""
-    key = ("B", spp, tuple(shift))
-    if key not in _base_cache:
-        img = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
-        if tuple(shift) != (0.0, 0.0):
-            return img
-        _base_cache[key] = img
-    return _base_cache[key]
+    """B: the render of a black sphere (the unshifted one cached per process)."""
+    if tuple(shift) != (0.0, 0.0):
+        return _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
+    if ("B", spp) not in _base_cache:
+        _base_cache[("B", spp)] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True)
+    return _base_cache[("B", spp)]
 
 
 def _ward(rho_d, rho_s, alpha, **extra):
@@ -372,12 +369,33 @@ def _base(level: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
     return _base_cache[key]
 
 
+def _crop(img: np.ndarray) -> np.ndarray:
+    """The residual files' window of a full (uncropped) image."""
+    y0, x0 = _OFFSET
+    return img[y0:y0 + _SIZE, x0:x0 + _SIZE]
+
+
 def _sphere_r() -> np.ndarray:
-    """Distance from the sphere's centre in sphere radii on the cropped grid."""
-    size = _SIZE + _PAD
-    yy, xx = np.mgrid[0:_SIZE, 0:_SIZE] + 0.5
-    cy, cx = size / 2 - _OFFSET[0], size / 2 - _OFFSET[1]
-    return np.hypot(yy - cy, xx - cx) / _SPHERE_RADIUS_PX
+    """Distance from the sphere's centre in sphere radii on the cropped grid (the gloss fit's
+    own measure, stimuli.glossfit.sphere_distance_px)."""
+    from stimuli.glossfit import sphere_distance_px
+
+    return _crop(sphere_distance_px(_render_camera()))
+
+
+def _masks(specular: np.ndarray) -> dict:
+    """The gloss fit's region masks (stimuli.glossfit.region_masks, on the full image) and its
+    sphere mask (1 px inside the silhouette), cropped like the images."""
+    from stimuli.glossfit import region_masks
+
+    cam = _render_camera()
+    full = np.zeros((_SIZE + _PAD,) * 2)
+    y0, x0 = _OFFSET
+    full[y0:y0 + _SIZE, x0:x0 + _SIZE] = specular
+    masks = {k: _crop(v) for k, v in region_masks(cam, full).items()}
+    masks["sphere"] = _sphere_r() < 1 - 1 / cam.sphere_radius_px
+    masks["valid"] = np.ones((_SIZE, _SIZE), bool)
+    return masks
 
 
 def _mean_ratio(a, b, where):
@@ -427,6 +445,21 @@ def _effect_components(level: int, effect: str, strength: float, spp: int):
     return d0, s0
 
 
+def _clean_photo(level: int, effect: str, strength: float, spp: int,
+                 rng: np.random.Generator) -> np.ndarray:
+    """The noiseless photo of one level with the effect: background + diffuse + specular."""
+    if effect == "misregistration":
+        # Rendered with the camera moved (a random direction), background included.
+        rho_d, rho_s, alpha = _LEVELS[level]
+        ang = rng.uniform(0, 2 * np.pi)
+        shift = (strength * np.cos(ang), strength * np.sin(ang))
+        return (_background(spp, shift)
+                + _render(_ward(rho_d, 0.0, alpha), spp, 11 + level, shift=shift)
+                + _render(_ward(0.0, rho_s, alpha), spp, 21 + level, shift=shift))
+    d1, s1 = _effect_components(level, effect, strength, spp)
+    return _camera(_background(spp) + d1 + s1, effect, strength)
+
+
 def _camera(img, effect, strength):
     """The lens's effects on the photo: veiling glare, vignetting."""
     h, w = img.shape
@@ -447,52 +480,40 @@ def _camera(img, effect, strength):
 
 def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",
                      strength: float = 0.0, spp: int = _RENDER_SPP) -> dict:
-    """A gloss fit's output folder (fits.csv, residuals/gloss_XXX.npz in its format) whose
-    photos are Mitsuba renders with the effect (plus a camera's shot and read noise) and
-    whose renders are the plain Ward renders, their diffuse and specular scales fitted to the photos by least squares
-    (as the fit's basis method does). Returns the noiseless photos {level name: luminance}
-    (the truth, kept from the diagnosis)."""
+    """A gloss fit's output folder (fits.csv, residuals/gloss_XXX.npz written with the gloss
+    fit's own writer and region masks) whose photos are Mitsuba renders with the effect (plus a
+    camera's shot and read noise) and whose renders are the plain Ward renders, their diffuse
+    and specular scales fitted to the photos by least squares (as the fit's basis method
+    does). Returns the noiseless photos {level name: luminance} (the truth, kept from the
+    diagnosis)."""
+    from stimuli.glossfit import write_residuals
+
     folder = Path(folder)
     (folder / "residuals").mkdir(parents=True, exist_ok=True)
     r = _sphere_r()
-    edge = 1 + 1 / _SPHERE_RADIUS_PX
     rows, truth = [], {}
     for k, (rho_d, rho_s, alpha) in enumerate(_LEVELS):
         d0, s0 = _base(k, spp)
         bg = _background(spp)
-        if effect == "misregistration":
-            ang = rng.uniform(0, 2 * np.pi)
-            shift = (strength * np.cos(ang), strength * np.sin(ang))
-            d1 = _render(_ward(rho_d, 0.0, alpha), spp, 11 + k, shift=shift)
-            s1 = _render(_ward(0.0, rho_s, alpha), spp, 21 + k, shift=shift)
-            clean = _background(spp, shift) + d1 + s1
-        else:
-            d1, s1 = _effect_components(k, effect, strength, spp)
-            clean = _camera(bg + d1 + s1, effect, strength)
+        clean = _clean_photo(k, effect, strength, spp, rng)
         # A camera's Poisson-Gaussian noise: shot noise of _PHOTONS photons at the sphere's
         # mean level, read noise _READ_REL of that level.
         mean = float(clean[r < 1].mean())
         var = (_READ_REL * mean) ** 2 + mean * np.maximum(clean, 0.0) / _PHOTONS
         photo = clean + np.sqrt(var) * rng.standard_normal(clean.shape)
-        fitm = r < 1 - 1 / _SPHERE_RADIUS_PX
+        fitm = _masks(s0)["sphere"]
         (a, b), *_ = np.linalg.lstsq(np.c_[d0[fitm], s0[fitm]], (photo - bg)[fitm], rcond=None)
         d, s = a * d0, b * s0
-        # The fit's regions (stimuli.glossfit residuals: rim from 0.85 radii, highlight where
-        # the fitted lobe is >= half its maximum inside the rim).
-        spec_in = np.where(r < 0.85, s, 0)
-        hl = (r < 0.85) & (spec_in >= 0.5 * spec_in.max())
-        masks = {"highlight": hl, "body": (r < 0.85) & ~hl, "rim": (r >= 0.85) & (r < edge),
-                 "background": r >= edge, "sphere": r < 1 - 1 / _SPHERE_RADIUS_PX,
-                 "valid": np.ones_like(hl)}
+        masks = _masks(s)  # the highlight is where the fitted lobe is bright
 
         def rgb(img):
             return np.repeat(img[..., None], 3, axis=-1).astype(np.float32)
 
         gloss = (20, 50, 80)[k]
-        np.savez_compressed(folder / "residuals" / f"gloss_{gloss:03d}.npz",
-                            photo=rgb(photo), render=rgb(bg + d + s),
-                            residual=rgb(photo - bg - d - s),
-                            diffuse=rgb(d), specular=rgb(s), **masks)
+        write_residuals(folder / "residuals" / f"gloss_{gloss:03d}.npz",
+                        {"photo": rgb(photo), "render": rgb(bg + d + s),
+                         "residual": rgb(photo - bg - d - s), "diffuse": rgb(d),
+                         "specular": rgb(s), **masks})
         rows.append({"gloss_pct": gloss, "method": "basis", "rho_d": rho_d * a,
                      "rho_s": rho_s * b, "alpha": alpha})
         truth[f"gloss_{gloss:03d}"] = clean

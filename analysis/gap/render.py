@@ -135,16 +135,16 @@ def noise_model(resid: np.ndarray, render: np.ndarray, mask: np.ndarray,
     Raises
     ------
     GapError
-        If fewer than 10 stencils lie inside ``mask``.
+        If fewer than 10 stencils lie inside ``mask``, or the photo shows no noise at all.
     """
     d2s, ws = [], []
+    rr = np.maximum(render, 0.0)
     for ax in (0, 1):
         lo, mid, hi = ((slice(None, -2), slice(1, -1), slice(2, None)) if ax == 0 else
                        ((slice(None), slice(None, -2)), (slice(None), slice(1, -1)),
                         (slice(None), slice(2, None))))
         m = mask[lo] & mask[mid] & mask[hi]
         d2s.append((resid[lo] - 2 * resid[mid] + resid[hi])[m])
-        rr = np.maximum(render, 0.0)
         ws.append((rr[lo] + 4 * rr[mid] + rr[hi])[m])
     d2, w = np.concatenate(d2s), np.concatenate(ws)
     if d2.size < 10:
@@ -166,8 +166,9 @@ def noise_model(resid: np.ndarray, render: np.ndarray, mask: np.ndarray,
         (a2, b), _ = optimize.nnls(a_mat * cnt[:, None], var * cnt)
     else:
         a2, b = float(np.average(var, weights=cnt)) / 6.0, 0.0
-    if a2 <= 0 and b <= 0:  # a noiseless photo: keep the loss finite
-        a2 = max(float(np.mean(var)) / 6.0, 1e-12 * max(float(np.mean(render**2)), 1e-24))
+    if a2 <= 0 and b <= 0:
+        raise GapError("the photo has no measurable noise (photo - render is smooth to the last "
+                       "bit): was a render passed as the photo? Pass the camera's photos")
     return float(a2), float(b)
 
 
@@ -293,16 +294,14 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     D, S = lv["D"], lv["S"]
     if "fresnel" in p:
         q = p["fresnel"]
-        S = S * (1 + q["c"] * lv["fres5"][q.get("kappa", 0.0)])
+        S = S * (1 + q["c"] * lv["fres5"][q["kappa"]])
     if "long_tail" in p:
         q = p["long_tail"]
-        c, width = q["c"], q["width"]
-        if isinstance(c, dict):  # per gloss level: the lobe's width differs between levels
-            c, width = c.get(lv["name"], 0.0), width.get(lv["name"], 1.0)
+        c, width = q["c"].get(lv["name"], 0.0), q["width"].get(lv["name"], 1.0)
         S = S + c * (_wings(S, width, lv["cover"]) - S)
     if "clearcoat" in p:
         q = p["clearcoat"]
-        D = D * (1 + q["c"] * (lv["coat"][q.get("paths", 2.0)] - 1))
+        D = D * (1 + q["c"] * (lv["coat"][q["paths"]] - 1))
     out = []
     for img in (D, S, lv["B"]):  # the image-space effects are linear: apply them to each
         if "veiling_glare" in p:
@@ -347,9 +346,8 @@ def _shift_scene(lv: dict, images: list, dy: float, dx: float) -> list:
     edge pixels filled from their nearest well-covered neighbour), the radiance shifted by
     cubic-spline interpolation, and the shares recomputed at the shifted silhouette."""
     cy, cx, radius = lv["geometry"]
-    shape = lv["P"].shape
-    cov = _coverage(shape, cy, cx, radius)
-    cov_s = _coverage(shape, cy + dy, cx + dx, radius)
+    cov = lv["cover"]
+    cov_s = _coverage(cov.shape, cy + dy, cx + dx, radius)
     out = []
     for k, img in enumerate(images):
         share, share_s = (cov, cov_s) if k < 2 else (1 - cov, 1 - cov_s)
@@ -413,21 +411,28 @@ def _scaled_sse(train: RenderData, fitted: list):
     return sse, scale
 
 
+def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
+    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
+    best = None
+    for g in grid:
+        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
+                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+        if best is None or res.fun < best[0]:
+            best = (res.fun, float(res.x), g)
+    return best[1], best[2]
+
+
 def _fit_amp(name, lo, hi, key=None, grid=(None,)):
-    """One amplitude (bounded) and optionally a width from a grid, with the scales re-fitted."""
+    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
+    re-fitted."""
     def fit(train, chosen):
         base = [f for f in chosen if f[0] != name]
-        best = None
-        for g in grid:
-            extra = {} if key is None else {key: float(g)}
 
-            def f(c, extra=extra):
-                return _scaled_sse(train, base + [(name, {**extra, "c": float(c)})])[0]
-            res = optimize.minimize_scalar(f, bounds=(lo, hi), method="bounded",
-                                           options={"xatol": 1e-4 * (hi - lo)})
-            if best is None or res.fun < best[0]:
-                best = (res.fun, {**extra, "c": float(res.x)})
-        params = best[1]
+        def params_of(c, g):
+            return {"c": c} if key is None else {key: float(g), "c": c}
+        c, g = _best_on_grid(
+            lambda c, g: _scaled_sse(train, base + [(name, params_of(c, g))])[0], lo, hi, grid)
+        params = params_of(c, g)
         params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
         return params
     return fit
@@ -463,17 +468,11 @@ def _fit_long_tail(train, chosen):
     base = [f for f in chosen if f[0] != "long_tail"]
     cs, widths = {}, {}
     for lv in train.levels:
-        one = RenderData([lv])
-        best = None
-        for g in _TAIL_WIDTHS:
-            def f(c, g=g, name=lv["name"], one=one):
-                q = {"c": {name: float(c)}, "width": {name: float(g)}}
-                return _scaled_sse(one, base + [("long_tail", q)])[0]
-            res = optimize.minimize_scalar(f, bounds=(0.0, 1.0), method="bounded",
-                                           options={"xatol": 1e-4})
-            if best is None or res.fun < best[0]:
-                best = (res.fun, float(res.x), float(g))
-        cs[lv["name"]], widths[lv["name"]] = best[1], best[2]
+        name, one = lv["name"], RenderData([lv])
+        c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
+            one, base + [("long_tail", {"c": {name: c}, "width": {name: float(g)}})])[0],
+            0.0, 1.0, _TAIL_WIDTHS)
+        cs[name], widths[name] = c, float(g)
     params = {"c": cs, "width": widths}
     params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]
     return params

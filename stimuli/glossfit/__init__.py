@@ -12,7 +12,7 @@ Command lines: ``python -m stimuli fit-gloss`` and ``python -m stimuli synth-pho
 
 from stimuli.glossfit.fit import FitRun, fit_gloss, fit_level
 from stimuli.glossfit.methods import BasisCache, FitSettings, LevelFit, basis_fit, grid_fit
-from stimuli.glossfit.output import FITS_COLUMNS
+from stimuli.glossfit.output import FITS_COLUMNS, write_residuals
 from stimuli.glossfit.photoset import (
     GlossFitError,
     PhotoSet,
@@ -22,7 +22,8 @@ from stimuli.glossfit.photoset import (
     photo_name,
 )
 from stimuli.glossfit.registration import Registration, register, warp_photo
-from stimuli.glossfit.scene import Camera, SphereScene, fit_camera, photo_camera
+from stimuli.glossfit.residuals import region_masks
+from stimuli.glossfit.scene import Camera, SphereScene, fit_camera, photo_camera, sphere_distance_px
 from stimuli.glossfit.synth import EFFECTS, MATERIALS, parse_effects, room_panorama, synth_photo_set
 from stimuli.glossfit.table import gloss_table_from_fits, line_with_loo
 
@@ -52,8 +53,11 @@ __all__ = [
     "parse_effects",
     "photo_camera",
     "photo_name",
+    "region_masks",
     "register",
     "room_panorama",
+    "sphere_distance_px",
     "synth_photo_set",
     "warp_photo",
+    "write_residuals",
 ]

@@ -70,6 +70,12 @@ class Camera:
     radius_cm: float
     shift_px: tuple[float, float] = (0.0, 0.0)
 
+    def __post_init__(self) -> None:
+        shift = tuple(self.shift_px)
+        if len(shift) != 2 or not all(math.isfinite(float(v)) for v in shift):
+            raise ValueError(f"camera shift_px {self.shift_px!r}: give two finite numbers (x, y) "
+                             "in pixels, e.g. (0.3, -0.2)")
+
     @property
     def focal_px(self) -> float:
         return 0.5 * self.resolution_px[0] / math.tan(math.radians(self.fov_deg) / 2)

@@ -24,6 +24,10 @@ def test_injected_render_effect_is_identified(tmp_path, effect):
     assert diag.verdict.split(" + ")[0] == effect
     assert set(local["axis"]) == {"region"}
     assert any(c.endswith(": highlight") for c in local["cell"])
+    # The residual maps shrink towards noise (1 SD) once the chosen extensions are added.
+    for maps in local.attrs["maps"].values():
+        before, after = np.nanmean(maps["before"] ** 2), np.nanmean(maps["after"] ** 2)
+        assert after < before
 
 
 @pytest.mark.parametrize("effect", ["none", "anisotropy", "albedo_texture"])
@@ -36,6 +40,14 @@ def test_fresnel_amplitude_recovered(tmp_path):
     diag, _ = _diag(tmp_path, "fresnel", 9)
     # Injected F0 = 1 / (1 + 6): Schlick's grazing gain (1 - F0) / F0 = 6.
     assert diag.steps[0]["params"]["c"] == pytest.approx(6.0, rel=0.25)
+
+
+def test_noise_model_refuses_a_photo_without_noise():
+    from analysis.gap.render import noise_model
+
+    render = np.tile(np.linspace(0.1, 1.0, 32), (32, 1))
+    with pytest.raises(GapError, match="no measurable noise"):
+        noise_model(np.zeros_like(render), render, np.ones(render.shape, bool))
 
 
 def test_render_bad_input(tmp_path):

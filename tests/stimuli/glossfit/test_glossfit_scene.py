@@ -24,3 +24,9 @@ def _dark_centroid(shift_px):
 def test_camera_shift_moves_the_image_content_by_that_many_pixels(shift):
     moved = _dark_centroid(shift) - _dark_centroid((0.0, 0.0))
     assert moved == pytest.approx(shift, abs=0.01)
+
+
+@pytest.mark.parametrize("shift", [(0.5,), (np.nan, 0.0), (0.0, np.inf)])
+def test_camera_refuses_a_shift_that_is_not_two_finite_numbers(shift):
+    with pytest.raises(ValueError, match="shift_px"):
+        Camera(20.0, (48, 40), 27.5, 2.0, shift_px=shift)
