@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.atomic import atomic_open
+from labfiles import atomic_open
 from stimuli.manifest import load_manifest
 
 __all__ = ["contact_sheet"]

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.atomic import atomic_open
+from labfiles import atomic_open
 from studydesign import StudyDesign
 
 __all__ = [

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stimuli.atomic import atomic_open
+from labfiles import atomic_open
 from stimuli.errors import GlossTableError
 from stimuli.ward import check_ward_params
 

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.atomic import atomic_path
+from labfiles import atomic_path
 from stimuli.errors import IlluminationError
 from stimuli.manifest import sha256_file
 

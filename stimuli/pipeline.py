@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from stimuli.atomic import TEMPORARY_GLOB
+from labfiles import TEMPORARY_GLOB
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.atomic import atomic_open
+from labfiles import atomic_open
 from studydesign import ToneMapSpec
 
 __all__ = [

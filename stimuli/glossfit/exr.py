@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import OpenEXR
 
-from stimuli.atomic import atomic_path
+from labfiles import atomic_path
 
 __all__ = ["read_exr", "write_exr"]
 

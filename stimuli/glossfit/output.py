@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.atomic import atomic_path
+from labfiles import atomic_path
 
 __all__ = ["FITS_COLUMNS", "append_fit_row", "write_json", "write_level_figure",
            "write_report", "write_residuals"]

@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from stimuli.atomic import atomic_open
+from labfiles import atomic_open
 from stimuli.glossfit.exr import write_exr
 from stimuli.glossfit.photoset import PhotoSetup, photo_name, write_setup
 from stimuli.glossfit.scene import SphereScene, photo_camera, ward_bsdf
