@@ -24,6 +24,9 @@ slider's range as a real slider clips them.
 from __future__ import annotations
 
 import copy
+import json
+import math
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -35,6 +38,7 @@ import pandas as pd
 
 from experiment.datafile import SESSION_COLUMNS, app_version, session_path
 from experiment.plan import make_plan, participant_seed
+from labfiles import atomic_write_text, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
 
 __all__ = [
@@ -44,6 +48,7 @@ __all__ = [
     "load_observer_params",
     "make_observer",
     "simulate_dataset",
+    "write_observer_params",
     "write_simulated_sessions",
 ]
 
@@ -58,19 +63,131 @@ def default_observers_path() -> Path:
 
 
 def load_observer_params(path=None) -> dict:
-    """Read an observers parameter file (default: the shipped one) -> ``{kind: table}``."""
+    """Read an observers parameter file (default: the shipped one) -> ``{kind: table}``.
+
+    A fitted file (``python -m experiment fit-observer``) also has a ``fit`` table (how, when and
+    on which sessions it was fitted); it is returned as read.
+
+    Raises
+    ------
+    ValueError
+        The file is missing, is not TOML, or lacks a kind's table or one of its parameters.
+    """
     path = Path(path) if path is not None else default_observers_path()
     try:
         with open(path, "rb") as fh:
             raw = tomllib.load(fh)
     except FileNotFoundError as exc:
         raise ValueError(f"observer parameter file {path} does not exist") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"observer parameter file {path} is not valid TOML: {exc}") from exc
+    except IsADirectoryError as exc:
+        raise ValueError(f"observer parameter file {path} is a folder; give an observers "
+                         ".toml file") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"observer parameter file {path} is not valid TOML ({exc}); give an "
+                         "observers.toml such as experiment/observers.toml or the output of "
+                         "python -m experiment fit-observer") from exc
     missing = [k for k in OBSERVER_KINDS if k not in raw]
     if missing:
         raise ValueError(f"observer parameter file {path} lacks the tables {missing}")
+    for kind in OBSERVER_KINDS:
+        table = raw[kind]
+        lacking = [k for k in _REQUIRED[kind] if not isinstance(table, Mapping) or k not in table]
+        if lacking:
+            raise ValueError(f"observer parameter file {path}: [{kind}] lacks {lacking}")
     return raw
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key, ensure_ascii=False)
+
+
+def _toml_value(value, where: str) -> str:
+    if isinstance(value, bool | np.bool_):
+        return "true" if value else "false"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}"
+                                for k, v in value.items()) + " }"
+    raise TypeError(f"observer parameter {where} = {value!r} cannot be written to TOML")
+
+
+def _is_inline(value) -> bool:
+    """A ``{mean, sd}`` random effect is written inline, as in the shipped file."""
+    return isinstance(value, Mapping) and bool(value) and set(value) <= {"mean", "sd"}
+
+
+def _toml_table(name: str, table: Mapping) -> list[str]:
+    lines = [f"[{name}]"]
+    subtables = []
+    for key, value in table.items():
+        if isinstance(value, Mapping) and not _is_inline(value):
+            subtables.append((f"{name}.{_toml_key(key)}", value))
+        else:
+            lines.append(f"{_toml_key(key)} = {_toml_value(value, f'{name}.{key}')}")
+    for sub_name, sub in subtables:
+        lines += ["", *_toml_table(sub_name, sub)]
+    return lines
+
+
+def observer_params_toml(params: Mapping) -> str:
+    """The TOML text of an observers parameter table (what :func:`load_observer_params` reads)."""
+    missing = [k for k in OBSERVER_KINDS if k not in params]
+    if missing:
+        raise ValueError(f"observer parameters lack the tables {missing}")
+    lines = ["# Simulated observers of the gloss x depth matching task (experiment.observers).",
+             "# Units in the names (cm, %, s); { mean, sd } is drawn once per observer."]
+    if "fit" in params:
+        lines.append("# Fitted to session data by python -m experiment fit-observer: see [fit].")
+    for name, table in params.items():
+        if not isinstance(table, Mapping):
+            raise TypeError(f"observer parameters: {name} = {table!r} is not a table")
+        lines += ["", *_toml_table(_toml_key(name), table)]
+    return "\n".join(lines) + "\n"
+
+
+def write_observer_params(path, params: Mapping, *, overwrite: bool = False) -> Path:
+    """Write an observers parameter file atomically (fsynced, the umask's permissions).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.toml`` to write.
+    params : mapping
+        ``{"ideal": {...}, "humanlike": {...}, "fit": {...}}`` as
+        :func:`experiment.fit_observer_params` returns (``fit`` optional); the file reads back
+        equal with :func:`load_observer_params`.
+    overwrite : bool
+        Replace an existing file (atomically). By default an existing file is never replaced.
+
+    Raises
+    ------
+    FileExistsError
+        ``path`` exists and ``overwrite`` is false.
+    ValueError
+        A kind's table is missing or incomplete.
+    """
+    text = observer_params_toml(params)
+    check = tomllib.loads(text)
+    for kind in OBSERVER_KINDS:
+        lacking = [k for k in _REQUIRED[kind] if k not in check[kind]]
+        if lacking:
+            raise ValueError(f"observer parameters: [{kind}] lacks {lacking}")
+    path = Path(path)
+    if overwrite:
+        return atomic_write_text(path, text)
+    return write_new_file(path, text)
 
 
 def _draw(spec, name: str, rng: np.random.Generator) -> float:
