@@ -143,18 +143,23 @@ _SCALE_PARAMS = ("depth_noise_cm", "gloss_noise_pct", "rt_median_s", "rt_log_sd"
 def _population_reml(theta, se):
     """REML fit of ``theta_i ~ N(mean, sd^2 + se_i^2)`` -> dict of mean, sd, their SEs, loglik.
 
-    The SE of ``mean`` is ``(sum w_i)^-1/2``, ``w_i = 1 / (sd^2 + se_i^2)``. The SE of ``sd`` comes
-    from the REML information of ``sd^2`` (``I = tr(P^2) / 2``) by the delta method; when
-    ``sd = 0`` (on the boundary) it is ``SE(sd^2)^(1/2)``, the spread one SE of ``sd^2`` above 0.
+    The SE of ``mean`` is ``(sum w_i)^-1/2``, ``w_i = 1 / (sd^2 + se_i^2)``, widened by the
+    modified Knapp-Hartung factor ``max(1, (Q / (k - 1))^1/2)``, ``Q = sum w_i (theta_i - mean)^2``
+    (Knapp & Hartung 2003; Roever et al. 2015): with about 11 participants the plain REML SE is
+    too small, and ``mean +- t(k-1) SE`` then covers the truth about 95 % of the time.
+    The SE of ``sd`` comes from the REML information of ``sd^2`` (``I = tr(P^2) / 2``) as the
+    change of ``sd`` that moves ``sd^2`` up by one SE: ``(sd^2 + SE(sd^2))^1/2 - sd`` (the delta
+    method's ``SE(sd^2) / (2 sd)`` for a large ``sd``, finite on the boundary ``sd = 0``).
     """
     theta = np.asarray(theta, float)
     var_e = np.asarray(se, float) ** 2
+    k = theta.size
 
     def parts(tau2):
         w = 1.0 / (tau2 + var_e)
         mean = float(np.sum(w * theta) / np.sum(w))
         ll = -0.5 * (np.sum(np.log(tau2 + var_e)) + np.sum(w * (theta - mean) ** 2)
-                     + math.log(np.sum(w)) + (len(theta) - 1) * _LOG_2PI)
+                     + math.log(np.sum(w)) + (k - 1) * _LOG_2PI)
         return mean, w, ll
 
     scale = float(np.var(theta) + np.max(var_e)) * 10 + 1e-12
@@ -165,10 +170,12 @@ def _population_reml(theta, se):
         tau = 0.0
     mean, w, ll = parts(tau * tau)
     sw = np.sum(w)
+    q = float(np.sum(w * (theta - mean) ** 2))
+    se_mean = math.sqrt(1.0 / sw) * max(1.0, math.sqrt(q / (k - 1)))
     tr_p2 = np.sum(w ** 2) - 2 * np.sum(w ** 3) / sw + np.sum(w ** 2) ** 2 / sw ** 2
     se_tau2 = math.sqrt(2.0 / tr_p2) if tr_p2 > 0 else math.inf
-    se_tau = se_tau2 / (2 * tau) if tau > 0 else math.sqrt(se_tau2)
-    return {"mean": mean, "sd": tau, "se_mean": float(1 / math.sqrt(sw)), "se_sd": float(se_tau),
+    se_tau = math.sqrt(tau * tau + se_tau2) - tau
+    return {"mean": mean, "sd": tau, "se_mean": float(se_mean), "se_sd": float(se_tau),
             "loglik": float(ll)}
 
 
