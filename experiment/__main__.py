@@ -224,6 +224,9 @@ def _cmd_fit_observer(args) -> int:
         print(f"error: {out} appeared while fitting; it is never overwritten", file=sys.stderr)
         return 1
     fit, se = params["fit"], params["fit"]["standard_errors"]["humanlike"]
+    if len(fit["simulated_sessions"]) == len(fit["sessions"]):
+        print("note: every session comes from a simulated observer: this is a check of the fit, "
+              "not the lab's observer", file=sys.stderr)
     print(f"fitted {fit['n_participants']} participants, {fit['n_trials']} trials from "
           f"{len(files)} files ({fit['n_censored']['gloss']} gloss and "
           f"{fit['n_censored']['depth']} depth answers at a slider end, fitted as censored)")

@@ -1,12 +1,14 @@
 """Simulated observers of the matching task: the same objects drive the app, the analysis checks
 and the sim-to-real diagnosis.
 
-Two kinds, parameters in ``experiment/observers.toml`` (or a table passed as ``params``):
+Two kinds, parameters in ``experiment/observers.toml`` (or a table passed as ``params``, or a
+file fitted to a lab's own pilot by :func:`experiment.fit_observer_params`,
+``python -m experiment fit-observer``):
 
 ``ideal``
     Truth plus trial noise: ``depth_hat = depth + e_d``, ``gloss_hat = gloss + e_g``.
 ``humanlike``
-    The seed's pattern. Each observer draws its own intercepts and slopes once (random effects);
+    The source study's pattern. Each observer draws its own intercepts and slopes once (random effects);
     depth is compressed towards the middle of the scale and depth leaks into gloss (deeper arrays
     look glossier), gloss does not leak into depth::
 
