@@ -77,6 +77,33 @@ def test_fit_is_more_precise_with_40_observers(design):
     assert min(ratios) > 1.1, dict(zip(HUMANLIKE_PARAMS, np.round(ratios, 2)))
 
 
+def test_fit_agrees_with_statsmodels_mixedlm_where_nothing_is_censored(design):
+    """Reference: statsmodels' MixedLM (REML; independent random intercept and slope per
+    participant, one residual SD) on the depth answers, which the shipped observer almost never
+    puts at a slider end. The two-stage fit must give the same population means, SDs and SEs."""
+    import statsmodels.formula.api as smf
+
+    frame = _simulated(design, 11, seed=21)
+    depth_cm = design.slider.to_depth_cm(frame["depth_match"])
+    assert ((frame["depth_match"] <= 1) | (frame["depth_match"] >= 11)).sum() <= 3
+    mid = design.slider.to_depth_cm(0.5 * (design.slider.min + design.slider.max))
+    data = frame.assign(x=frame["true_depth_cm"] - mid, y=depth_cm - mid)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ref = smf.mixedlm("y ~ x", data, groups="participant", re_formula="1",
+                          vc_formula={"slope": "0 + x"}).fit(reml=True)
+    params = fit_observer_params(frame, design)
+    fitted, se = params["humanlike"], params["fit"]["standard_errors"]["humanlike"]
+    pairs = {"depth_intercept_cm": (ref.fe_params["Intercept"], ref.bse_fe["Intercept"],
+                                    float(np.sqrt(ref.cov_re.iloc[0, 0]))),
+             "depth_slope": (ref.fe_params["x"], ref.bse_fe["x"], float(np.sqrt(ref.vcomp[0])))}
+    for name, (mean, se_mean, sd) in pairs.items():
+        assert fitted[name]["mean"] == pytest.approx(mean, abs=0.1 * se[name]["mean"]), name
+        assert se[name]["mean"] == pytest.approx(se_mean, rel=0.05), name
+        assert fitted[name]["sd"] == pytest.approx(sd, abs=0.1 * se[name]["sd"]), name
+    assert fitted["depth_noise_cm"]["mean"] == pytest.approx(np.sqrt(ref.scale), rel=0.01)
+
+
 def _numpy_observers(n: int, rng: np.random.Generator, pop: dict, *, gloss_levels_pct,
                      depth_levels_cm, repeats: int = 2) -> pd.DataFrame:
     """The humanlike equations written out here with numpy alone (no experiment code).
