@@ -314,3 +314,25 @@ def test_simulate_refuses_a_bad_observer_file(tmp_path, capsys):
                  str(tmp_path / "sim"), "--observer-params", str(bad)]) == 2
     assert "lacks the tables" in capsys.readouterr().err
     assert not (tmp_path / "sim").exists()
+
+
+@pytest.mark.xvfb
+@pytest.mark.slow
+def test_run_simulate_uses_a_fitted_observer_file(tmp_path, session_files, design):
+    """The app's simulated participant takes its parameters from a fitted file (SDs of 0 make
+    the drawn observer equal to the file's means)."""
+    from .conftest import run_app
+
+    params = fit_observer_params(_simulated(design, 3, seed=8), design)
+    for value in params["humanlike"].values():
+        value["sd"] = 0.0
+    path = write_observer_params(tmp_path / "fitted.toml", params)
+    f = session_files
+    res = run_app("run", "--participant", "P07", "--session", "1", "--stimuli", f["manifest"],
+                  "--calibration", f["calibration"], "--data", f["data"], "--simulate",
+                  "humanlike", "--fast", "--simulate-quit-at", "3", "--observer-params", path)
+    assert res.returncode == 3, res.stderr
+    log = json.loads((f["data"] / "logs" / "P07_s1_run1.json").read_text())
+    drawn = log["simulated"]["observer"]["params"]
+    assert drawn == {k: pytest.approx(v["mean"]) for k, v in params["humanlike"].items()}
+    assert len(experiment.read_session(f["data"] / "sessions" / "P07_s1.csv")) == 2
