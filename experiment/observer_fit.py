@@ -104,6 +104,10 @@ def _tobit_fit(y, X, offset, left, right, lo, hi, who: str):
     start_beta = (np.linalg.lstsq(X[mid], (y - offset)[mid], rcond=None)[0] if X.shape[1]
                   else np.zeros(0))
     resid = (y - offset - X @ start_beta)[mid]
+    if np.std(resid) <= 1e-9 * max(1.0, abs(lo), abs(hi)):
+        raise ObserverFitError(f"{who}: the answers have no trial-to-trial spread (the same "
+                               "answer on every trial?); the noise cannot be fitted. Look at this "
+                               "participant's answers or leave the participant out")
     start = np.append(start_beta, math.log(max(np.std(resid), 1e-6)))
     args = (y, X, offset, left, right, lo, hi)
     res = optimize.minimize(_tobit_nll, start, args=args, jac=True, method="BFGS",
@@ -129,6 +133,10 @@ def _tobit_fit(y, X, offset, left, right, lo, hi, who: str):
                                "levels?") from exc
     # ML divides the residual variance by n, not n - p: scale sigma as the unbiased
     # least-squares variance would be (exact without censoring, close with a few censored).
+    if not np.all(np.isfinite(cov)) or np.any(np.diag(cov) <= 0):
+        raise ObserverFitError(f"{who}: the fit's information matrix is not positive definite "
+                               "(answers that do not vary?); look at this participant's answers "
+                               "or leave the participant out")
     sigma = math.exp(res.x[-1]) * math.sqrt(len(y) / (len(y) - X.shape[1]))
     jac = np.eye(n)
     jac[-1, -1] = sigma  # delta method: log sigma -> sigma
@@ -201,6 +209,12 @@ def _check_frame(sessions: pd.DataFrame, design: StudyDesign, simulated_sessions
         rows = frame.loc[bad, ["participant", "session"]].drop_duplicates().to_numpy().tolist()
         raise ObserverFitError(f"{int(bad.sum())} rows have empty or non-numeric truth, answers "
                                f"or rt_s (participant, session: {rows[:5]}); repair or remove them")
+    slow = frame["rt_s"].astype(float) <= 0
+    if slow.any():
+        rows = frame.loc[slow, ["participant", "session"]].drop_duplicates().to_numpy().tolist()
+        raise ObserverFitError(f"{int(slow.sum())} rows have rt_s <= 0 s (participant, session: "
+                               f"{rows[:5]}); response times are from onset to the response, "
+                               "so these rows are damaged: repair or remove them")
     counts = frame.groupby("participant").size()
     few = counts[counts < MIN_TRIALS_PER_PARTICIPANT]
     if len(few):

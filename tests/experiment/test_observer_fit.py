@@ -216,6 +216,11 @@ def test_bad_session_data_is_refused_with_the_fix(design):
         (frame.assign(depth_match=frame["depth_match"] + 20), "outside the slider's range"),
         (frame.assign(gloss_match=np.nan), "non-numeric"),
         (pd.concat([frame, frame.iloc[:5].assign(participant="X")]), "fewer than 20"),
+        (frame.assign(rt_s=0.0), "rt_s <= 0"),
+        (frame.assign(gloss_match=np.where(frame["participant"] == "R01", 6.0,
+                                           frame["gloss_match"])), "no trial-to-trial spread"),
+        (frame.assign(depth_match=np.where(frame["participant"] == "R01", 11.0,
+                                           frame["depth_match"])), "at its ends"),
     ]
     for bad, match in cases:
         with pytest.raises(ObserverFitError, match=match):
