@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, special
 
-from studydesign import DesignError, StudyDesign
+from studydesign import StudyDesign
 
 __all__ = ["ObserverFitError", "ObserverFitWarning", "fit_observer_params"]
 
@@ -193,7 +193,8 @@ def _simulated_rows(frame: pd.DataFrame) -> pd.Series:
     return frame["app_version"].astype(str).str.contains("simulate_dataset:", regex=False)
 
 
-def _check_frame(sessions: pd.DataFrame, design: StudyDesign, simulated_sessions) -> pd.DataFrame:
+def _check_frame(sessions: pd.DataFrame, simulated_sessions) -> pd.DataFrame:
+    """Refuse what cannot be fitted; warn about simulated rows among real ones."""
     if not isinstance(sessions, pd.DataFrame) or sessions.empty:
         raise ObserverFitError("no session rows to fit: give the lab's session CSVs "
                                "(data/sessions/<participant>_s<n>.csv)")
@@ -203,13 +204,14 @@ def _check_frame(sessions: pd.DataFrame, design: StudyDesign, simulated_sessions
                                "experiment.read_session")
     frame = sessions.copy()
     frame["participant"] = frame["participant"].astype(str)
-    values = frame[["true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match", "rt_s"]]
-    bad = ~np.isfinite(values.apply(pd.to_numeric, errors="coerce").to_numpy(float)).all(axis=1)
+    numeric = ["true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match", "rt_s"]
+    frame[numeric] = frame[numeric].apply(pd.to_numeric, errors="coerce")
+    bad = ~np.isfinite(frame[numeric].to_numpy(float)).all(axis=1)
     if bad.any():
         rows = frame.loc[bad, ["participant", "session"]].drop_duplicates().to_numpy().tolist()
         raise ObserverFitError(f"{int(bad.sum())} rows have empty or non-numeric truth, answers "
                                f"or rt_s (participant, session: {rows[:5]}); repair or remove them")
-    slow = frame["rt_s"].astype(float) <= 0
+    slow = frame["rt_s"] <= 0
     if slow.any():
         rows = frame.loc[slow, ["participant", "session"]].drop_duplicates().to_numpy().tolist()
         raise ObserverFitError(f"{int(slow.sum())} rows have rt_s <= 0 s (participant, session: "
@@ -226,9 +228,7 @@ def _check_frame(sessions: pd.DataFrame, design: StudyDesign, simulated_sessions
                                "SDs need at least 2 participants (the study has 11); fit a pilot "
                                "of several participants")
     sim = _simulated_rows(frame)
-    flagged = set(frame.loc[sim, "participant"])
     for who, session in simulated_sessions or ():
-        flagged.add(str(who))
         sim |= (frame["participant"] == str(who)) & (frame["session"] == session)
     if sim.any() and not sim.all():
         listed = sorted(frame.loc[sim, ["participant", "session"]].drop_duplicates()
@@ -255,11 +255,8 @@ def _to_physical(frame: pd.DataFrame, design: StudyDesign) -> pd.DataFrame:
                 f"[{s.min:g}, {s.max:g}] (participant, session: "
                 f"{rows.to_numpy().tolist()[:5]}); these files were not written for this "
                 "design: pass the design they were run with (--design)")
-        v = np.clip(v, s.min, s.max)
-        try:
-            out[col + "_phys"] = conv(v)
-        except DesignError as exc:  # pragma: no cover - clipped above
-            raise ObserverFitError(str(exc)) from exc
+        v = np.clip(v, s.min, s.max)  # within the tolerance: a slider's end
+        out[col + "_phys"] = conv(v)
         out[col + "_low"] = v <= s.min + _END_TOL
         out[col + "_high"] = v >= s.max - _END_TOL
     return out
@@ -387,7 +384,7 @@ def fit_observer_params(sessions: pd.DataFrame, design: StudyDesign, *, kind: st
 
     if kind not in OBSERVER_KINDS:
         raise ObserverFitError(f"unknown observer kind {kind!r}; use one of {OBSERVER_KINDS}")
-    frame = _to_physical(_check_frame(sessions, design, simulated_sessions), design)
+    frame = _to_physical(_check_frame(sessions, simulated_sessions), design)
     per = {who: _fit_participant(rows, design) for who, rows in frame.groupby("participant")}
     humanlike, se_h, ll_pop = {}, {}, 0.0
     for name in HUMANLIKE_PARAMS:
