@@ -18,14 +18,18 @@ A two-stage hierarchical maximum-likelihood fit of the ``humanlike`` model of
 2. **The population** (stage 2): for each parameter, the participants' estimates ``theta_i`` with
    standard errors ``s_i`` are modelled as ``theta_i ~ N(mean, sd^2 + s_i^2)``, and ``mean`` and the
    between-observer ``sd`` are fitted by restricted maximum likelihood (REML, as lme4 and statsmodels'
-   MixedLM do by default: with about 11 participants ML would bias the SDs down by ~10 %). This
-   separates the true spread between observers from each estimate's own noise.
+   MixedLM do by default: ML would bias the variances down by about 1/k, 9 % with 11
+   participants). This separates the true spread between observers from each estimate's own
+   noise. The noise SDs and response-time parameters, whose SEs grow with their own value, are
+   weighted by their relative SEs (see :func:`fit_observer_params`).
 
 The exact one-stage likelihood of a mixed model with censored answers has no closed form (it
 integrates a multivariate normal CDF over the random effects); the two-stage fit is exact within a
 participant and uses the normal approximation of each participant's estimate, which at the study's
 162 trials per participant is close (see ``bench/experiment_observer_recovery.py`` for the measured
-recovery). The ``ideal`` observer (truth + noise) is fitted too, by censored ML pooled over all
+recovery). Where nothing is censored it agrees with statsmodels' MixedLM (REML, independent
+random intercept and slope) to a small fraction of a standard error
+(``tests/experiment/test_observer_fit.py``). The ``ideal`` observer (truth + noise) is fitted too, by censored ML pooled over all
 trials, so that a fitted file holds both kinds, as the shipped one does.
 """
 
