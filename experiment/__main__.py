@@ -219,6 +219,7 @@ def _cmd_fit_observer(args) -> int:
     for w in caught:
         print(f"warning: {w.message}", file=sys.stderr)
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
         write_observer_params(out, params)
     except FileExistsError:
         print(f"error: {out} appeared while fitting; it is never overwritten", file=sys.stderr)
