@@ -76,6 +76,10 @@ def _cmd_run(args) -> int:
         print("error: --fast is for simulated runs (it does not wait for the vertical blank, so "
               "onsets and frame counts would be wrong with a participant)", file=sys.stderr)
         return 2
+    problem = _observer_params_problem(args.observer_params, args.simulate)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     if any(v is None for v in values.values()):
         if args.simulate:
             print("error: --participant, --session, --stimuli and --calibration are required "
@@ -90,10 +94,6 @@ def _cmd_run(args) -> int:
         if values is None:
             print("cancelled: no session run", file=sys.stderr)
             return 1
-    problem = _observer_params_problem(args.observer_params, args.simulate)
-    if problem is not None:
-        print(f"error: {problem}", file=sys.stderr)
-        return 2
     req = SessionRequest(
         design=design, participant=values["participant"], session=values["session"],
         manifest=values["stimuli"], calibration=values["calibration"], data_dir=args.data,
