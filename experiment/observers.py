@@ -204,6 +204,9 @@ def _draw(spec, name: str, rng: np.random.Generator) -> float:
     return float(spec)
 
 
+#: Parameters that are spreads: a fixed value must be >= 0, a drawn one is redrawn until it is.
+_NON_NEGATIVE = ("depth_noise_cm", "gloss_noise_pct", "rt_log_sd")
+
 _REQUIRED = {
     "ideal": ("depth_noise_cm", "gloss_noise_pct", "rt_median_s", "rt_log_sd"),
     "humanlike": ("depth_slope", "depth_intercept_cm", "depth_noise_cm", "gloss_slope",
@@ -306,7 +309,8 @@ def make_observer(kind: str, participant: str, rng: np.random.Generator, params=
         Draws the observer-specific parameters.
     params : dict, optional
         The kind's parameter table (as in ``observers.toml``); default: the shipped file's.
-        A number is fixed; ``{mean, sd}`` is drawn per observer.
+        A number is fixed; ``{mean, sd}`` is drawn per observer (the noise SDs and
+        ``rt_log_sd`` from the normal truncated at 0).
     design : StudyDesign, optional
         Supplies the slider mapping; default: the shipped design.
 
@@ -324,10 +328,20 @@ def make_observer(kind: str, participant: str, rng: np.random.Generator, params=
     missing = [k for k in _REQUIRED[kind] if k not in table]
     if missing:
         raise ValueError(f"{kind} observer parameters lack {missing}")
-    drawn = {name: _draw(table[name], name, rng) for name in _REQUIRED[kind]}
-    for name in ("depth_noise_cm", "gloss_noise_pct", "rt_log_sd"):
-        if drawn[name] < 0:
-            raise ValueError(f"{kind} observer parameter {name} = {drawn[name]} must be >= 0")
+    drawn = {}
+    for name in _REQUIRED[kind]:
+        value = _draw(table[name], name, rng)
+        if name in _NON_NEGATIVE and isinstance(table[name], Mapping):
+            if table[name]["mean"] < 0:
+                raise ValueError(f"{kind} observer parameter {name}: mean "
+                                 f"{table[name]['mean']} must be >= 0")
+            # A spread fitted to a pilot may reach below 0 now and then: draw again (the
+            # normal truncated at 0), as a real observer's noise is never negative.
+            while value < 0:
+                value = _draw(table[name], name, rng)
+        if name in _NON_NEGATIVE and value < 0:
+            raise ValueError(f"{kind} observer parameter {name} = {value} must be >= 0")
+        drawn[name] = value
     design = design if design is not None else load_design()
     return Observer(kind=kind, participant=participant, params=drawn, slider=design.slider)
 

@@ -341,3 +341,18 @@ def test_run_simulate_uses_a_fitted_observer_file(tmp_path, session_files, desig
     drawn = log["simulated"]["observer"]["params"]
     assert drawn == {k: pytest.approx(v["mean"]) for k, v in params["humanlike"].items()}
     assert len(experiment.read_session(f["data"] / "sessions" / "P07_s1.csv")) == 2
+
+
+def test_drawn_noise_is_never_negative(design):
+    """A fitted spread may reach below 0: each observer's noise SD is drawn from the normal
+    truncated at 0, not refused; a negative mean is refused."""
+    table = _truth(SHIPPED)
+    table["gloss_noise_pct"] = {"mean": 1.0, "sd": 5.0}
+    rng = np.random.default_rng(0)
+    noise = [make_observer("humanlike", f"P{k}", rng, table, design=design).params[
+        "gloss_noise_pct"] for k in range(200)]
+    assert min(noise) >= 0
+    assert np.mean(noise) > 1.0  # truncation at 0 raises the mean of the draws
+    table["gloss_noise_pct"] = {"mean": -1.0, "sd": 1.0}
+    with pytest.raises(ValueError, match="must be >= 0"):
+        make_observer("humanlike", "P1", rng, table, design=design)
