@@ -5,7 +5,8 @@ study's 11 observers x 162 trials and more precisely for 40 observers.
 Data come from ``experiment.simulate_dataset`` with the shipped ``experiment/observers.toml``
 humanlike table as the truth (fixed numbers there have a between-observer SD of 0). For each
 number of observers the script prints, for one replicate, true vs fitted vs error and the error in
-units of the fit's own SE; then, over ``--reps`` replicates (different seeds), the bias, the RMSE,
+units of the fit's own SE, and the mean and SD of the parameters the simulated observers actually
+drew ("drawn": the population seen through n observers, which the fit cannot see past); then, over ``--reps`` replicates (different seeds), the bias, the RMSE,
 the mean reported SE and the coverage of the interval +- t(n-1, 0.975) SE (about 0.95 if the SEs
 are right; with 20 replicates a coverage is known to about +-0.05).
 
@@ -48,7 +49,8 @@ def _one(design, table, n: int, seed: int):
     frame = simulate_dataset(design, obs, rng)
     t0 = time.perf_counter()
     params = fit_observer_params(frame, design)
-    return params, time.perf_counter() - t0, len(frame)
+    drawn = {k: np.array([o.params[k] for o in obs]) for k in HUMANLIKE_PARAMS}
+    return params, time.perf_counter() - t0, len(frame), drawn
 
 
 def main(argv=None) -> int:
@@ -63,20 +65,24 @@ def main(argv=None) -> int:
     for n in args.observers:
         fits, secs = [], []
         for r in range(args.reps):
-            params, sec, n_trials = _one(design, table, n, seed=args.seed + 1000 * n + r)
+            params, sec, n_trials, drawn = _one(design, table, n, seed=args.seed + 1000 * n + r)
+            if r == 0:
+                first_drawn = drawn
             fits.append(params)
             secs.append(sec)
         print(f"\n== {n} observers x {n_trials // n} trials: one replicate (seed "
               f"{args.seed + 1000 * n}); fit took {secs[0]:.2f} s ==")
         print(f"{'parameter':34s} {'true':>9s} {'fitted':>9s} {'error':>9s} {'SE':>8s} "
-              f"{'err/SE':>7s}")
+              f"{'err/SE':>7s} {'drawn':>9s}")
         first = fits[0]
         se = first["fit"]["standard_errors"]["humanlike"]
         for name in HUMANLIKE_PARAMS:
             for part in ("mean", "sd"):
                 t, f, s = truth[name][part], first["humanlike"][name][part], se[name][part]
+                v = first_drawn[name]
+                sample = np.mean(v) if part == "mean" else np.std(v, ddof=1)
                 print(f"{name + '.' + part:34s} {t:9.4g} {f:9.4g} {f - t:9.3g} {s:8.3g} "
-                      f"{(f - t) / s:7.2f}")
+                      f"{(f - t) / s:7.2f} {sample:9.4g}")
         print(f"\n-- {n} observers, over {args.reps} replicates (fit median "
               f"{np.median(secs):.2f} s) --")
         t_crit = stats.t.ppf(0.975, n - 1)
