@@ -7,8 +7,11 @@ check_participant_id, make_plan, load_or_create_plan, plan_path, participant_see
 SESSION_COLUMNS, SessionWriter, read_session, session_path, sliders_path, app_version
     Session data files (one CSV row per trial, appended and fsynced).
 Observer, make_observer, simulate_dataset, write_simulated_sessions, load_observer_params,
-OBSERVER_KINDS
+OBSERVER_KINDS, write_observer_params
     Simulated observers (``ideal``, ``humanlike``; parameters in ``observers.toml``).
+fit_observer_params, ObserverFitError
+    Fit the observers' parameters to a lab's sessions (``python -m experiment fit-observer``);
+    imported on first use (scipy).
 
 run_session, SessionRequest, SessionOutcome, PreflightError
     The session app (``python -m experiment run``); imported on first use, so that
@@ -32,6 +35,7 @@ from experiment.observers import (
     load_observer_params,
     make_observer,
     simulate_dataset,
+    write_observer_params,
     write_simulated_sessions,
 )
 from experiment.participants import check_participant_id
@@ -45,7 +49,9 @@ from experiment.plan import (
 )
 
 _LAZY = {"run_session": "experiment.session", "SessionRequest": "experiment.session",
-         "SessionOutcome": "experiment.session", "PreflightError": "experiment.checks"}
+         "SessionOutcome": "experiment.session", "PreflightError": "experiment.checks",
+         "fit_observer_params": "experiment.observer_fit",
+         "ObserverFitError": "experiment.observer_fit"}
 
 
 def __getattr__(name: str):
@@ -62,6 +68,7 @@ __all__ = [
     "SESSION_COLUMNS",
     "DataFileError",
     "Observer",
+    "ObserverFitError",
     "PlanError",
     "PreflightError",
     "SessionOutcome",
@@ -69,6 +76,7 @@ __all__ = [
     "SessionWriter",
     "app_version",
     "check_participant_id",
+    "fit_observer_params",
     "load_observer_params",
     "load_or_create_plan",
     "make_observer",
@@ -80,5 +88,6 @@ __all__ = [
     "session_path",
     "simulate_dataset",
     "sliders_path",
+    "write_observer_params",
     "write_simulated_sessions",
 ]

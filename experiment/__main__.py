@@ -2,7 +2,8 @@
 
 ``run``   run (or resume) a session at the CRT, or with a simulated observer under Xvfb;
 ``plan``  make or show a participant's trial plan;
-``simulate``  write simulated session files without the app (observer model only).
+``simulate``  write simulated session files without the app (observer model only);
+``fit-observer``  fit the simulated observers' parameters to a lab's sessions (a pilot).
 """
 
 from __future__ import annotations
@@ -74,6 +75,10 @@ def _cmd_run(args) -> int:
     if args.fast and not args.simulate:
         print("error: --fast is for simulated runs (it does not wait for the vertical blank, so "
               "onsets and frame counts would be wrong with a participant)", file=sys.stderr)
+        return 2
+    problem = _observer_params_problem(args.observer_params, args.simulate)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
         return 2
     if any(v is None for v in values.values()):
         if args.simulate:
@@ -147,6 +152,10 @@ def _cmd_simulate(args) -> int:
 
     design = load_design(args.design)
     rng = np.random.default_rng(args.seed)
+    problem = _observer_params_problem(args.observer_params, args.observer)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     params = load_observer_params(args.observer_params)[args.observer]
     observers = [make_observer(args.observer, p, rng, params, design=design)
                  for p in args.participants]
@@ -158,6 +167,78 @@ def _cmd_simulate(args) -> int:
         return 1
     print(f"{len(paths)} session files ({args.observer} observers, seed {args.seed}) in "
           f"{paths[0].parent}")
+    return 0
+
+
+# ---- fit-observer: the simulated observers fitted to a lab's own sessions -------------------
+def _observer_params_problem(path, kind) -> str | None:
+    """Why an --observer-params file cannot drive a simulated observer of ``kind``, or None."""
+    if path is None:
+        return None
+    if kind is None:
+        return "--observer-params is for simulated observers: add --simulate humanlike (or ideal)"
+    import numpy as np
+
+    from experiment.observers import load_observer_params, make_observer
+
+    try:
+        params = load_observer_params(path)
+        make_observer(kind, "CHECK", np.random.default_rng(0), params[kind])
+    except (ValueError, TypeError) as exc:
+        return str(exc)
+    return None
+
+
+def _cmd_fit_observer(args) -> int:
+    import warnings
+    from pathlib import Path
+
+    from experiment.observer_fit import (
+        HUMANLIKE_PARAMS,
+        ObserverFitError,
+        fit_observer_params,
+        read_sessions_for_fit,
+    )
+    from experiment.observers import write_observer_params
+
+    design = load_design(args.design)
+    out = Path(args.out)
+    if out.exists():
+        print(f"error: {out} exists and is never overwritten; choose another --out or move it "
+              "aside", file=sys.stderr)
+        return 1
+    try:
+        frame, simulated, files = read_sessions_for_fit(args.sessions)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            params = fit_observer_params(frame, design, kind=args.kind,
+                                         simulated_sessions=simulated)
+    except ObserverFitError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_observer_params(out, params)
+    except FileExistsError:
+        print(f"error: {out} appeared while fitting; it is never overwritten", file=sys.stderr)
+        return 1
+    fit, se = params["fit"], params["fit"]["standard_errors"]["humanlike"]
+    if len(fit["simulated_sessions"]) == len(fit["sessions"]):
+        print("note: every session comes from a simulated observer: this is a check of the fit, "
+              "not the lab's observer", file=sys.stderr)
+    print(f"fitted {fit['n_participants']} participants, {fit['n_trials']} trials from "
+          f"{len(files)} files ({fit['n_censored']['gloss']} gloss and "
+          f"{fit['n_censored']['depth']} depth answers at a slider end, fitted as censored)")
+    print(f"{'humanlike parameter':24s} {'mean':>10s} {'(SE)':>9s} {'sd':>10s} {'(SE)':>9s}")
+    for name in HUMANLIKE_PARAMS:
+        v = params["humanlike"][name]
+        print(f"{name:24s} {v['mean']:10.4g} ({se[name]['mean']:7.2g}) {v['sd']:10.4g} "
+              f"({se[name]['sd']:7.2g})")
+    print(f"ideal: {', '.join(f'{k} {v:.4g}' for k, v in params['ideal'].items())}")
+    print(f"wrote {out}: use it with python -m experiment simulate --observer-params {out} (or "
+          "run --simulate ... --observer-params)")
     return 0
 
 
@@ -212,6 +293,15 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
     s.set_defaults(func=_cmd_simulate)
+
+    f = sub.add_parser("fit-observer", help="fit the simulated observers to session CSVs (a "
+                                            "pilot) and write an observers.toml")
+    f.add_argument("sessions", nargs="+", metavar="SESSIONS",
+                   help="a data folder (its sessions/*.csv), a folder of session CSVs, or CSVs")
+    f.add_argument("--out", required=True, help="the observers.toml to write (never overwritten)")
+    f.add_argument("--kind", choices=["humanlike", "ideal"], default="humanlike",
+                   help="the kind the file is meant for (both are fitted; default humanlike)")
+    f.set_defaults(func=_cmd_fit_observer)
 
     args = parser.parse_args(argv)
     try:

@@ -1,12 +1,14 @@
 """Simulated observers of the matching task: the same objects drive the app, the analysis checks
 and the sim-to-real diagnosis.
 
-Two kinds, parameters in ``experiment/observers.toml`` (or a table passed as ``params``):
+Two kinds, parameters in ``experiment/observers.toml`` (or a table passed as ``params``, or a
+file fitted to a lab's own pilot by :func:`experiment.fit_observer_params`,
+``python -m experiment fit-observer``):
 
 ``ideal``
     Truth plus trial noise: ``depth_hat = depth + e_d``, ``gloss_hat = gloss + e_g``.
 ``humanlike``
-    The seed's pattern. Each observer draws its own intercepts and slopes once (random effects);
+    The source study's pattern. Each observer draws its own intercepts and slopes once (random effects);
     depth is compressed towards the middle of the scale and depth leaks into gloss (deeper arrays
     look glossier), gloss does not leak into depth::
 
@@ -24,6 +26,9 @@ slider's range as a real slider clips them.
 from __future__ import annotations
 
 import copy
+import json
+import math
+import re
 import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -35,6 +40,7 @@ import pandas as pd
 
 from experiment.datafile import SESSION_COLUMNS, app_version, session_path
 from experiment.plan import make_plan, participant_seed
+from labfiles import atomic_write_text, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
 
 __all__ = [
@@ -44,6 +50,7 @@ __all__ = [
     "load_observer_params",
     "make_observer",
     "simulate_dataset",
+    "write_observer_params",
     "write_simulated_sessions",
 ]
 
@@ -58,19 +65,131 @@ def default_observers_path() -> Path:
 
 
 def load_observer_params(path=None) -> dict:
-    """Read an observers parameter file (default: the shipped one) -> ``{kind: table}``."""
+    """Read an observers parameter file (default: the shipped one) -> ``{kind: table}``.
+
+    A fitted file (``python -m experiment fit-observer``) also has a ``fit`` table (how, when and
+    on which sessions it was fitted); it is returned as read.
+
+    Raises
+    ------
+    ValueError
+        The file is missing, is not TOML, or lacks a kind's table or one of its parameters.
+    """
     path = Path(path) if path is not None else default_observers_path()
     try:
         with open(path, "rb") as fh:
             raw = tomllib.load(fh)
     except FileNotFoundError as exc:
         raise ValueError(f"observer parameter file {path} does not exist") from exc
-    except tomllib.TOMLDecodeError as exc:
-        raise ValueError(f"observer parameter file {path} is not valid TOML: {exc}") from exc
+    except IsADirectoryError as exc:
+        raise ValueError(f"observer parameter file {path} is a folder; give an observers "
+                         ".toml file") from exc
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"observer parameter file {path} is not valid TOML ({exc}); give an "
+                         "observers.toml such as experiment/observers.toml or the output of "
+                         "python -m experiment fit-observer") from exc
     missing = [k for k in OBSERVER_KINDS if k not in raw]
     if missing:
         raise ValueError(f"observer parameter file {path} lacks the tables {missing}")
+    for kind in OBSERVER_KINDS:
+        table = raw[kind]
+        lacking = [k for k in _REQUIRED[kind] if not isinstance(table, Mapping) or k not in table]
+        if lacking:
+            raise ValueError(f"observer parameter file {path}: [{kind}] lacks {lacking}")
     return raw
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else json.dumps(key, ensure_ascii=False)
+
+
+def _toml_value(value, where: str) -> str:
+    if isinstance(value, bool | np.bool_):
+        return "true" if value else "false"
+    if isinstance(value, int | np.integer):
+        return str(int(value))
+    if isinstance(value, float | np.floating):
+        v = float(value)
+        if math.isnan(v):
+            return "nan"
+        if math.isinf(v):
+            return "inf" if v > 0 else "-inf"
+        return repr(v)
+    if isinstance(value, str):
+        return json.dumps(value, ensure_ascii=False)
+    if isinstance(value, list | tuple):
+        return "[" + ", ".join(_toml_value(v, where) for v in value) + "]"
+    if isinstance(value, Mapping):
+        return "{ " + ", ".join(f"{_toml_key(k)} = {_toml_value(v, where)}"
+                                for k, v in value.items()) + " }"
+    raise TypeError(f"observer parameter {where} = {value!r} cannot be written to TOML")
+
+
+def _is_inline(value) -> bool:
+    """A ``{mean, sd}`` random effect is written inline, as in the shipped file."""
+    return isinstance(value, Mapping) and bool(value) and set(value) <= {"mean", "sd"}
+
+
+def _toml_table(name: str, table: Mapping) -> list[str]:
+    lines = [f"[{name}]"]
+    subtables = []
+    for key, value in table.items():
+        if isinstance(value, Mapping) and not _is_inline(value):
+            subtables.append((f"{name}.{_toml_key(key)}", value))
+        else:
+            lines.append(f"{_toml_key(key)} = {_toml_value(value, f'{name}.{key}')}")
+    for sub_name, sub in subtables:
+        lines += ["", *_toml_table(sub_name, sub)]
+    return lines
+
+
+def observer_params_toml(params: Mapping) -> str:
+    """The TOML text of an observers parameter table (what :func:`load_observer_params` reads)."""
+    missing = [k for k in OBSERVER_KINDS if k not in params]
+    if missing:
+        raise ValueError(f"observer parameters lack the tables {missing}")
+    lines = ["# Simulated observers of the gloss x depth matching task (experiment.observers).",
+             "# Units in the names (cm, %, s); { mean, sd } is drawn once per observer."]
+    if "fit" in params:
+        lines.append("# Fitted to session data by python -m experiment fit-observer: see [fit].")
+    for name, table in params.items():
+        if not isinstance(table, Mapping):
+            raise TypeError(f"observer parameters: {name} = {table!r} is not a table")
+        lines += ["", *_toml_table(_toml_key(name), table)]
+    return "\n".join(lines) + "\n"
+
+
+def write_observer_params(path, params: Mapping, *, overwrite: bool = False) -> Path:
+    """Write an observers parameter file atomically (fsynced, the umask's permissions).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.toml`` to write.
+    params : mapping
+        ``{"ideal": {...}, "humanlike": {...}, "fit": {...}}`` as
+        :func:`experiment.fit_observer_params` returns (``fit`` optional); the file reads back
+        equal with :func:`load_observer_params`.
+    overwrite : bool
+        Replace an existing file (atomically). By default an existing file is never replaced.
+
+    Raises
+    ------
+    FileExistsError
+        ``path`` exists and ``overwrite`` is false.
+    ValueError
+        A kind's table is missing or incomplete.
+    """
+    text = observer_params_toml(params)
+    check = tomllib.loads(text)
+    for kind in OBSERVER_KINDS:
+        lacking = [k for k in _REQUIRED[kind] if k not in check[kind]]
+        if lacking:
+            raise ValueError(f"observer parameters: [{kind}] lacks {lacking}")
+    path = Path(path)
+    if overwrite:
+        return atomic_write_text(path, text)
+    return write_new_file(path, text)
 
 
 def _draw(spec, name: str, rng: np.random.Generator) -> float:
@@ -84,6 +203,9 @@ def _draw(spec, name: str, rng: np.random.Generator) -> float:
         raise TypeError(f"observer parameter {name} = {spec!r} is not a number")
     return float(spec)
 
+
+#: Parameters that are spreads: a fixed value must be >= 0, a drawn one is redrawn until it is.
+_NON_NEGATIVE = ("depth_noise_cm", "gloss_noise_pct", "rt_log_sd")
 
 _REQUIRED = {
     "ideal": ("depth_noise_cm", "gloss_noise_pct", "rt_median_s", "rt_log_sd"),
@@ -187,7 +309,8 @@ def make_observer(kind: str, participant: str, rng: np.random.Generator, params=
         Draws the observer-specific parameters.
     params : dict, optional
         The kind's parameter table (as in ``observers.toml``); default: the shipped file's.
-        A number is fixed; ``{mean, sd}`` is drawn per observer.
+        A number is fixed; ``{mean, sd}`` is drawn per observer (the noise SDs and
+        ``rt_log_sd`` from the normal truncated at 0).
     design : StudyDesign, optional
         Supplies the slider mapping; default: the shipped design.
 
@@ -205,10 +328,20 @@ def make_observer(kind: str, participant: str, rng: np.random.Generator, params=
     missing = [k for k in _REQUIRED[kind] if k not in table]
     if missing:
         raise ValueError(f"{kind} observer parameters lack {missing}")
-    drawn = {name: _draw(table[name], name, rng) for name in _REQUIRED[kind]}
-    for name in ("depth_noise_cm", "gloss_noise_pct", "rt_log_sd"):
-        if drawn[name] < 0:
-            raise ValueError(f"{kind} observer parameter {name} = {drawn[name]} must be >= 0")
+    drawn = {}
+    for name in _REQUIRED[kind]:
+        value = _draw(table[name], name, rng)
+        if name in _NON_NEGATIVE and isinstance(table[name], Mapping):
+            if table[name]["mean"] < 0:
+                raise ValueError(f"{kind} observer parameter {name}: mean "
+                                 f"{table[name]['mean']} must be >= 0")
+            # A spread fitted to a pilot may reach below 0 now and then: draw again (the
+            # normal truncated at 0), as a real observer's noise is never negative.
+            while value < 0:
+                value = _draw(table[name], name, rng)
+        if name in _NON_NEGATIVE and value < 0:
+            raise ValueError(f"{kind} observer parameter {name} = {value} must be >= 0")
+        drawn[name] = value
     design = design if design is not None else load_design()
     return Observer(kind=kind, participant=participant, params=drawn, slider=design.slider)
 
