@@ -94,4 +94,4 @@ def test_bad_readings_are_rejected(levels, lum, message):
 
 def test_unknown_model_is_rejected():
     with pytest.raises(CalibrationError, match="unknown"):
-        fit_gamma(np.linspace(0, 1, 5), np.linspace(0, 1, 5), model="sigmoid")
+        fit_gamma(np.linspace(0, 1, 5), np.linspace(0, 1, 5), model="cubic")
