@@ -48,10 +48,12 @@ from calibration.gamma_models import (
 from calibration.noise import NoiseModel, fit_noise
 
 __all__ = [
+    "DAC_BITS",
     "GAMMA_MODELS",
     "MISFIT_P",
     "GammaFit",
     "choose_gamma_model",
+    "displayed_drive",
     "error_scale",
     "fit_gamma",
     "fit_gamma_models",
@@ -85,7 +87,7 @@ class GammaFit:
     heldout_rmse_cd_m2 : float
         Leave-one-level-out RMS error, cd/m^2: each level predicted by a fit without it.
     levels : tuple[float, ...]
-        Drive values of the readings used.
+        Drive values of the readings used (on the DAC grid when ``dac_bits`` is set).
     luminance_cd_m2 : tuple[float, ...]
         The readings.
     residuals_cd_m2 : tuple[float, ...]
@@ -109,6 +111,9 @@ class GammaFit:
         ``chi2``, ``dof``, ``chi2_p``, ``runs``, ``runs_p`` (None where not testable).
     warnings : tuple[str, ...]
         The misfit flag, when raised.
+    dac_bits : int or None
+        The levels were rounded to this DAC's grid before the fit (the drive the display
+        showed); None: used as given (and in old records).
     """
 
     model: str
@@ -126,6 +131,7 @@ class GammaFit:
     censored: tuple = ()
     misfit: dict = field(default_factory=dict)
     warnings: tuple = ()
+    dac_bits: int | None = None
 
     def luminance(self, drive) -> np.ndarray:
         """Fitted luminance in cd/m^2 at ``drive`` in [0, 1]."""
@@ -162,12 +168,34 @@ class GammaFit:
                 misfit={k: (None if v is None else float(v) if k != "dof" else int(v))
                         for k, v in d.get("misfit", {}).items()},
                 warnings=tuple(str(w) for w in d.get("warnings", ())),
+                dac_bits=None if d.get("dac_bits") is None else int(d["dac_bits"]),
             )
         except (KeyError, TypeError, AttributeError, ValueError) as exc:
             raise CalibrationError(f"gamma fit record is malformed ({exc!r})") from exc
 
 
 # --- input checks --------------------------------------------------------------------------------
+#: Bits per gun of the display's DAC (the frame buffer's 8 bits on the lab's CRT).
+DAC_BITS = 8
+
+
+def displayed_drive(levels, dac_bits: int | None) -> np.ndarray:
+    """The drive a display shows for requested levels: rounded to its DAC grid, k / (2^bits - 1).
+
+    A level off the grid (PsychoPy's ``DACrange``, a 1/30 step) is shown as the nearest grid
+    value; fitting the requested value instead biases the fit (gamma 2.287 for 2.3 on a clean
+    simulated CRT measured at 17 evenly spaced levels). ``dac_bits=None`` leaves the levels as
+    given (a display with a deeper DAC than the levels' grid).
+    """
+    x = np.asarray(levels, dtype=float)
+    if dac_bits is None:
+        return x
+    if not (isinstance(dac_bits, (int, np.integer)) and 1 <= dac_bits <= 16):
+        raise CalibrationError(f"dac_bits must be an int in 1..16 or None, got {dac_bits!r}")
+    steps = 2**int(dac_bits) - 1
+    return np.round(x * steps) / steps
+
+
 def _check_readings(levels, luminance_cd_m2) -> tuple[np.ndarray, np.ndarray]:
     x = np.asarray(levels, dtype=float).ravel()
     y = np.asarray(luminance_cd_m2, dtype=float).ravel()
@@ -423,7 +451,8 @@ def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
 
 # --- public API ----------------------------------------------------------------------------------
 def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
-              noise: NoiseModel | None = None, floor_cd_m2: float | None = None) -> GammaFit:
+              noise: NoiseModel | None = None, floor_cd_m2: float | None = None,
+              dac_bits: int | None = DAC_BITS) -> GammaFit:
     """Fit a display transfer function to photometer readings by maximum likelihood.
 
     Parameters
@@ -439,6 +468,9 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
     floor_cd_m2 : float or None
         The meter's floor (readings at or below it are censored), cd/m^2; default the noise
         model's. Ignored when ``noise`` is given.
+    dac_bits : int or None
+        The display's DAC bits: levels are rounded to its grid (:func:`displayed_drive`);
+        None uses them as given.
 
     Returns
     -------
@@ -457,6 +489,7 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
             f"gamma model {model!r} is unknown; use one of {sorted(GAMMA_MODELS)}"
         )
     x, y = _check_readings(levels, luminance_cd_m2)
+    x = displayed_drive(x, dac_bits)
     noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
     d = _data(x, y, noise)
     if (~d.censored).sum() < 3 or np.unique(x[~d.censored]).size < 3:
@@ -498,18 +531,22 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
         censored=tuple(bool(c) for c in d.censored),
         misfit=misfit,
         warnings=warnings,
+        dac_bits=dac_bits,
     )
 
 
 def fit_gamma_models(levels, luminance_cd_m2, *, models=None, noise: NoiseModel | None = None,
-                     floor_cd_m2: float | None = None) -> tuple[GammaFit, ...]:
+                     floor_cd_m2: float | None = None,
+                     dac_bits: int | None = DAC_BITS) -> tuple[GammaFit, ...]:
     """Fit every model (default all of :data:`GAMMA_MODELS`) with one noise model.
 
     Same arguments as :func:`fit_gamma`; ``models`` restricts the family.
     """
     x, y = _check_readings(levels, luminance_cd_m2)
+    x = displayed_drive(x, dac_bits)
     noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
-    return tuple(fit_gamma(x, y, model=m, noise=noise) for m in (models or GAMMA_MODELS))
+    return tuple(fit_gamma(x, y, model=m, noise=noise, dac_bits=dac_bits)
+                 for m in (models or GAMMA_MODELS))
 
 
 def _rank(f: GammaFit) -> tuple[int, int]:

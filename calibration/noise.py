@@ -39,9 +39,11 @@ DEFAULT_REL = 5e-3
 #: A reading at or below this many absolute SDs is at the meter's floor (censored).
 FLOOR_SD_MULTIPLE = 2.0
 #: Smallest noise the fit allows, as fractions of the brightest reading (absolute) and of the
-#: reading (relative): noise-free simulated readings would otherwise get infinite weight.
+#: reading (relative): repeats that agree exactly (a noise-free simulation) still carry the
+#: reading's rounding, 4 significant digits in every supported meter's reply, SD up to
+#: 1e-3 / sqrt(12) = 3e-4 of the reading.
 _MIN_ABS_FRACTION = 1e-6
-_MIN_REL = 1e-5
+_MIN_REL = 3e-4
 
 
 @dataclass(frozen=True)
