@@ -199,17 +199,22 @@ def test_readings_at_the_meter_floor_are_censored_not_exact(rng):
     assert sum(censored.censored) == np.sum(lum == 0)
     assert censored.params["gamma"] == pytest.approx(2.4, abs=0.05)
     assert censored.params["x0"] == pytest.approx(0.2, abs=0.01)
+    assert censored.warnings == ()
+    # The same zeros taken as exact readings: the residuals are far from noise-like.
+    exact = fit_gamma(x, lum, model="extended_power", floor_cd_m2=-1.0, dac_bits=None)
+    assert not any(exact.censored)
+    assert exact.misfit["chi2_p"] < 1e-6 and exact.warnings
 
 
 def test_large_drive_threshold_is_found_from_the_grid(rng):
-    # Almost no light below a third of the drive range: a start near x0 = 0 ends in the wrong
-    # basin; the grid over x0 finds it.
-    true_p = {"a": 0.3, "k": 150.0, "x0": 0.35, "gamma": 2.2}
+    # No light below 55 % of the drive range: the grid over x0 covers [-0.2, 0.6) (the old
+    # fit's bound of 0.5 returned x0 = 0.5, gamma 2.86).
+    true_p = {"a": 0.3, "k": 150.0, "x0": 0.55, "gamma": 2.2}
     x = np.repeat(np.round(np.linspace(0, 1, 30) * 255) / 255, 2)
     lum = gamma_luminance(x, model="extended_power", params=true_p)
     lum = lum * (1 + 0.003 * rng.standard_normal(x.size)) + 0.01 * rng.standard_normal(x.size)
     fit = fit_gamma(x, lum, model="extended_power")
-    assert fit.params["x0"] == pytest.approx(0.35, abs=0.01)
+    assert fit.params["x0"] == pytest.approx(0.55, abs=0.01)
     assert fit.params["gamma"] == pytest.approx(2.2, abs=0.05)
 
 
@@ -290,3 +295,25 @@ def test_a_record_written_before_the_noise_model_still_loads():
     assert fit.warnings == () and fit.noise == {} and fit.heldout_level_loss == ()
     assert choose_gamma_model([fit]).model == "extended_power"
     assert GammaFit.from_dict(fit.to_dict()).to_dict() == fit.to_dict()
+
+
+@pytest.mark.parametrize("model", ["monotone_spline", "ptb_crt_poly_linear", "ptb_weibull"])
+def test_a_calibration_on_a_new_model_round_trips_and_inverts(model, tmp_path, rng):
+    from calibration import Calibration, load_calibration, save_calibration
+
+    crt = SimulatedCRT(falloff=0, tilt_x=0)
+    lum = crt.luminance(GRID, rng=rng)
+    fits = fit_gamma_models(GRID, lum)
+    fit = next(f for f in fits if f.model == model)
+    cal = Calibration(calibration_id="t", created_utc="2026-11-22T10:00:00Z", device="pr655",
+                      monitor_name="m", resolution_px=(1024, 768), width_cm=32.0,
+                      distance_cm=57.0, refresh_hz=85.0, gamma_model=model,
+                      gamma_params=dict(fit.params), min_luminance_cd_m2=float(fit.luminance(0)),
+                      max_luminance_cd_m2=float(fit.luminance(1)), fits=fits)
+    back = load_calibration(save_calibration(cal, tmp_path / "calibration.json"))
+    assert back.chosen_fit.to_dict() == fit.to_dict()
+    f = np.linspace(0.05, 0.95, 19)
+    drive = back.drive_for_fraction(f)
+    shown = back.luminance_for_drive(drive)
+    want = back.min_luminance_cd_m2 + f * (back.max_luminance_cd_m2 - back.min_luminance_cd_m2)
+    assert shown == pytest.approx(want, rel=1e-6)

@@ -86,3 +86,16 @@ def test_real_crt_with_a_dark_quarter_gets_the_threshold_model(chosen):
     assert fit.luminance(1.0) == pytest.approx(y[np.argmax(x)], rel=0.01)
     assert fit.heldout_rmse_cd_m2 < 0.1  # cd/m^2, on a 41.4 cd/m^2 white
     assert fit.warnings == ()
+
+
+def test_extended_power_on_the_real_crt_leaves_the_local_optimum():
+    """Fitted alone, the extended power function once stopped at x0 = 0.11, gamma 3.73
+    (held-out RMSE 2.2 cd/m^2); the grid over x0 and the censored floor readings find
+    x0 = 0.26, gamma 2.43."""
+    from calibration import fit_gamma
+
+    x, y, _ = _load("ptb_apple17_crt_2000")
+    fit = fit_gamma(x, y, model="extended_power")
+    assert fit.params["x0"] == pytest.approx(0.26, abs=0.02)
+    assert fit.params["gamma"] == pytest.approx(2.43, abs=0.1)
+    assert fit.heldout_rmse_cd_m2 < 0.1
