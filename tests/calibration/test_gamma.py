@@ -244,12 +244,11 @@ def test_misfit_warning_reaches_the_calibration_record(rng):
     cal = fit_calibration(readings, calibration_id="t", device="pr655", monitor_name="m",
                           resolution_px=(1024, 768), width_cm=32.0, distance_cm=57.0,
                           refresh_hz=85.0)
+    # No model of the family predicts a step at held-out levels; the best of them is chosen
+    # and its misfit is in the record for the report to show.
     chosen = cal.chosen_fit
-    if chosen.warnings:
-        assert any("not noise-like" in w for w in cal.warnings)
-    else:
-        # Only an interpolating model can follow a step; it is then the honest choice.
-        assert chosen.model in ("ptb_crt_poly_linear", "monotone_spline")
+    assert chosen.warnings and chosen.warnings[0] in cal.warnings
+    assert "not noise-like" in chosen.warnings[0]
 
 
 @pytest.mark.parametrize(
