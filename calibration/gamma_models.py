@@ -35,7 +35,8 @@ Two interpolating models, whose parameters are knots (drive ``kxNN``, luminance 
     drives and made non-decreasing.
 ``monotone_spline``
     Isotonic regression of the level means (pool-adjacent-violators, weights = inverse
-    variance of each mean), then a monotone cubic (PCHIP) through them; constant beyond the outer knots.
+    variance of each mean), then a monotone cubic (PCHIP) through them; constant beyond the
+    outer knots.
 
 ``a`` is the luminance at zero drive (the display's black plus reflected ambient light).
 """

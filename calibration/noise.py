@@ -5,9 +5,9 @@ the absolute noise that dominates near black; ``b`` the relative noise that domi
 white. With repeated readings of a level both are fitted by maximum likelihood to the spread of
 the repeats about their level's mean (which no display model can explain). Without repeats the
 documented default :func:`default_noise` is used: ``a`` = 0.1 % of the brightest reading (the
-last digit of a 3 1/2-digit reading on the range that holds white) and ``b`` = 0.5 %
-(a spot photometer's repeatability; Konica Minolta's LS-100 publishes 0.2 % + 1 digit, a PR-650
-is worse at low light).
+last digit of a 3 1/2-digit reading on the range that holds white) and ``b`` = 0.5 % (the order
+of a spot photometer's repeatability; chosen generous, so that a fit without repeats does not
+over-weight any reading).
 
 A reading at or below the meter's floor says only "no more than the floor": the fit treats it
 as censored. The floor defaults to :data:`FLOOR_SD_MULTIPLE` absolute SDs (a reading within two
