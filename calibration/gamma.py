@@ -482,7 +482,8 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
     ------
     CalibrationError
         If the shapes differ, a level lies outside [0, 1], a reading is not finite, fewer than
-        4 distinct levels are given, or the model is unknown.
+        4 distinct levels are given, fewer than 3 levels lie above the meter's floor, the
+        readings do not rise with the drive, or the model is unknown.
     """
     if model not in GAMMA_MODELS:
         raise CalibrationError(
@@ -497,10 +498,17 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
             f"only {int((~d.censored).sum())} readings lie above the meter's floor "
             f"({noise.floor_cd_m2:.3g} cd/m^2); measure brighter levels or pass a lower floor"
         )
+    uniq = np.unique(x)
+    means = np.array([y[x == v].mean() for v in uniq])
+    if means.max() - means.min() <= 5 * float(noise.sd(means.max())):
+        raise CalibrationError(
+            f"the readings do not rise with the drive (level means {means.min():.4g} to "
+            f"{means.max():.4g} cd/m^2, within 5 noise SDs): check that the photometer is "
+            "aimed at the patch and the display is on, then remeasure"
+        )
     params, linear = _fit_one(model, d)
     fitted = gamma_luminance(x, model=model, params=params)
     heldout = np.empty_like(y)
-    uniq = np.unique(x)
     level_loss = np.empty(uniq.size)
     z_all = np.empty_like(y)
     for i, level in enumerate(uniq):

@@ -85,6 +85,8 @@ def test_inverse_round_trips(model, params):
         ([0, 0.3, 0.6, 1.2], [0, 1, 2, 3], r"levels must lie in \[0, 1\]"),
         ([0, 0.3, 0.6, 1], [0, 1, 2], "differ in length"),
         ([0, 0.3, 0.6, 1], [0, 1, np.nan, 3], "NaN"),
+        ([0, 0.3, 0.6, 1], [0, 0, 0, 0], "above the meter's floor"),
+        ([0, 0.3, 0.6, 1], [5.0, 5.001, 4.999, 5.0], "do not rise with the drive"),
     ],
 )
 def test_bad_readings_are_rejected(levels, lum, message):
