@@ -433,10 +433,12 @@ def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
     out = {"chi2": chi2, "dof": dof, "runs": runs,
            "chi2_p": chi2_p if np.isfinite(chi2_p) else None,
            "runs_p": runs_p if np.isfinite(runs_p) else None}
-    failed = [f"lack-of-fit chi-square {chi2:.1f} on {dof} df, p = {chi2_p:.2g}"
-              for _ in [0] if np.isfinite(chi2_p) and chi2_p < MISFIT_P]
-    failed += [f"{runs} runs of residual signs over {signs.size} levels, p = {runs_p:.2g}"
-               for _ in [0] if np.isfinite(runs_p) and runs_p < MISFIT_P]
+    failed = []
+    if np.isfinite(chi2_p) and chi2_p < MISFIT_P:
+        failed.append(f"lack-of-fit chi-square {chi2:.1f} on {dof} df, p = {chi2_p:.2g}")
+    if np.isfinite(runs_p) and runs_p < MISFIT_P:
+        failed.append(f"{runs} runs of residual signs over {signs.size} levels, "
+                      f"p = {runs_p:.2g}")
     if not failed:
         return out, ()
     where = ("fitted to repeated readings" if noise.source == "repeats" else
