@@ -120,8 +120,9 @@ def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> N
     """Noise model from repeated readings of the same level, else :func:`default_noise`.
 
     Maximum likelihood: each reading's deviation from its level's mean is normal with variance
-    ``sd(mean)^2 (n - 1) / n`` (n readings at the level). Readings at or below the floor are
-    left out (their spread is the meter's, not the display's).
+    ``sd(mean)^2 (n - 1) / n`` (n readings at the level). Levels read at or below the floor
+    (or at 0 when no floor is given) are left out (their spread is the meter's, not the
+    display's).
 
     Parameters
     ----------
@@ -142,9 +143,9 @@ def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> N
     _, inv, counts = np.unique(x, return_inverse=True, return_counts=True)
     n = counts[inv].astype(float)
     means = np.bincount(inv, weights=y) / counts
-    keep = n >= 2
-    if floor_cd_m2 is not None:
-        keep &= means[inv] > floor_cd_m2
+    # A level read as 0 (or less) is at the meter's floor whatever the floor is taken to be:
+    # its agreeing repeats say nothing about the noise above it.
+    keep = (n >= 2) & (means[inv] > (0.0 if floor_cd_m2 is None else floor_cd_m2))
     if np.unique(inv[keep]).size < 3:
         return default_noise(y, floor_cd_m2=floor_cd_m2)
     dev = (y - means[inv])[keep]

@@ -329,3 +329,19 @@ def test_right_model_with_real_noise_is_rarely_flagged():
         lum = crt.luminance(GRID, rng=np.random.default_rng(seed))
         flagged += bool(fit_gamma(GRID, lum, model="extended_power").warnings)
     assert flagged <= 1
+
+
+def test_repeated_zero_readings_do_not_shrink_the_noise(rng):
+    from calibration.noise import fit_noise
+
+    # A dim CRT (white 5 cd/m^2, so the absolute noise shows): 40 % of the levels read exactly
+    # 0 on every repeat; their agreement is the meter's floor, not a small noise.
+    x = np.repeat(np.linspace(0, 1, 18), 3)
+    true = 5 * np.maximum(x - 0.4, 0) ** 2.3
+    lum = true + rng.standard_normal(x.size) * np.sqrt(0.02**2 + (0.004 * true) ** 2)
+    lum = np.where(true == 0, 0.0, lum)
+    lit = true > 0
+    noise = fit_noise(x, lum)
+    assert noise.abs_cd_m2 == fit_noise(x[lit], lum[lit]).abs_cd_m2
+    # Counting the zeros as repeats (a floor below 0) shrinks the absolute noise.
+    assert fit_noise(x, lum, floor_cd_m2=-1.0).abs_cd_m2 < 0.9 * noise.abs_cd_m2
