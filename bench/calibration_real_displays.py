@@ -61,9 +61,9 @@ def main() -> None:
         print(f"{name}: {np.unique(x).size} levels, white {white:.1f} cd/m^2, "
               f"{sum(best.censored)} readings at the meter's floor, noise "
               f"{best.noise['source']}")
-        print(f"  {'':44s} {'RMSE cd/m^2':>12s} {'% of white':>11s} {'ratio to ours':>14s}")
+        print(f"  {'':50s} {'RMSE cd/m^2':>12s} {'% of white':>11s} {'ratio to ours':>14s}")
         for label, v in rows:
-            print(f"  {label:44s} {v:12.4f} {100 * v / white:11.3f} {v / ours:13.1f}x")
+            print(f"  {label:50s} {v:12.4f} {100 * v / white:11.3f} {v / ours:13.1f}x")
         others = [v for _, v in rows[1:4]]
         print(f"  best PsychoPy / ours: {min(others) / ours:.1f}x;  toolbox table / ours: "
               f"{rows[4][1] / ours:.1f}x;  fit time ours {t_ours:.1f} s (8 models, "
