@@ -345,3 +345,29 @@ def test_repeated_zero_readings_do_not_shrink_the_noise(rng):
     assert noise.abs_cd_m2 == fit_noise(x[lit], lum[lit]).abs_cd_m2
     # Counting the zeros as repeats (a floor below 0) shrinks the absolute noise.
     assert fit_noise(x, lum, floor_cd_m2=-1.0).abs_cd_m2 < 0.9 * noise.abs_cd_m2
+
+
+def test_an_old_calibration_json_still_loads_and_inverts(tmp_path):
+    import json
+
+    from calibration import load_calibration
+
+    # calibration.json as the fit before the noise model wrote it (fits without noise,
+    # censoring, held-out loss, misfit, warnings or DAC bits).
+    old_fit = {"model": "extended_power",
+               "params": {"a": 0.6, "k": 104.8, "x0": 0.04, "gamma": 2.4},
+               "rmse_cd_m2": 0.1, "heldout_rmse_cd_m2": 0.12, "levels": [0.0, 0.5, 1.0],
+               "luminance_cd_m2": [0.6, 20.0, 95.6], "residuals_cd_m2": [0.0, 0.0, 0.0],
+               "heldout_rms_pct": 0.4}
+    old = {"calibration_id": "old", "created_utc": "2026-11-01T10:00:00.000000Z",
+           "device": "pr655", "monitor_name": "m", "resolution_px": [1024, 768],
+           "width_cm": 32.0, "distance_cm": 57.0, "refresh_hz": 85.0,
+           "gamma_model": "extended_power", "gamma_params": old_fit["params"],
+           "min_luminance_cd_m2": 0.6, "max_luminance_cd_m2": 95.61, "fits": [old_fit],
+           "uniformity": None, "validation_max_deviation_pct": None, "warnings": [],
+           "instrument": {}, "readings_file": "readings.csv", "schema_version": 1}
+    (tmp_path / "calibration.json").write_text(json.dumps(old))
+    cal = load_calibration(tmp_path / "calibration.json")
+    assert cal.chosen_fit.warnings == () and cal.chosen_fit.dac_bits is None
+    lum = cal.min_luminance_cd_m2 + 0.5 * (cal.max_luminance_cd_m2 - cal.min_luminance_cd_m2)
+    assert cal.luminance_for_drive(cal.drive_for_fraction(0.5)) == pytest.approx(lum, rel=1e-9)
