@@ -9,7 +9,12 @@ SimulatedCRT, load_crt
     The simulated display the fake photometer measures (parameters in ``crt.toml``).
 GammaFit, fit_gamma, fit_gamma_models, choose_gamma_model, gamma_luminance,
 gamma_drive_for_luminance
-    Gamma models (PsychoPy eq. 1 and 4, extended power with offset).
+    Gamma models (PsychoPy eq. 1, 2 and 4, the extended power function, Psychtoolbox's sigmoid,
+    Weibull and crtPolyLinear, a monotone spline), fitted by maximum likelihood with censored
+    floor readings, chosen by held-out error (one-standard-error rule), misfits flagged.
+NoiseModel, fit_noise
+    Photometer noise SD^2 = a^2 + (b L)^2 from repeated readings (or the documented default),
+    and the meter's floor.
 UniformityMap, fit_uniformity
     Spatial uniformity and correction gains.
 READINGS_COLUMNS
@@ -37,6 +42,7 @@ from calibration.gamma import (
     gamma_drive_for_luminance,
     gamma_luminance,
 )
+from calibration.noise import NoiseModel, fit_noise
 from calibration.ports import available_ports
 from calibration.readings import READINGS_COLUMNS, load_readings
 from calibration.record import (
@@ -56,6 +62,7 @@ __all__ = [
     "Calibration",
     "CalibrationError",
     "GammaFit",
+    "NoiseModel",
     "PhotometerError",
     "PhotometerNotFound",
     "PhotometerTimeout",
@@ -67,6 +74,7 @@ __all__ = [
     "default_crt_path",
     "fit_gamma",
     "fit_gamma_models",
+    "fit_noise",
     "fit_uniformity",
     "gamma_drive_for_luminance",
     "gamma_luminance",

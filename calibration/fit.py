@@ -101,7 +101,7 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     lum = centre["luminance_cd_m2"].to_numpy(float)
     fits = fit_gamma_models(levels, lum)
     best = choose_gamma_model(fits)
-    warn = list(warnings) + monotonicity_warnings(levels, lum)
+    warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if n_rejected:
         warn.append(f"{n_rejected} photometer repl{'y' if n_rejected == 1 else 'ies'} rejected "
                     "(garbled, out of range or saturated; see rejected.csv) and remeasured")

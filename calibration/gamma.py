@@ -1,124 +1,75 @@
-"""Display transfer functions (gamma models): evaluate, invert, fit, choose by held-out error.
+"""Fit display transfer functions (gamma models) to photometer readings and choose one.
 
-Three nested models of luminance ``L`` (cd/m^2) against drive ``x`` in [0, 1]:
+The models are in :mod:`calibration.gamma_models` (PsychoPy's eq. 1, 2 and 4, the extended
+power function, Psychtoolbox's sigmoid and Weibull, its crtPolyLinear table and a monotone
+spline). The fit, for each model:
 
-=================  ==============================  ==========================================
-name               equation                        reference
-=================  ==============================  ==========================================
-``power``          L = a + (b x)^gamma             PsychoPy eq. 1 (``calibTools.gammaFun``)
-``offset_power``   L = a + (b + k x)^gamma, b >= 0 PsychoPy eq. 4 (Pelli & Zhang 1991)
-``extended_power`` L = a + k max(x - x0, 0)^gamma  Brainard, Pelli & Robson (2002), "Display
-                                                   characterization", the extended power
-                                                   function with offset: a drive threshold x0
-                                                   below which the gun emits nothing.
-=================  ==============================  ==========================================
+1. **Noise.** Each reading's SD is ``sqrt(a^2 + (b L)^2)`` (:mod:`calibration.noise`): fitted
+   to repeated readings when there are any, else the documented default.
+2. **Censoring.** A reading at or below the meter's floor is censored: its likelihood is
+   ``P(L <= floor)`` under the model (a Tobit term), not a point at the floor.
+3. **Likelihood.** Parametric models maximise the Gaussian likelihood (weighted least squares
+   with the noise SDs plus the censored terms). Every model is ``a + K f(x; theta)``: a grid
+   over the shape parameters theta (the drive threshold x0 included, over its whole range)
+   with ``a, K`` solved exactly at each node, then the best nodes polished by bounded
+   least squares (several starts, so a local optimum is not taken for the fit).
+4. **Held-out error.** Leave-one-level-out: each level predicted by a fit without it, scored in
+   noise SDs (``z``; a censored reading scores only a prediction above the floor).
+5. **Misfit flag.** The lack-of-fit chi-square of the standardised residuals and a runs test
+   of their signs along the drive axis; a fit that fails either (p < :data:`MISFIT_P`) carries
+   a warning.
 
-``a`` is the luminance at zero drive (the CRT's black plus reflected ambient light). They are
-implemented here rather than through PsychoPy's ``GammaCalculator``, whose interpolation code has
-an operator-precedence bug.
+:func:`choose_gamma_model` takes the simplest model whose held-out loss is within one
+standard error of the best (the one-standard-error rule of Breiman et al. 1984).
 """
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+import math
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from scipy import stats
 from scipy.optimize import least_squares
+from scipy.special import log_ndtr
 
 from calibration.errors import CalibrationError
+from calibration.gamma_models import (
+    GAMMA_MODELS,
+    INTERPOLATING_MODELS,
+    SHAPE_BOUNDS,
+    gamma_drive_for_luminance,
+    gamma_luminance,
+    knots_to_params,
+    model_complexity,
+    params_from_linear,
+    shape,
+)
+from calibration.noise import NoiseModel, fit_noise
 
 __all__ = [
+    "DAC_BITS",
     "GAMMA_MODELS",
+    "MISFIT_P",
     "GammaFit",
     "choose_gamma_model",
+    "displayed_drive",
+    "error_scale",
     "fit_gamma",
     "fit_gamma_models",
     "gamma_drive_for_luminance",
     "gamma_luminance",
 ]
 
-#: Parameter names of each model, in the order the fit uses.
-GAMMA_MODELS: dict[str, tuple[str, ...]] = {
-    "power": ("a", "b", "gamma"),
-    "offset_power": ("a", "b", "k", "gamma"),
-    "extended_power": ("a", "k", "x0", "gamma"),
-}
-
-
-def _check_model(model: str, params: dict) -> None:
-    if model not in GAMMA_MODELS:
-        raise CalibrationError(
-            f"gamma model {model!r} is unknown; use one of {sorted(GAMMA_MODELS)}"
-        )
-    missing = [p for p in GAMMA_MODELS[model] if p not in params]
-    if missing:
-        raise CalibrationError(
-            f"gamma model {model!r} needs parameters {list(GAMMA_MODELS[model])}; "
-            f"missing {missing}"
-        )
-
-
-def gamma_luminance(drive, *, model: str, params: dict) -> np.ndarray:
-    """Luminance the fitted display produces at a drive value.
-
-    Parameters
-    ----------
-    drive : array_like
-        Drive values in [0, 1] (0 = black, 1 = full gun output).
-    model : {"power", "offset_power", "extended_power"}
-        See the module docstring for the equations.
-    params : dict
-        The model's parameters (``GAMMA_MODELS[model]``); luminance parameters in cd/m^2.
-
-    Returns
-    -------
-    ndarray
-        Luminance in cd/m^2, same shape as ``drive``.
-    """
-    _check_model(model, params)
-    x = np.asarray(drive, dtype=float)
-    p = params
-    g = float(p["gamma"])
-    if model == "power":
-        base = np.maximum(p["b"] * x, 0.0)
-    elif model == "offset_power":
-        base = np.maximum(p["b"] + p["k"] * x, 0.0)
-    else:
-        return p["a"] + p["k"] * np.maximum(x - p["x0"], 0.0) ** g
-    return p["a"] + base**g
-
-
-def gamma_drive_for_luminance(luminance_cd_m2, *, model: str, params: dict) -> np.ndarray:
-    """Inverse of :func:`gamma_luminance`: the drive that produces a luminance.
-
-    Parameters
-    ----------
-    luminance_cd_m2 : array_like
-        Wanted luminance in cd/m^2. Values below the model's black give drive 0, values above its
-        white give drive 1.
-    model, params
-        As in :func:`gamma_luminance`.
-
-    Returns
-    -------
-    ndarray
-        Drive values in [0, 1].
-    """
-    _check_model(model, params)
-    y = np.asarray(luminance_cd_m2, dtype=float)
-    p = params
-    g = float(p["gamma"])
-    above = np.maximum(y - p["a"], 0.0)
-    root = above ** (1.0 / g)
-    if model == "power":
-        x = root / p["b"]
-    elif model == "offset_power":
-        x = (root - p["b"]) / p["k"]
-    else:
-        x = p["x0"] + (above / p["k"]) ** (1.0 / g)
-    # At or below black every drive up to the threshold gives the same luminance: use 0.
-    x = np.where(above <= 0.0, 0.0, x)
-    return np.clip(x, 0.0, 1.0)
+#: A fit whose lack-of-fit chi-square or runs test has p below this is flagged as a misfit.
+MISFIT_P = 1e-3
+#: Order in which equally complex models are preferred (the more familiar first).
+_PREFERENCE = ("power", "inner_power", "offset_power", "extended_power", "ptb_sigmoid",
+               "ptb_weibull",
+               "ptb_crt_poly_linear", "monotone_spline")
+#: Grid nodes per shape parameter, and how many of the best nodes are polished.
+_GRID_N = 25
+_N_POLISH = 4
 
 
 @dataclass(frozen=True)
@@ -128,22 +79,41 @@ class GammaFit:
     Attributes
     ----------
     model : str
-        Model name (see :data:`GAMMA_MODELS`).
+        Model name (:data:`GAMMA_MODELS`).
     params : dict[str, float]
-        Fitted parameters; ``a`` (and ``k`` of the extended model) in cd/m^2.
+        Fitted parameters; luminance parameters in cd/m^2 (knots for interpolating models).
     rmse_cd_m2 : float
         Root-mean-square residual on all readings.
     heldout_rmse_cd_m2 : float
-        Leave-one-level-out cross-validated RMS error: each level predicted by a fit without it.
+        Leave-one-level-out RMS error, cd/m^2: each level predicted by a fit without it.
     levels : tuple[float, ...]
-        Drive values of the readings used.
+        Drive values of the readings used (on the DAC grid when ``dac_bits`` is set).
     luminance_cd_m2 : tuple[float, ...]
         The readings.
     residuals_cd_m2 : tuple[float, ...]
         Reading minus fitted luminance.
     heldout_rms_pct : float
-        The held-out error relative to each reading (:func:`error_scale`), RMS in %: what the
-        fit minimises and the model choice compares (NaN in records written before it existed).
+        The held-out error relative to each reading (:func:`error_scale`), RMS in %.
+    heldout_rms_z : float
+        The held-out error in noise SDs, RMS over readings (a censored reading counts only a
+        prediction above the floor): about 1 for a model right up to noise. NaN in records
+        written before it existed.
+    heldout_level_loss : tuple[float, ...]
+        Mean squared held-out z of each level (sorted by level): the model choice compares
+        their mean and its standard error.
+    n_params : int
+        Free parameters (knots for interpolating models); 0 in old records.
+    noise : dict
+        The :class:`~calibration.noise.NoiseModel` used (empty in old records).
+    censored : tuple[bool, ...]
+        Readings at or below the meter's floor, fitted as censored.
+    misfit : dict
+        ``chi2``, ``dof``, ``chi2_p``, ``runs``, ``runs_p`` (None where not testable).
+    warnings : tuple[str, ...]
+        The misfit flag, when raised.
+    dac_bits : int or None
+        The levels were rounded to this DAC's grid before the fit (the drive the display
+        showed); None: used as given (and in old records).
     """
 
     model: str
@@ -154,16 +124,32 @@ class GammaFit:
     luminance_cd_m2: tuple
     residuals_cd_m2: tuple
     heldout_rms_pct: float = float("nan")
+    heldout_rms_z: float = float("nan")
+    heldout_level_loss: tuple = ()
+    n_params: int = 0
+    noise: dict = field(default_factory=dict)
+    censored: tuple = ()
+    misfit: dict = field(default_factory=dict)
+    warnings: tuple = ()
+    dac_bits: int | None = None
 
     def luminance(self, drive) -> np.ndarray:
         """Fitted luminance in cd/m^2 at ``drive`` in [0, 1]."""
         return gamma_luminance(drive, model=self.model, params=self.params)
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        # JSON has no NaN: a held-out error old records lack is written as null.
+        for k in ("heldout_rms_pct", "heldout_rms_z"):
+            if not math.isfinite(d[k]):
+                d[k] = None
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> GammaFit:
+        def num(v):
+            return float("nan") if v is None else float(v)
+
         try:
             return cls(
                 model=str(d["model"]),
@@ -173,10 +159,41 @@ class GammaFit:
                 levels=tuple(float(v) for v in d["levels"]),
                 luminance_cd_m2=tuple(float(v) for v in d["luminance_cd_m2"]),
                 residuals_cd_m2=tuple(float(v) for v in d["residuals_cd_m2"]),
-                heldout_rms_pct=float(d.get("heldout_rms_pct", float("nan"))),
+                heldout_rms_pct=num(d.get("heldout_rms_pct")),
+                heldout_rms_z=num(d.get("heldout_rms_z")),
+                heldout_level_loss=tuple(float(v) for v in d.get("heldout_level_loss", ())),
+                n_params=int(d.get("n_params", 0)),
+                noise=dict(d.get("noise", {})),
+                censored=tuple(bool(v) for v in d.get("censored", ())),
+                misfit={k: (None if v is None else float(v) if k != "dof" else int(v))
+                        for k, v in d.get("misfit", {}).items()},
+                warnings=tuple(str(w) for w in d.get("warnings", ())),
+                dac_bits=None if d.get("dac_bits") is None else int(d["dac_bits"]),
             )
         except (KeyError, TypeError, AttributeError, ValueError) as exc:
             raise CalibrationError(f"gamma fit record is malformed ({exc!r})") from exc
+
+
+# --- input checks --------------------------------------------------------------------------------
+#: Bits per gun of the display's DAC (the frame buffer's 8 bits on the lab's CRT).
+DAC_BITS = 8
+
+
+def displayed_drive(levels, dac_bits: int | None) -> np.ndarray:
+    """The drive a display shows for requested levels: rounded to its DAC grid, k / (2^bits - 1).
+
+    A level off the grid (PsychoPy's ``DACrange``, a 1/30 step) is shown as the nearest grid
+    value; fitting the requested value instead biases the fit (gamma 2.287 for 2.3 on a clean
+    simulated CRT measured at 17 evenly spaced levels). ``dac_bits=None`` leaves the levels as
+    given (a display with a deeper DAC than the levels' grid).
+    """
+    x = np.asarray(levels, dtype=float)
+    if dac_bits is None:
+        return x
+    if not (isinstance(dac_bits, (int, np.integer)) and 1 <= dac_bits <= 16):
+        raise CalibrationError(f"dac_bits must be an int in 1..16 or None, got {dac_bits!r}")
+    steps = 2**int(dac_bits) - 1
+    return np.round(x * steps) / steps
 
 
 def _check_readings(levels, luminance_cd_m2) -> tuple[np.ndarray, np.ndarray]:
@@ -199,96 +216,315 @@ def _check_readings(levels, luminance_cd_m2) -> tuple[np.ndarray, np.ndarray]:
     return x, y
 
 
-def _starts(model: str, x: np.ndarray, y: np.ndarray) -> list[tuple[np.ndarray, tuple]]:
-    """Starting points and bounds for each model, from the readings' black and white."""
-    lo = float(y[x == x.min()].mean())
-    hi = float(y[x == x.max()].mean())
-    span = max(hi - lo, 1e-6)
-    top = max(abs(hi), abs(lo), 1e-3) * 10 + 10
-    starts = []
-    for g in (1.8, 2.4, 3.0):
-        if model == "power":
-            p0 = [lo, span ** (1 / g), g]
-            bounds = ([-top, 0.0, 0.3], [top, np.inf, 6.0])
-        elif model == "offset_power":
-            p0 = [lo, 0.01 * span ** (1 / g), span ** (1 / g), g]
-            bounds = ([-top, 0.0, 0.0, 0.3], [top, np.inf, np.inf, 6.0])
-        else:
-            p0 = [lo, span, 0.02, g]
-            bounds = ([-top, 0.0, -0.5, 0.3], [top, np.inf, 0.5, 6.0])
-        starts.append((np.array(p0, dtype=float), bounds))
-    return starts
-
-
 #: Floor of the error scale as a fraction of the brightest reading (see :func:`error_scale`).
 ERROR_FLOOR_FRACTION = 1e-3
 
 
 def error_scale(luminance_cd_m2) -> np.ndarray:
-    """Scale of each reading's error, cd/m^2: the reading, floored at 0.1 % of the brightest.
-
-    Photometer error is proportional to the reading (a spot photometer's precision is a fraction
-    of what it reads) above a small absolute floor, so the fit weights each residual by
-    ``1 / error_scale``: an unweighted fit lets the 0.3 cd/m^2 noise at white outweigh the
-    0.6 cd/m^2 black level and biases the black (sim-to-real issue 8).
-    """
+    """Scale of each reading for the report's relative error, cd/m^2: the reading, floored at
+    0.1 % of the brightest (``heldout_rms_pct``; the fit itself uses the noise model)."""
     y = np.abs(np.asarray(luminance_cd_m2, dtype=float))
     floor = ERROR_FLOOR_FRACTION * max(float(y.max(initial=0.0)), 1e-6)
     return np.maximum(y, floor)
 
 
-def _fit_params(model: str, x: np.ndarray, y: np.ndarray) -> dict:
-    names = GAMMA_MODELS[model]
-    scale = error_scale(y)
+# --- the likelihood ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Data:
+    x: np.ndarray
+    y: np.ndarray
+    sd: np.ndarray          # noise SD of each reading (at the floor for censored ones)
+    censored: np.ndarray
+    floor: float
+
+
+def _data(x, y, noise: NoiseModel) -> _Data:
+    cens = y <= noise.floor_cd_m2
+    sd = noise.sd(np.where(cens, noise.floor_cd_m2, y))
+    return _Data(x, y, sd, cens, noise.floor_cd_m2)
+
+
+def _residuals(mu: np.ndarray, d: _Data) -> np.ndarray:
+    """Residuals whose half sum of squares is the negative log-likelihood (up to a constant).
+
+    Uncensored: (y - mu) / sd. Censored: sqrt(-2 log P(L <= floor)), the Tobit term.
+    """
+    r = (d.y - mu) / d.sd
+    if d.censored.any():
+        z = (d.floor - mu[d.censored]) / d.sd[d.censored]
+        r[d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
+    return r
+
+
+def _theta_names(model: str) -> tuple[str, ...]:
+    return tuple(SHAPE_BOUNDS[model])
+
+
+def _grid(model: str, x_max: float) -> dict:
+    """Grid nodes over the shape parameters: a dict of column arrays, shape (G, 1)."""
+    names = _theta_names(model)
+    axes = []
+    for n in names:
+        lo, hi = SHAPE_BOUNDS[model][n]
+        if n == "x0":
+            hi = min(hi, x_max - 1e-3)
+            axes.append(np.linspace(lo, hi, 2 * _GRID_N))
+        elif n in ("gamma", "beta"):
+            axes.append(np.geomspace(max(lo, 0.5), min(hi, 8.0), _GRID_N))
+        elif n == "r":
+            axes.append(np.concatenate([[0.0], np.geomspace(1e-3, hi, _GRID_N - 1)]))
+        else:
+            axes.append(np.geomspace(lo, hi, _GRID_N))
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return {n: m.reshape(-1, 1) for n, m in zip(names, mesh)}
+
+
+def _grid_costs(model: str, d: _Data) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """(a, K) by weighted least squares on the uncensored readings at every grid node, and the
+    negative log-likelihood with the censored terms; infeasible nodes (K < 0) cost inf."""
+    theta = _grid(model, float(d.x.max()))
+    f = shape(model, d.x[None, :], theta)
+    u = ~d.censored
+    w = 1.0 / d.sd[u] ** 2
+    fu, yu = f[:, u], d.y[u]
+    sff, sfy = fu**2 @ w, fu @ (w * yu)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        if model == "inner_power":
+            a = np.zeros(len(sff))
+            gain = sfy / sff
+        else:
+            sw, sy, sf = w.sum(), np.sum(w * yu), fu @ w
+            det = sw * sff - sf * sf
+            gain = (sw * sfy - sf * sy) / det
+            a = (sy - gain * sf) / sw
+        mu = a[:, None] + gain[:, None] * f
+        r = (d.y[None, :] - mu) / d.sd[None, :]
+        if d.censored.any():
+            z = (d.floor - mu[:, d.censored]) / d.sd[d.censored]
+            r[:, d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
+        cost = 0.5 * np.sum(r**2, axis=1)
+    cost = np.where(np.isfinite(cost) & (gain >= 0), cost, np.inf)
+    return cost, a, gain, theta
+
+
+def _polish(model: str, start: tuple[float, float, dict], d: _Data, top: float):
+    names = _theta_names(model)
+    bounds_t = [SHAPE_BOUNDS[model][n] for n in names]
+    if "x0" in names:
+        i = names.index("x0")
+        bounds_t[i] = (bounds_t[i][0], min(bounds_t[i][1], float(d.x.max()) - 1e-6))
+    has_a = model != "inner_power"
+    lo = ([-top] if has_a else []) + [0.0] + [b[0] for b in bounds_t]
+    hi = ([top] if has_a else []) + [np.inf] + [b[1] for b in bounds_t]
+    a0, k0, t0 = start
+    p0 = ([a0] if has_a else []) + [k0] + [t0[n] for n in names]
+    p0 = np.clip(np.asarray(p0, float), np.asarray(lo) + 1e-12,
+                 np.where(np.isfinite(hi), np.asarray(hi) - 1e-12, np.inf))
+
+    def unpack(p):
+        j = 1 if has_a else 0
+        a = p[0] if has_a else 0.0
+        return a, p[j], dict(zip(names, p[j + 1:]))
 
     def resid(p):
-        return (gamma_luminance(x, model=model, params=dict(zip(names, p))) - y) / scale
+        a, gain, theta = unpack(p)
+        return _residuals(a + gain * shape(model, d.x, theta), d)
 
+    res = least_squares(resid, p0, bounds=(lo, hi), x_scale="jac", max_nfev=2000)
+    return res.cost, unpack(res.x)
+
+
+def _fit_parametric(model: str, d: _Data, extra_starts=(), n_polish: int = _N_POLISH
+                    ) -> tuple[dict, tuple]:
+    """Grid over theta with (a, K) exact, then bounded polish of the best nodes.
+
+    The ``extra_starts`` (a held-in refit gets the full fit's optimum) are polished first; a
+    grid node is polished only if its cost beats the best polished so far, so a refit costs
+    one polish unless the grid finds a better basin.
+    """
+    top = 10 * max(float(np.max(np.abs(d.y))), 1e-3) + 10
+    cost, a, gain, theta = _grid_costs(model, d)
+    order = [i for i in np.argsort(cost)[:n_polish] if np.isfinite(cost[i])]
     best = None
-    for p0, bounds in _starts(model, x, y):
-        p0 = np.clip(p0, np.array(bounds[0]) + 1e-9, np.array(bounds[1]) - 1e-9)
-        res = least_squares(resid, p0, bounds=bounds, x_scale="jac", max_nfev=4000)
-        if best is None or res.cost < best.cost:
-            best = res
-    return {n: float(v) for n, v in zip(names, best.x)}
+    for s in extra_starts:
+        r = _polish(model, s, d, top)
+        best = r if best is None or r[0] < best[0] else best
+    for i in order:
+        if best is not None and cost[i] >= best[0]:
+            continue
+        s = (float(a[i]), float(gain[i]), {n: float(v[i, 0]) for n, v in theta.items()})
+        r = _polish(model, s, d, top)
+        best = r if best is None or r[0] < best[0] else best
+    if best is None:
+        raise CalibrationError(f"gamma model {model!r}: no starting point fits the readings")
+    a_, gain_, theta_ = best[1]
+    return params_from_linear(model, float(a_), float(gain_), theta_), best[1]
 
 
-def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power") -> GammaFit:
-    """Fit a display transfer function to photometer readings by weighted least squares.
+def _pava(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted isotonic (non-decreasing) regression by pool-adjacent-violators."""
+    vals, wts, sizes = [], [], []
+    for v, wt in zip(y, w):
+        vals.append(v)
+        wts.append(wt)
+        sizes.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            wsum = wts[-2] + wts[-1]
+            v2 = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
+            s = sizes[-2] + sizes[-1]
+            vals[-2:], wts[-2:], sizes[-2:] = [v2], [wsum], [s]
+    return np.repeat(vals, sizes)
 
-    Each residual is divided by the reading's error scale (:func:`error_scale`: the reading,
-    floored at 0.1 % of the brightest), so the fit minimises relative error and the black level
-    is fitted as well as white.
+
+def _fit_interpolating(model: str, d: _Data) -> dict:
+    uniq, inv, counts = np.unique(d.x, return_inverse=True, return_counts=True)
+    means = np.bincount(inv, weights=d.y) / counts
+    if model == "monotone_spline":
+        sd_mean = np.sqrt(np.bincount(inv, weights=d.sd**2) / counts) / np.sqrt(counts)
+        means = _pava(means, 1.0 / sd_mean**2)
+    return knots_to_params(uniq, means)
+
+
+def _fit_one(model: str, d: _Data, extra_starts=(), n_polish: int = _N_POLISH
+             ) -> tuple[dict, tuple | None]:
+    if model in INTERPOLATING_MODELS:
+        return _fit_interpolating(model, d), None
+    return _fit_parametric(model, d, extra_starts, n_polish)
+
+
+def _subset(d: _Data, keep: np.ndarray) -> _Data:
+    return _Data(d.x[keep], d.y[keep], d.sd[keep], d.censored[keep], d.floor)
+
+
+def _z(mu: np.ndarray, d: _Data) -> np.ndarray:
+    """Error in noise SDs; a censored reading counts only a prediction above the floor."""
+    z = (d.y - mu) / d.sd
+    return np.where(d.censored, np.maximum(mu - d.floor, 0.0) / d.sd, z)
+
+
+# --- misfit --------------------------------------------------------------------------------------
+def _runs_test(signs: np.ndarray) -> tuple[int, float]:
+    """Wald-Wolfowitz runs test (one-sided: too few runs = systematic misfit)."""
+    s = signs[signs != 0]
+    n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
+    if n1 == 0 or n2 == 0 or s.size < 6:
+        return int(s.size > 0), float("nan")
+    runs = 1 + int(np.sum(s[1:] != s[:-1]))
+    n = n1 + n2
+    mean = 1 + 2 * n1 * n2 / n
+    var = 2 * n1 * n2 * (2 * n1 * n2 - n) / (n * n * (n - 1))
+    if var <= 0:
+        return runs, float("nan")
+    return runs, float(stats.norm.cdf((runs + 0.5 - mean) / math.sqrt(var)))
+
+
+def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
+            noise: NoiseModel) -> tuple[dict, tuple]:
+    u = ~d.censored
+    z = (d.y[u] - mu[u]) / d.sd[u]
+    chi2 = float(np.sum(z**2))
+    dof = int(u.sum()) - n_params
+    chi2_p = float(stats.chi2.sf(chi2, dof)) if dof > 0 else float("nan")
+    _, inv = np.unique(d.x[u], return_inverse=True)
+    mean_z = np.bincount(inv, weights=z) / np.bincount(inv)
+    tol = 1e-9 * max(1.0, float(np.max(np.abs(mean_z), initial=0.0)))
+    signs = np.sign(np.where(np.abs(mean_z) <= tol, 0.0, mean_z))
+    runs, runs_p = _runs_test(signs) if model not in INTERPOLATING_MODELS else (0, float("nan"))
+    out = {"chi2": chi2, "dof": dof, "runs": runs,
+           "chi2_p": chi2_p if np.isfinite(chi2_p) else None,
+           "runs_p": runs_p if np.isfinite(runs_p) else None}
+    failed = []
+    if np.isfinite(chi2_p) and chi2_p < MISFIT_P:
+        failed.append(f"lack-of-fit chi-square {chi2:.1f} on {dof} df, p = {chi2_p:.2g}")
+    if np.isfinite(runs_p) and runs_p < MISFIT_P:
+        failed.append(f"{runs} runs of residual signs over {signs.size} levels, "
+                      f"p = {runs_p:.2g}")
+    if not failed:
+        return out, ()
+    where = ("fitted to repeated readings" if noise.source == "repeats" else
+             "the default noise: no repeated readings, so measure repeats to test the fit "
+             "against the real noise")
+    msg = (f"gamma model {model}: residuals are not noise-like ({'; '.join(failed)}) under the "
+           f"noise model SD = sqrt(a^2 + (b L)^2), a = {noise.abs_cd_m2:.3g} cd/m^2, "
+           f"b = {noise.rel:.3g} ({where}); the model misses the curve's shape: look at the "
+           "residual plot, check the photometer's aim and the warm-up, or remeasure")
+    return out, (msg,)
+
+
+# --- public API ----------------------------------------------------------------------------------
+def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
+              noise: NoiseModel | None = None, floor_cd_m2: float | None = None,
+              dac_bits: int | None = DAC_BITS) -> GammaFit:
+    """Fit a display transfer function to photometer readings by maximum likelihood.
 
     Parameters
     ----------
     levels : array_like, shape (n,)
-        Drive values in [0, 1]; repeats allowed.
+        Drive values in [0, 1]; repeats allowed (they give the noise model).
     luminance_cd_m2 : array_like, shape (n,)
         Measured luminance at each level, cd/m^2.
-    model : {"power", "offset_power", "extended_power"}
-        See the module docstring.
+    model : str
+        One of :data:`GAMMA_MODELS` (equations in :mod:`calibration.gamma_models`).
+    noise : NoiseModel or None
+        The readings' noise; default :func:`calibration.noise.fit_noise` of these readings.
+    floor_cd_m2 : float or None
+        The meter's floor (readings at or below it are censored), cd/m^2; default the noise
+        model's. Ignored when ``noise`` is given.
+    dac_bits : int or None
+        The display's DAC bits: levels are rounded to its grid (:func:`displayed_drive`);
+        None uses them as given.
 
     Returns
     -------
     GammaFit
-        Parameters, residuals and leave-one-level-out held-out error.
+        Parameters, residuals, leave-one-level-out errors, the noise model, the censored
+        readings and the misfit statistics (with a warning when the fit fails them).
 
     Raises
     ------
     CalibrationError
-        If the shapes differ, a level lies outside [0, 1], a reading is not finite, or fewer than
-        4 distinct levels are given.
+        If the shapes differ, a level lies outside [0, 1], a reading is not finite, fewer than
+        4 distinct levels are given, fewer than 3 levels lie above the meter's floor, the
+        readings do not rise with the drive, or the model is unknown.
     """
-    _check_model(model, {n: 0 for n in GAMMA_MODELS.get(model, ())})
+    if model not in GAMMA_MODELS:
+        raise CalibrationError(
+            f"gamma model {model!r} is unknown; use one of {sorted(GAMMA_MODELS)}"
+        )
     x, y = _check_readings(levels, luminance_cd_m2)
-    params = _fit_params(model, x, y)
+    x = displayed_drive(x, dac_bits)
+    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
+    d = _data(x, y, noise)
+    if (~d.censored).sum() < 3 or np.unique(x[~d.censored]).size < 3:
+        raise CalibrationError(
+            f"only {int((~d.censored).sum())} readings lie above the meter's floor "
+            f"({noise.floor_cd_m2:.3g} cd/m^2); measure brighter levels or pass a lower floor"
+        )
+    uniq = np.unique(x)
+    means = np.array([y[x == v].mean() for v in uniq])
+    if means.max() - means.min() <= 5 * float(noise.sd(means.max())):
+        raise CalibrationError(
+            f"the readings do not rise with the drive (level means {means.min():.4g} to "
+            f"{means.max():.4g} cd/m^2, within 5 noise SDs): check that the photometer is "
+            "aimed at the patch and the display is on, then remeasure"
+        )
+    params, linear = _fit_one(model, d)
     fitted = gamma_luminance(x, model=model, params=params)
     heldout = np.empty_like(y)
-    for level in np.unique(x):
+    level_loss = np.empty(uniq.size)
+    z_all = np.empty_like(y)
+    for i, level in enumerate(uniq):
         out = x == level
-        p = _fit_params(model, x[~out], y[~out])
+        held_in = _subset(d, ~out)
+        extra = [linear] if linear is not None else []
+        # The full fit's optimum starts each refit; the held-in grid's best nodes too if better.
+        p, _ = _fit_one(model, held_in, extra)
         heldout[out] = gamma_luminance(x[out], model=model, params=p)
+        z = _z(heldout[out], _subset(d, out))
+        z_all[out] = z
+        level_loss[i] = float(np.mean(z**2))
+    n_params = model_complexity(model, params)
+    misfit, warnings = _misfit(model, d, fitted, n_params, noise)
     return GammaFit(
         model=model,
         params=params,
@@ -298,38 +534,77 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power") -> Gamm
         luminance_cd_m2=tuple(float(v) for v in y),
         residuals_cd_m2=tuple(float(v) for v in y - fitted),
         heldout_rms_pct=float(100 * np.sqrt(np.mean(((y - heldout) / error_scale(y)) ** 2))),
+        heldout_rms_z=float(np.sqrt(np.mean(z_all**2))),
+        heldout_level_loss=tuple(float(v) for v in level_loss),
+        n_params=int(n_params),
+        noise=noise.to_dict(),
+        censored=tuple(bool(c) for c in d.censored),
+        misfit=misfit,
+        warnings=warnings,
+        dac_bits=dac_bits,
     )
 
 
-def fit_gamma_models(levels, luminance_cd_m2) -> tuple[GammaFit, ...]:
-    """Fit every model in :data:`GAMMA_MODELS`; same arguments as :func:`fit_gamma`."""
-    return tuple(fit_gamma(levels, luminance_cd_m2, model=m) for m in GAMMA_MODELS)
+def fit_gamma_models(levels, luminance_cd_m2, *, models=None, noise: NoiseModel | None = None,
+                     floor_cd_m2: float | None = None,
+                     dac_bits: int | None = DAC_BITS) -> tuple[GammaFit, ...]:
+    """Fit every model (default all of :data:`GAMMA_MODELS`) with one noise model.
+
+    Same arguments as :func:`fit_gamma`; ``models`` restricts the family.
+    """
+    x, y = _check_readings(levels, luminance_cd_m2)
+    x = displayed_drive(x, dac_bits)
+    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
+    return tuple(fit_gamma(x, y, model=m, noise=noise, dac_bits=dac_bits)
+                 for m in (models or GAMMA_MODELS))
+
+
+def _rank(f: GammaFit) -> tuple[int, int]:
+    n = f.n_params or len(GAMMA_MODELS.get(f.model, ()))
+    pref = _PREFERENCE.index(f.model) if f.model in _PREFERENCE else len(_PREFERENCE)
+    return n, pref
 
 
 def choose_gamma_model(fits, *, tolerance: float = 0.02) -> GammaFit:
-    """The fit with the smallest held-out error; near-ties go to the model with fewer parameters.
+    """The simplest model whose held-out loss is within one standard error of the best.
 
-    The error compared is the relative one the fits minimise (``heldout_rms_pct``); records
-    written before it existed fall back to ``heldout_rmse_cd_m2``.
+    The loss is each level's mean squared held-out error in noise SDs
+    (``heldout_level_loss``); its mean over levels is compared, and the standard error is that
+    of the best model's mean (the one-standard-error rule). Simplicity: fewer parameters, then
+    the order power, inner_power, offset_power, extended_power, ptb_sigmoid, ptb_weibull,
+    ptb_crt_poly_linear, monotone_spline. Records written before the loss existed fall back to
+    ``heldout_rms_pct`` (or ``heldout_rmse_cd_m2``), where a model with more parameters must
+    beat a simpler one by more than ``tolerance`` (a fraction).
 
     Parameters
     ----------
     fits : sequence of GammaFit
     tolerance : float
-        A model with more parameters must beat a simpler one's held-out RMS error by more than
-        this fraction (default 2 %) to be chosen.
+        Only for old records (see above).
+
+    Raises
+    ------
+    CalibrationError
+        If ``fits`` is empty.
     """
     fits = list(fits)
     if not fits:
         raise CalibrationError("no gamma fits to choose from")
+    if all(f.heldout_level_loss for f in fits):
+        means = [float(np.mean(f.heldout_level_loss)) for f in fits]
+        best = int(np.argmin(means))
+        loss = np.asarray(fits[best].heldout_level_loss)
+        se = float(np.std(loss, ddof=1) / np.sqrt(loss.size)) if loss.size > 1 else 0.0
+        ok = [f for f, m in zip(fits, means) if m <= means[best] + se]
+        return min(ok, key=_rank)
     relative = all(np.isfinite(f.heldout_rms_pct) for f in fits)
 
     def err(f: GammaFit) -> float:
         return f.heldout_rms_pct if relative else f.heldout_rmse_cd_m2
 
-    fits = sorted(fits, key=lambda f: (len(GAMMA_MODELS[f.model]), err(f)))
-    best = fits[0]
+    fits = sorted(fits, key=lambda f: (_rank(f), err(f)))
+    chosen = fits[0]
     for f in fits[1:]:
-        if err(f) < err(best) * (1 - tolerance):
-            best = f
-    return best
+        if err(f) < err(chosen) * (1 - tolerance):
+            chosen = f
+    return chosen

@@ -11,7 +11,9 @@ from calibration.record import Calibration
 
 __all__ = ["plot_gamma", "plot_uniformity"]
 
-_COLOURS = {"power": "tab:blue", "offset_power": "tab:orange", "extended_power": "tab:green"}
+_COLOURS = {"power": "tab:blue", "inner_power": "tab:cyan", "offset_power": "tab:orange",
+            "extended_power": "tab:green", "ptb_sigmoid": "tab:purple", "ptb_weibull": "tab:brown",
+            "ptb_crt_poly_linear": "tab:pink", "monotone_spline": "tab:olive"}
 
 
 def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
@@ -31,16 +33,17 @@ def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
     ax.plot(centre["level"], centre["luminance_cd_m2"], "k.", ms=5, label="readings")
     for f in cal.fits:
         chosen = " (chosen)" if f.model == cal.gamma_model else ""
-        ax.plot(x, f.luminance(x), color=_COLOURS[f.model], lw=2 if chosen else 1,
+        ax.plot(x, f.luminance(x), color=_COLOURS.get(f.model, "tab:gray"), lw=2 if chosen else 1,
                 label=f"{f.model}{chosen}: held-out RMSE {f.heldout_rmse_cd_m2:.3f} cd/m²")
     ax.set(xlabel="drive level", ylabel="luminance (cd/m²)",
            title=f"{cal.calibration_id}: {cal.device}, screen centre")
     ax.legend(fontsize=8)
     ax = axes[1]
-    for f in cal.fits:
-        ax.plot(np.array(f.levels) + {"power": -0.004, "offset_power": 0,
-                                     "extended_power": 0.004}[f.model],
-                f.residuals_cd_m2, ".", color=_COLOURS[f.model], ms=4, label=f.model)
+    for i, f in enumerate(cal.fits):
+        # Models side by side at each level, 0.002 apart, so their residuals do not overlap.
+        shift = 0.002 * (i - (len(cal.fits) - 1) / 2)
+        ax.plot(np.array(f.levels) + shift, f.residuals_cd_m2, ".",
+                color=_COLOURS.get(f.model, "tab:gray"), ms=4, label=f.model)
     ax.axhline(0, color="k", lw=0.5)
     ax.set(xlabel="drive level", ylabel="residual (cd/m²)")
     if n == 3:

@@ -28,16 +28,16 @@ def report_text(cal: Calibration, readings: pd.DataFrame) -> str:
         f"({readings[['x_norm', 'y_norm']].drop_duplicates().shape[0]} positions)"),
         "",
         ("gamma models (screen centre)    RMSE  held-out RMSE (cd/m^2)  held-out RMS "
-         "(% of reading)"),
+         "(% of reading)  held-out RMS (noise SDs)"),
     ]
     for f in cal.fits:
         mark = "*" if f.model == cal.gamma_model else " "
         params = ", ".join(f"{k}={f.params[k]:.4g}" for k in GAMMA_MODELS[f.model])
         lines.append(f" {mark} {f.model:<16} {f.rmse_cd_m2:8.4f}  {f.heldout_rmse_cd_m2:8.4f}"
-                     f"  {f.heldout_rms_pct:8.3f} %   {params}")
+                     f"  {f.heldout_rms_pct:8.3f} %  {f.heldout_rms_z:8.2f}   {params}")
     lines += [
-        (f"chosen: {cal.gamma_model} (smallest held-out error in % of reading; a model with more "
-        "parameters must beat a simpler one by 2 %)"),
+        (f"chosen: {cal.gamma_model} (the simplest model whose held-out error in noise SDs is "
+         "within one standard error of the best)"),
         f"luminance range: {cal.min_luminance_cd_m2:.3f} - {cal.max_luminance_cd_m2:.3f} cd/m^2",
     ]
     if cal.uniformity is not None:
