@@ -196,8 +196,10 @@ def _cmd_status(args) -> int:
         DataFileError,
         read_run_events,
         read_session,
+        read_slider_histories,
         runs_path,
         session_path,
+        sliders_path,
     )
     from experiment.participants import check_participant_id
     from experiment.plan import plan_path
@@ -220,6 +222,7 @@ def _cmd_status(args) -> int:
             try:
                 done = len(read_session(path))
                 runs = read_run_events(runs_path(data, args.participant, session))
+                read_slider_histories(sliders_path(data, args.participant, session))
             except DataFileError as exc:
                 print(f"  session {session}: DAMAGED: {exc}")
                 continue

@@ -61,6 +61,7 @@ __all__ = [
     "append_run_event",
     "read_run_events",
     "read_session",
+    "read_slider_histories",
     "runs_path",
     "session_path",
     "sliders_path",
@@ -195,7 +196,8 @@ def read_session(path, *, repair: bool = False) -> pd.DataFrame:
 
 
 def read_run_events(path, *, repair: bool = False) -> list[dict]:
-    """The events of a ``*_runs.jsonl`` run log (torn-tail rule as :func:`read_session`)."""
+    """The records of a JSON-lines file such as a ``*_runs.jsonl`` run log (torn-tail rule as
+    :func:`read_session`)."""
     path = Path(path)
     raw = _whole_records(path, json_record_check, repair=repair)
     events = []
@@ -210,6 +212,16 @@ def read_run_events(path, *, repair: bool = False) -> list[dict]:
                 "Move it aside (keep it) and run again"
             ) from None
     return events
+
+
+def read_slider_histories(path, *, repair: bool = False) -> list[dict]:
+    """The trials of a slider-histories file, the last line of each trial (a trial taken again
+    after a crash between its history and its row has two); torn-tail rule as
+    :func:`read_session`."""
+    by_trial = {}
+    for record in read_run_events(path, repair=repair):
+        by_trial[int(record["trial"])] = record
+    return [by_trial[t] for t in sorted(by_trial)]
 
 
 def append_run_event(path, event: dict) -> None:

@@ -54,8 +54,10 @@ from experiment.datafile import (
     append_run_event,
     read_run_events,
     read_session,
+    read_slider_histories,
     runs_path,
     session_path,
+    sliders_path,
     write_run_log,
 )
 from experiment.plan import PlanError, load_or_create_plan, participant_seed
@@ -292,6 +294,8 @@ def prepare_session(req: SessionRequest) -> Prepared:
     path = session_path(req.data_dir, req.participant, session)
     notes: list = []
     done = _read_recorded(read_session, path, notes)
+    _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
+                   notes)
     _check_done(done, rows, path)
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
@@ -443,6 +447,8 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
             events = runs_path(req.data_dir, req.participant, prep.session)
             run = 1 + sum(1 for e in read_run_events(events, repair=True)
                           if e.get("event") == "start")
+            read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
+                                  repair=True)
             if len(read_session(data, repair=True)) != len(prep.done):
                 raise PreflightError(f"{data} changed while this run was starting (another run "
                                      "of the session?); start the session again")

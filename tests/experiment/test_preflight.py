@@ -320,8 +320,8 @@ def test_observer_params_that_are_not_toml(design, session_files, tmp_path):
 
 
 def test_read_only_data_folder_is_refused_before_anything(design, session_files, small_disk):
-    with small_disk("64k", read_only=True) as folder:
-        with pytest.raises(PreflightError, match="read-only file system"):
+    with small_disk("64k", read_only=True) as folder, \
+            pytest.raises(PreflightError, match="read-only file system"):
             prepare_session(_request(design, session_files, data_dir=str(folder / "data")))
 
 
