@@ -27,6 +27,7 @@ keeps the last line of each trial.
 
 from __future__ import annotations
 
+import csv
 import io
 import json
 import subprocess
@@ -180,9 +181,13 @@ def read_session(path, *, repair: bool = False) -> pd.DataFrame:
         return pd.DataFrame(columns=list(SESSION_COLUMNS))
     lines = raw.decode("utf-8", errors="replace").split("\n")
     if lines[0] != _HEADER:
+        got = next(csv.reader([lines[0]]), [])
+        missing = [c for c in SESSION_COLUMNS if c not in got]
+        extra = [c for c in got if c not in SESSION_COLUMNS]
         raise DataFileError(
-            f"{path}: the header {lines[0][:200]!r} is not a session file's "
-            f"{list(SESSION_COLUMNS)}; it was not written by this app. Move it aside"
+            f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
+            f"a session CSV has exactly {list(SESSION_COLUMNS)}. It was not written by this "
+            "app: move it aside"
         )
     for number, line in enumerate(lines[1:-1], start=2):
         if not _ROW_CHECK(line.encode("utf-8")):

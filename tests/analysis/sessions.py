@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.load import SESSION_COLUMNS
-from experiment import make_plan
+from experiment import SESSION_COLUMNS, make_plan
 
 
 def answer(plan: pd.DataFrame, design, rng: np.random.Generator, kind: str) -> pd.DataFrame:

@@ -16,7 +16,8 @@ import numpy as np
 import pytest
 
 import experiment
-from analysis.load import SESSION_COLUMNS, load_sessions
+from analysis.load import load_sessions
+from experiment import SESSION_COLUMNS
 from analysis.models import fit_seed_models
 from analysis.report import seed_pattern
 
