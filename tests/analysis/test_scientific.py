@@ -17,9 +17,9 @@ import pytest
 
 import experiment
 from analysis.load import load_sessions
-from experiment import SESSION_COLUMNS
 from analysis.models import fit_seed_models
 from analysis.report import seed_pattern
+from experiment import SESSION_COLUMNS
 
 from .sessions import write_sessions
 
