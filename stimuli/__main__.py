@@ -204,7 +204,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check-env", help="select the Mitsuba variant and smoke-test a render")
     p.add_argument("--variant")
     p.set_defaults(func=_cmd_check_env)
-    __import__("stimuli.glossfit.cli").glossfit.cli.register(sub)  # fit-gloss, synth-photos (issue 7)
+    __import__("stimuli.glossfit.cli").glossfit.cli.register(sub)  # fit-gloss, synth-photos
     return parser
 
 
