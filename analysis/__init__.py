@@ -16,8 +16,8 @@ parametric_bootstrap, BootstrapResult
 fit_seed_models, ModelResult
     The seed's gloss and depth models.
 find_metamers, Metamer, plot_depth_matches, plot_gloss_matches, plot_gloss_contours,
-plot_observers, save_figure
-    The seed's figures.
+plot_observers
+    The source study's figures.
 build_report, ReportExistsError
     The HTML report (``python -m analysis report``).
 """
@@ -30,7 +30,6 @@ from analysis.figures import (
     plot_gloss_contours,
     plot_gloss_matches,
     plot_observers,
-    save_figure,
 )
 from analysis.lmm import LmmError, LmmFit, bc_power, fit_lmm, standardise_predictors
 from analysis.load import SessionData, SessionDataError, load_sessions
@@ -61,7 +60,6 @@ __all__ = [
     "plot_gloss_contours",
     "plot_gloss_matches",
     "plot_observers",
-    "save_figure",
     "standardise_predictors",
     "type2_wald",
 ]

@@ -37,7 +37,8 @@ from analysis.models import fit_seed_models, model_frame
 from labfiles import atomic_write_text, write_new_file
 from studydesign import StudyDesign
 
-__all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p", "seed_pattern"]
+__all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p",
+           "source_study_pattern"]
 
 ALPHA = 0.05
 
@@ -58,7 +59,7 @@ def chi2_sentence(test, n_participants: int) -> str:
     return f"χ²({test.df}, N = {n_participants}) = {test.chi2:.2f}, {format_p(test.p)}"
 
 
-def seed_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
+def source_study_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
     """The seed's qualitative findings, each checked on these data.
 
     Returns
@@ -214,7 +215,7 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     }
     for name, fig in figures.items():
         save_figure(fig, out / name)
-    pattern = seed_pattern(models, frame)
+    pattern = source_study_pattern(models, frame)
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     results = {
         "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
@@ -225,7 +226,8 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
         "models": {k: json.loads(v.to_json()) for k, v in models.items()},
         "bootstrap": {k: asdict(v) for k, v in boots.items()}, "bootstrap_seed": seed,
         "metamers": [m.to_dict() for m in metamers],
-        "seed_pattern": {k: {"holds": bool(v[0]), "detail": v[1]} for k, v in pattern.items()},
+        "source_study_pattern": {k: {"holds": bool(v[0]), "detail": v[1]}
+                                 for k, v in pattern.items()},
         "versions": _versions(),
     }
     atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))

@@ -85,7 +85,7 @@ def test_no_metamers_for_observers_without_a_depth_effect(tmp_path, design):
     build_report(tmp_path / "data", tmp_path / "r", design, n_boot=0, progress=False)
     results = json.loads((tmp_path / "r" / "results.json").read_text(encoding="utf-8"))
     assert results["metamers"] == []
-    assert not results["seed_pattern"]["depth effect on estimated gloss"]["holds"]
+    assert not results["source_study_pattern"]["depth effect on estimated gloss"]["holds"]
 
 
 def test_imagestats_is_passed_through_or_named_as_missing():
