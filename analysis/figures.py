@@ -1,4 +1,4 @@
-"""The seed's figures, from loaded session data (matplotlib, no display needed).
+"""The source study's figures, from loaded session data (matplotlib, no display needed).
 
 Every function takes the frame of `analysis.load.SessionData` and the design and returns a
 ``matplotlib.figure.Figure`` built without pyplot (so nothing depends on a GUI backend);
@@ -35,7 +35,7 @@ __all__ = [
 
 BINS = ("low", "medium", "high")
 # Hue per depth bin (blue, green, red) and saturation per gloss bin: colour = depth, saturation
-# = gloss, as in the seed's figure.
+# = gloss, as in the source study's figure.
 _DEPTH_HUE = {"low": 0.6, "medium": 0.33, "high": 0.0}
 _GLOSS_SAT = {"low": 0.3, "medium": 0.6, "high": 1.0}
 

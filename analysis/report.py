@@ -1,8 +1,9 @@
-"""The analysis report: session data in, an HTML page with the seed's figures and tests out.
+"""The analysis report: session data in, an HTML page with the source study's figures and
+tests out.
 
 `build_report` loads and validates the sessions, draws the figures, fits the two mixed models
-with Type II Wald tests, runs the parametric bootstrap, checks the seed's qualitative pattern
-and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
+with Type II Wald tests, runs the parametric bootstrap, checks the source study's qualitative
+pattern and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
 ``results.json``). An existing report is never overwritten: if ``REPORT_DIR/index.html`` exists
 the build stops before computing anything (choose another ``--out`` or move the old report
 away); ``index.html`` is written last (``labfiles.write_new_file``), which fails rather than
@@ -55,12 +56,12 @@ def format_p(p: float, *, floor: float | None = None) -> str:
 
 
 def chi2_sentence(test, n_participants: int) -> str:
-    """The seed's style: "χ²(1, N = 11) = 3716.04, p < 0.001"."""
+    """The source study's style: "χ²(1, N = 11) = 3716.04, p < 0.001"."""
     return f"χ²({test.df}, N = {n_participants}) = {test.chi2:.2f}, {format_p(test.p)}"
 
 
 def source_study_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
-    """The seed's qualitative findings, each checked on these data.
+    """The source study's qualitative findings, each checked on these data.
 
     Returns
     -------
@@ -284,7 +285,7 @@ from {len(data.files)} session files in <code>{esc(results['data_dir'])}</code>;
 <code>{esc(str(results['design']))}</code>. Created {results['created_utc']}.</p>
 <h2>Data warnings</h2>{warn}
 <p>Calibrations in these data: {esc(_calibrations_line(data))}.</p>
-<h2>The seed's pattern</h2>
+<h2>The source study's pattern</h2>
 {_table(['finding', 'holds here', 'numbers'], pat_rows)}
 <h2>Figures</h2>
 {figs}

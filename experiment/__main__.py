@@ -155,8 +155,8 @@ def main_run(req) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"interrupted (Ctrl-C) before the first trial of this run; nothing new was "
-              f"recorded in {req.data_dir}", file=sys.stderr)
+        print(f"interrupted (Ctrl-C); every answered trial is kept in {req.data_dir}; "
+              f"{again}", file=sys.stderr)
         return 130
     except LabFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
