@@ -125,6 +125,7 @@ def _cmd_export_print(args) -> int:
     ok, why = mesh_edges_ok(mesh)
     if not ok:
         raise ValueError(f"print mesh is not watertight ({why}); report this as a bug")
+    args.out.parent.mkdir(parents=True, exist_ok=True)
     path = write_mesh(mesh, args.out, units=args.units)
     scale = 10.0 if args.units == "mm" else 1.0
     size = (mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)) * scale
