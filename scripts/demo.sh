@@ -143,7 +143,7 @@ if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
     --sim "$RUN/data_ideal/sessions" --out "$GAP/observer"
   GAP_REAL+=("observer=$RUN/data/sessions"); GAP_SIM+=("observer=$RUN/data_ideal/sessions")
 else
-  echo "gap observer layer skipped: needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)"
+  echo "error: the gap observer layer needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)" >&2; exit 1
 fi
 # Display: photometer readings against the calibration (the noise floor needs >= 2 repeats per patch).
 if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings.csv" ]; then
@@ -152,7 +152,7 @@ if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings
     --sim "$RUN/calibration/calibration.json" --out "$GAP/display"
   GAP_REAL+=("display=$READINGS"); GAP_SIM+=("display=$RUN/calibration/calibration.json")
 else
-  echo "gap display layer skipped: no \$RUN/calibration/calibration.json and readings.csv"
+  echo "error: the gap display layer needs \$RUN/calibration/calibration.json and readings.csv" >&2; exit 1
 fi
 # Render: the synthetic photos against their Ward fit (the gloss fit's residual files).
 if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
@@ -160,7 +160,7 @@ if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
     --out "$GAP/render"
   GAP_REAL+=("render=$RUN/glossfit")
 else
-  echo "gap render layer skipped: no \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)"
+  echo "error: the gap render layer needs \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)" >&2; exit 1
 fi
 if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
