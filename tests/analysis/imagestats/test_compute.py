@@ -256,6 +256,7 @@ def test_a_truncated_part_is_named_moved_aside_and_measured_again(tmp_path, rng,
     assert not parts.exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_ends_the_run_cleanly_and_it_resumes(tmp_path, rng, scheduler, design):
     folder = tmp_path / "r"
     params = write_render_set(folder, rng, n_images=40)
