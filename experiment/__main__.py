@@ -256,7 +256,7 @@ def _cmd_simulate(args) -> int:
         print(f"error: --observer-params {args.observer_params}: {exc}", file=sys.stderr)
         return 2
     try:
-        paths = write_simulated_sessions(args.data, design, observers, rng)
+        paths = write_simulated_sessions(Path(args.data).absolute(), design, observers, rng)
     except FileExistsError as exc:
         print(f"error: {exc.filename} exists; session files are never overwritten",
               file=sys.stderr)
@@ -314,7 +314,9 @@ def main(argv: list[str] | None = None) -> int:
     s = sub.add_parser("simulate", help="write simulated session CSVs (observer model, no app)")
     s.add_argument("--observer", choices=["ideal", "humanlike"], required=True)
     s.add_argument("--participants", nargs="+", required=True, help="participant ids")
-    s.add_argument("--data", required=True, help="data folder (writes DATA/sessions/)")
+    s.add_argument("--data", required=True,
+                   help="data folder (writes DATA/sessions/); not the lab's data: the analysis "
+                        "report flags simulated participants")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
     s.set_defaults(func=_cmd_simulate)
