@@ -135,8 +135,8 @@ def test_quit_from_pause_then_resume(small_design, small_design_path, session_fi
 def test_ctrl_c_keeps_the_answers_and_a_torn_history_is_repaired_on_resume(
         small_design, small_design_path, session_files, capsys):
     """Ctrl-C ends the run cleanly (exit 130, what was kept, the run's log); a torn slider
-    history (a full disk during its write) is then named by `status`, moved aside by the
-    resume, and the histories read as JSON lines again."""
+    history (a full disk during its write) and a torn run log are then named by `status`, moved
+    aside by the resume, and both files read as JSON lines again."""
     f = session_files
     n = small_design.sessions.trials_per_session
     cmd = _cmd(small_design_path, f, "C1", 1)
@@ -153,6 +153,9 @@ def test_ctrl_c_keeps_the_answers_and_a_torn_history_is_repaired_on_resume(
     hist = f["data"] / "sliders" / "C1_s1.jsonl"
     with open(hist, "a") as fh:
         fh.write('{"participant": "C1", "session": 1, "trial": 3, "gloss_hi')
+    runs = f["data"] / "logs" / "C1_s1_runs.jsonl"
+    with open(runs, "a") as fh:  # a run log torn too: `run` and `status` crashed on it
+        fh.write('{"event": "sta')
     from experiment.__main__ import main
 
     assert main(["--design", str(small_design_path), "status", "--participant", "C1",
@@ -164,6 +167,9 @@ def test_ctrl_c_keeps_the_answers_and_a_torn_history_is_repaired_on_resume(
     assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
     assert pd.read_json(hist, lines=True)["trial"].tolist() == list(range(1, n + 1))
     assert len(list(hist.parent.glob("C1_s1.jsonl.torn-*"))) == 1
+    assert [e["event"] for e in read_run_events(runs)] == ["start", "interrupted", "start",
+                                                           "complete"]
+    assert len(list(runs.parent.glob("C1_s1_runs.jsonl.torn-*"))) == 1
 
 
 def test_full_disk_mid_session_is_named_and_the_resume_completes(
