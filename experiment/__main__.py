@@ -55,6 +55,10 @@ def _cmd_plan(args) -> int:
     except (PlanError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        print(f"error: cannot write the plan in {data} ({exc.strerror}); give a writable "
+              "folder with --data", file=sys.stderr)
+        return 1
     counts = plan.groupby("session").size().to_dict()
     print(f"plan: {plan_path(data, args.participant)} (seed {plan['seed'].iloc[0]}, "
           f"trials per session {counts})")

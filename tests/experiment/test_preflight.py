@@ -319,10 +319,15 @@ def test_observer_params_that_are_not_toml(design, session_files, tmp_path):
                                  observer_params=str(bad)))
 
 
-def test_read_only_data_folder_is_refused_before_anything(design, session_files, small_disk):
-    with small_disk("64k", read_only=True) as folder, \
-            pytest.raises(PreflightError, match="read-only file system"):
+def test_read_only_data_folder_is_refused_before_anything(design, session_files, small_disk,
+                                                          capsys):
+    from experiment.__main__ import main
+
+    with small_disk("64k", read_only=True) as folder:
+        with pytest.raises(PreflightError, match="read-only file system"):
             prepare_session(_request(design, session_files, data_dir=str(folder / "data")))
+        assert main(["plan", "--participant", "P01", "--data", str(folder)]) == 1
+        assert f"cannot write the plan in {folder}" in capsys.readouterr().err
 
 
 def test_full_disk_is_refused_at_start(design, session_files, small_disk):
