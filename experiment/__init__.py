@@ -48,7 +48,7 @@ from experiment.plan import (
 )
 
 _LAZY = {"run_session": "experiment.session", "SessionRequest": "experiment.session",
-         "SessionOutcome": "experiment.session", "TrialResult": "experiment.session",
+         "SessionOutcome": "experiment.session", "TrialResult": "experiment.trial",
          "PreflightError": "experiment.checks"}
 
 
