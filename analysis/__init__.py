@@ -4,8 +4,9 @@ Public API
 ----------
 matches_to_physical
     Slider matches to % and cm through the design.
-load_sessions, SessionData, SessionDataError, SESSION_COLUMNS
-    Read and validate a data folder's session CSVs.
+load_sessions, SessionData, SessionDataError
+    Read and validate a data folder's session CSVs (with ``experiment.read_session``; the
+    column list is ``experiment.SESSION_COLUMNS``).
 fit_lmm, LmmFit, LmmError, bc_power, standardise_predictors
     Linear mixed models by lme4's profiled deviance (ML); car's Box-Cox.
 type2_wald, WaldTest
@@ -15,8 +16,8 @@ parametric_bootstrap, BootstrapResult
 fit_seed_models, ModelResult
     The seed's gloss and depth models.
 find_metamers, Metamer, plot_depth_matches, plot_gloss_matches, plot_gloss_contours,
-plot_observers, save_figure
-    The seed's figures.
+plot_observers
+    The source study's figures.
 build_report, ReportExistsError
     The HTML report (``python -m analysis report``).
 """
@@ -29,17 +30,15 @@ from analysis.figures import (
     plot_gloss_contours,
     plot_gloss_matches,
     plot_observers,
-    save_figure,
 )
 from analysis.lmm import LmmError, LmmFit, bc_power, fit_lmm, standardise_predictors
-from analysis.load import SESSION_COLUMNS, SessionData, SessionDataError, load_sessions
+from analysis.load import SessionData, SessionDataError, load_sessions
 from analysis.models import ModelResult, fit_seed_models
 from analysis.report import ReportExistsError, build_report
 from analysis.typeii import WaldTest, type2_wald
 from analysis.units import matches_to_physical
 
 __all__ = [
-    "SESSION_COLUMNS",
     "BootstrapResult",
     "LmmError",
     "LmmFit",
@@ -61,7 +60,6 @@ __all__ = [
     "plot_gloss_contours",
     "plot_gloss_matches",
     "plot_observers",
-    "save_figure",
     "standardise_predictors",
     "type2_wald",
 ]

@@ -34,7 +34,7 @@ def _cmd_units(args) -> int:
 
 
 def _cmd_report(args) -> int:
-    from analysis.load import SessionDataError
+    from analysis.load import SessionDataError, load_sessions
     from analysis.report import ReportExistsError, build_report
 
     if args.bootstrap < 0:
@@ -42,7 +42,12 @@ def _cmd_report(args) -> int:
               file=sys.stderr)
         return 2
     try:
-        index = build_report(args.data_dir, args.out, load_design(args.design),
+        design = load_design(args.design)
+        # What the report includes, said here too: simulated participants, torn rows left
+        # out, more than one calibration (the report lists them under "Data warnings").
+        for note in load_sessions(args.data_dir, design).warnings:
+            print(f"warning: {note}", file=sys.stderr)
+        index = build_report(args.data_dir, args.out, design,
                              n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
                              progress=not args.quiet)
     except (ReportExistsError, SessionDataError, DesignError, ValueError) as exc:

@@ -1,4 +1,4 @@
-"""The seed's figures, from loaded session data (matplotlib, no display needed).
+"""The source study's figures, from loaded session data (matplotlib, no display needed).
 
 Every function takes the frame of `analysis.load.SessionData` and the design and returns a
 ``matplotlib.figure.Figure`` built without pyplot (so nothing depends on a GUI backend);
@@ -8,8 +8,6 @@ confidence intervals are across observers (t distribution, n - 1 degrees of free
 
 from __future__ import annotations
 
-import os
-import tempfile
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from scipy import stats
 
+from labfiles import atomic_path
 from studydesign import StudyDesign
 
 __all__ = [
@@ -36,7 +35,7 @@ __all__ = [
 
 BINS = ("low", "medium", "high")
 # Hue per depth bin (blue, green, red) and saturation per gloss bin: colour = depth, saturation
-# = gloss, as in the seed's figure.
+# = gloss, as in the source study's figure.
 _DEPTH_HUE = {"low": 0.6, "medium": 0.33, "high": 0.0}
 _GLOSS_SAT = {"low": 0.3, "medium": 0.6, "high": 1.0}
 
@@ -270,14 +269,8 @@ def plot_observers(frame: pd.DataFrame, design: StudyDesign, *, response: str) -
 
 
 def save_figure(fig: Figure, path, *, dpi: int = 110) -> Path:
-    """Write a figure as PNG atomically (temporary file in the same folder, then rename)."""
+    """Write a figure as PNG atomically, with the umask's permissions (``labfiles``)."""
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".png.tmp")
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
     return path

@@ -1,16 +1,19 @@
 """Read and validate the session CSVs of a data folder.
 
-Every session file ``DATA_DIR/sessions/<participant>_s<session>.csv`` is read, checked against
-the experiment's format and the study design, and converted to physical units through the
-design (`analysis.units.matches_to_physical`). Errors (the data cannot be analysed as they are)
-raise `SessionDataError` naming the file, the row and the fix; what can be analysed but is
-worth knowing (an incomplete session, a participant with one session) becomes a warning that the
-report shows.
+Every session file ``DATA_DIR/sessions/<participant>_s<session>.csv`` is read with the
+experiment's own reader (`experiment.read_session`: its columns, its torn-tail rule), checked
+against the study design, and converted to physical units through the design
+(`analysis.units.matches_to_physical`). Errors (the data cannot be analysed as they are) raise
+`SessionDataError` naming the file, the row and the fix; what can be analysed but is worth
+knowing becomes a warning that the report shows: an incomplete session, a participant with one
+session, a torn last row (left out, the file is not changed), simulated participants
+(``calibration_id`` ``simulated``) and data recorded with more than one calibration.
 """
 
 from __future__ import annotations
 
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,16 +21,14 @@ import numpy as np
 import pandas as pd
 
 from analysis.units import matches_to_physical
+from experiment import DataFileError, read_session
+from labfiles import TornTailWarning
 from studydesign import StudyDesign
 
-__all__ = ["SESSION_COLUMNS", "SessionData", "SessionDataError", "load_sessions"]
+__all__ = ["SIMULATED_CALIBRATION_ID", "SessionData", "SessionDataError", "load_sessions"]
 
-#: Columns of a session CSV, in order (the experiment's format).
-SESSION_COLUMNS = (
-    "participant", "session", "trial", "order", "stimulus_id", "illumination", "gloss_level",
-    "depth_level", "true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match", "rt_s",
-    "onset_s", "dropped_frames", "timestamp_utc", "app_version", "calibration_id",
-)
+#: The ``calibration_id`` of sessions written by a simulated observer, not a participant.
+SIMULATED_CALIBRATION_ID = "simulated"
 _NAME = re.compile(r"^(?P<participant>[A-Za-z0-9_-]{1,32})_s(?P<session>\d+)\.csv$")
 _NUMERIC = ("session", "trial", "order", "gloss_level", "depth_level", "true_gloss_pct",
             "true_depth_cm", "gloss_match", "depth_match", "rt_s")
@@ -47,14 +48,18 @@ class SessionData:
         The session columns plus ``gloss_match_pct`` (%), ``depth_match_cm`` (cm),
         ``gloss_bin`` and ``depth_bin`` (the design's low/medium/high); one row per trial.
     warnings : tuple of str
-        Incomplete sessions and participants without every session.
+        Incomplete sessions, participants without every session, torn rows left out,
+        simulated data and data of more than one calibration.
     files : tuple of str
         The files read, sorted.
+    calibrations : tuple of (str, tuple of str, int)
+        Each ``calibration_id`` in the data with its participants and number of trials.
     """
 
     frame: pd.DataFrame
     warnings: tuple
     files: tuple
+    calibrations: tuple = ()
 
     @property
     def participants(self) -> list:
@@ -79,18 +84,16 @@ def _read_one(path: Path, design: StudyDesign, stimuli: pd.DataFrame) -> pd.Data
             f"{path}: file name is not <participant>_s<session>.csv; rename it or move it out "
             "of the sessions folder"
         )
-    try:
-        frame = pd.read_csv(path, dtype={"participant": str, "stimulus_id": str,
-                                         "calibration_id": str, "app_version": str})
-    except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-        raise SessionDataError(f"{path}: not a readable CSV ({exc})") from exc
-    if tuple(frame.columns) != SESSION_COLUMNS:
-        missing = [c for c in SESSION_COLUMNS if c not in frame.columns]
-        extra = [c for c in frame.columns if c not in SESSION_COLUMNS]
-        raise SessionDataError(
-            f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
-            f"a session CSV has exactly {list(SESSION_COLUMNS)}"
-        )
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TornTailWarning)
+        try:
+            frame = read_session(path)
+        except DataFileError as exc:
+            raise SessionDataError(str(exc)) from exc
+        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
+            raise SessionDataError(f"{path}: not a readable CSV ({exc})") from exc
+    torn = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    frame.attrs["torn"] = torn
     for col in _NUMERIC:
         values = pd.to_numeric(frame[col], errors="coerce")
         bad = values.isna()
@@ -175,13 +178,15 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
     files = sorted(folder.glob("*.csv"))
     stimuli = design.stimuli()
     n_trials = design.sessions.trials_per_session
-    frames, warnings = [], []
+    frames, notes = [], []
     for path in files:
         frame = _read_one(path, design, stimuli)
+        notes += [f"{path.name}: torn last row left out (the experiment app refuses it too): "
+                     f"{w}" for w in frame.attrs.pop("torn", [])]
         trials = np.sort(frame["trial"].astype(int).to_numpy())
         expected = np.arange(1, trials.size + 1)
         if trials.size == 0:
-            warnings.append(f"{path.name}: empty session (no trials); left out")
+            notes.append(f"{path.name}: empty session (no trials); left out")
             continue
         if not np.array_equal(trials, expected):
             gaps = sorted(set(range(1, int(trials.max()) + 1)) - set(trials.tolist()))
@@ -190,7 +195,7 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
                 "are appended as trials run, so a gap means a damaged file"
             )
         if trials.size < n_trials:
-            warnings.append(
+            notes.append(
                 f"{path.name}: incomplete session, {trials.size} of {n_trials} trials "
                 f"(the analysis uses the {trials.size} recorded)"
             )
@@ -208,9 +213,39 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
     for participant, grp in data.groupby("participant"):
         missing = sorted(set(range(1, design.sessions.n_sessions + 1)) - set(grp["session"]))
         if missing:
-            warnings.append(f"participant {participant}: session(s) {missing} not recorded")
+            notes.append(f"participant {participant}: session(s) {missing} not recorded")
+    calibrations, provenance = _provenance(data)
+    notes += provenance
     data = matches_to_physical(data, design)
     data["gloss_bin"] = design.gloss_bin(data["true_gloss_pct"].to_numpy())
     data["depth_bin"] = design.depth_bin(data["true_depth_cm"].to_numpy())
     data = data.sort_values(["participant", "session", "trial"], ignore_index=True)
-    return SessionData(frame=data, warnings=tuple(warnings), files=tuple(str(f) for f in files))
+    return SessionData(frame=data, warnings=tuple(notes), files=tuple(str(f) for f in files),
+                       calibrations=calibrations)
+
+
+def _provenance(data: pd.DataFrame) -> tuple[tuple, list[str]]:
+    """Which calibrations the trials were recorded with; warnings for simulated participants,
+    a session of more than one calibration, and data of more than one calibration."""
+    ids = data["calibration_id"].fillna("").astype(str)
+    calibrations = tuple(
+        (cid, tuple(sorted(grp["participant"].unique())), len(grp))
+        for cid, grp in data.assign(calibration_id=ids).groupby("calibration_id", sort=True))
+    notes = []
+    simulated = sorted(data.loc[ids == SIMULATED_CALIBRATION_ID, "participant"].unique())
+    if simulated:
+        notes.append(
+            f"simulated data included: participants {simulated} have calibration_id "
+            f"'{SIMULATED_CALIBRATION_ID}' (written by `python -m experiment simulate`, not by "
+            "a participant); move their files out of the data folder unless this is a test")
+    per_session = data.assign(calibration_id=ids).groupby(["participant", "session"])
+    for (participant, session), grp in per_session:
+        used = sorted(grp["calibration_id"].unique())
+        if len(used) > 1:
+            notes.append(f"{participant} session {int(session)}: trials recorded with "
+                         f"calibrations {used} (a session resumed with another calibration); "
+                         "check which trials to keep")
+    if len(calibrations) > 1:
+        notes.append("data of more than one calibration: " + "; ".join(
+            f"{cid!r}: {', '.join(who)} ({n} trials)" for cid, who, n in calibrations))
+    return calibrations, notes

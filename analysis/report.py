@@ -1,20 +1,20 @@
-"""The analysis report: session data in, an HTML page with the seed's figures and tests out.
+"""The analysis report: session data in, an HTML page with the source study's figures and
+tests out.
 
 `build_report` loads and validates the sessions, draws the figures, fits the two mixed models
-with Type II Wald tests, runs the parametric bootstrap, checks the seed's qualitative pattern
-and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
+with Type II Wald tests, runs the parametric bootstrap, checks the source study's qualitative
+pattern and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
 ``results.json``). An existing report is never overwritten: if ``REPORT_DIR/index.html`` exists
 the build stops before computing anything (choose another ``--out`` or move the old report
-away); ``index.html`` is written last, with ``os.link``, which fails rather than replace a file.
+away); ``index.html`` is written last (``labfiles.write_new_file``), which fails rather than
+replace a file. Every file gets the umask's permissions, so the lab's other accounts can read it.
 """
 
 from __future__ import annotations
 
 import html
 import json
-import os
 import platform
-import tempfile
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
@@ -35,9 +35,11 @@ from analysis.figures import (
 from analysis.lmm import FIXED_TERMS, RANDOM_TERMS
 from analysis.load import load_sessions
 from analysis.models import fit_seed_models, model_frame
+from labfiles import atomic_write_text, write_new_file
 from studydesign import StudyDesign
 
-__all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p", "seed_pattern"]
+__all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p",
+           "source_study_pattern"]
 
 ALPHA = 0.05
 
@@ -54,12 +56,12 @@ def format_p(p: float, *, floor: float | None = None) -> str:
 
 
 def chi2_sentence(test, n_participants: int) -> str:
-    """The seed's style: "χ²(1, N = 11) = 3716.04, p < 0.001"."""
+    """The source study's style: "χ²(1, N = 11) = 3716.04, p < 0.001"."""
     return f"χ²({test.df}, N = {n_participants}) = {test.chi2:.2f}, {format_p(test.p)}"
 
 
-def seed_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
-    """The seed's qualitative findings, each checked on these data.
+def source_study_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
+    """The source study's qualitative findings, each checked on these data.
 
     Returns
     -------
@@ -214,22 +216,30 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     }
     for name, fig in figures.items():
         save_figure(fig, out / name)
-    pattern = seed_pattern(models, frame)
+    pattern = source_study_pattern(models, frame)
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     results = {
         "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
         "design": design.source, "participants": data.participants, "n_trials": len(frame),
         "warnings": list(data.warnings),
+        "calibrations": [{"calibration_id": c, "participants": list(p), "n_trials": n}
+                         for c, p, n in data.calibrations],
         "models": {k: json.loads(v.to_json()) for k, v in models.items()},
         "bootstrap": {k: asdict(v) for k, v in boots.items()}, "bootstrap_seed": seed,
         "metamers": [m.to_dict() for m in metamers],
-        "seed_pattern": {k: {"holds": bool(v[0]), "detail": v[1]} for k, v in pattern.items()},
+        "source_study_pattern": {k: {"holds": bool(v[0]), "detail": v[1]}
+                                 for k, v in pattern.items()},
         "versions": _versions(),
     }
-    _write_atomic(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
+    atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
     page = _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed)
     _write_new(index, page)
     return index
+
+
+def _calibrations_line(data) -> str:
+    return "; ".join(f"{cid or '(none)'}: {', '.join(who)} ({n} trials)"
+                     for cid, who, n in data.calibrations) or "none recorded"
 
 
 def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed) -> str:
@@ -274,7 +284,8 @@ def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_bo
 from {len(data.files)} session files in <code>{esc(results['data_dir'])}</code>; design
 <code>{esc(str(results['design']))}</code>. Created {results['created_utc']}.</p>
 <h2>Data warnings</h2>{warn}
-<h2>The seed's pattern</h2>
+<p>Calibrations in these data: {esc(_calibrations_line(data))}.</p>
+<h2>The source study's pattern</h2>
 {_table(['finding', 'holds here', 'numbers'], pat_rows)}
 <h2>Figures</h2>
 {figs}
@@ -291,26 +302,9 @@ All numbers: <a href="results.json">results.json</a>.</p>
 """
 
 
-def _write_atomic(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def _write_new(path: Path, text: str) -> None:
-    """Write a file that must not exist yet: temp file, then os.link (fails if it exists)."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    """Write a file that must not exist yet (``labfiles.write_new_file``)."""
     try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        try:
-            os.link(tmp, path)
-        except FileExistsError as exc:
-            raise ReportExistsError(f"{path} appeared while the report was built; kept it") from exc
-    finally:
-        os.unlink(tmp)
+        write_new_file(path, text)
+    except FileExistsError as exc:
+        raise ReportExistsError(f"{path} appeared while the report was built; kept it") from exc

@@ -4,8 +4,9 @@ Public API
 ----------
 check_participant_id, make_plan, load_or_create_plan, plan_path, participant_seed, PLAN_COLUMNS
     Participant ids and trial plans.
-SESSION_COLUMNS, SessionWriter, read_session, session_path, sliders_path, app_version
-    Session data files (one CSV row per trial, appended and fsynced).
+SESSION_COLUMNS, DataFileError, SessionWriter, read_session, read_slider_histories,
+read_run_events, session_path, sliders_path, runs_path
+    Session data files (one CSV row per trial, appended and fsynced; one torn-tail rule).
 Observer, make_observer, simulate_dataset, write_simulated_sessions, load_observer_params,
 OBSERVER_KINDS, write_observer_params
     Simulated observers (``ideal``, ``humanlike``; parameters in ``observers.toml``).
@@ -13,7 +14,7 @@ fit_observer_params, ObserverFitError
     Fit the observers' parameters to a lab's sessions (``python -m experiment fit-observer``);
     imported on first use (scipy).
 
-run_session, SessionRequest, SessionOutcome, PreflightError
+run_session, SessionRequest, SessionOutcome, TrialResult, PreflightError
     The session app (``python -m experiment run``); imported on first use, so that
     ``import experiment`` stays light (no PsychoPy, no stimuli/calibration packages).
 
@@ -24,8 +25,10 @@ from experiment.datafile import (
     SESSION_COLUMNS,
     DataFileError,
     SessionWriter,
-    app_version,
+    read_run_events,
     read_session,
+    read_slider_histories,
+    runs_path,
     session_path,
     sliders_path,
 )
@@ -49,7 +52,8 @@ from experiment.plan import (
 )
 
 _LAZY = {"run_session": "experiment.session", "SessionRequest": "experiment.session",
-         "SessionOutcome": "experiment.session", "PreflightError": "experiment.checks",
+         "SessionOutcome": "experiment.session", "TrialResult": "experiment.trial",
+         "PreflightError": "experiment.checks",
          "fit_observer_params": "experiment.observer_fit",
          "ObserverFitError": "experiment.observer_fit"}
 
@@ -74,7 +78,7 @@ __all__ = [
     "SessionOutcome",
     "SessionRequest",
     "SessionWriter",
-    "app_version",
+    "TrialResult",
     "check_participant_id",
     "fit_observer_params",
     "load_observer_params",
@@ -83,8 +87,11 @@ __all__ = [
     "make_plan",
     "participant_seed",
     "plan_path",
+    "read_run_events",
     "read_session",
+    "read_slider_histories",
     "run_session",
+    "runs_path",
     "session_path",
     "simulate_dataset",
     "sliders_path",

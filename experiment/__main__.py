@@ -2,29 +2,66 @@
 
 ``run``   run (or resume) a session at the CRT, or with a simulated observer under Xvfb;
 ``plan``  make or show a participant's trial plan;
+``status``  how far a participant's sessions are (and whether a file has a torn tail);
 ``simulate``  write simulated session files without the app (observer model only);
 ``fit-observer``  fit the simulated observers' parameters to a lab's sessions (a pilot).
+
+The data folder is ``--data``, else the lab's data root in the environment variable
+``GLOSSDEPTH_DATA``; never the working directory, so the same command continues a session from
+any directory. Messages print absolute paths.
 """
 
 from __future__ import annotations
 
 import argparse
+import errno
+import os
 import sys
+from pathlib import Path
 
 from studydesign import DesignError, load_design
+
+#: Environment variable naming the lab's data root (read here, at the command line only).
+DATA_ENV = "GLOSSDEPTH_DATA"
+
+
+class UsageError(ValueError):
+    """The command line lacks something (exit status 2)."""
+
+
+def data_folder(value: str | None) -> Path:
+    """The data folder, absolute: ``--data``, else ``$GLOSSDEPTH_DATA``; never a default.
+
+    Raises
+    ------
+    UsageError
+        Neither is given.
+    """
+    value = value or os.environ.get(DATA_ENV)
+    if not value:
+        raise UsageError(
+            f"no data folder: pass --data /path/to/the/lab/data, or set {DATA_ENV} to the lab's "
+            "data root (the working directory is never used, so that the same command continues "
+            "a session from any directory)")
+    return Path(value).expanduser().absolute()
 
 
 def _cmd_plan(args) -> int:
     from experiment.plan import PlanError, load_or_create_plan, plan_path
 
     design = load_design(args.design)
+    data = data_folder(args.data)
     try:
-        plan = load_or_create_plan(design, args.participant, args.data_dir)
+        plan = load_or_create_plan(design, args.participant, data)
     except (PlanError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        print(f"error: cannot write the plan in {data} ({exc.strerror}); give a writable "
+              "folder with --data", file=sys.stderr)
+        return 1
     counts = plan.groupby("session").size().to_dict()
-    print(f"plan: {plan_path(args.data_dir, args.participant)} (seed {plan['seed'].iloc[0]}, "
+    print(f"plan: {plan_path(data, args.participant)} (seed {plan['seed'].iloc[0]}, "
           f"trials per session {counts})")
     return 0
 
@@ -67,9 +104,10 @@ def _ask(values: dict) -> dict | None:
 
 
 def _cmd_run(args) -> int:
-    from experiment.session import SessionRequest, main_run
+    from experiment.session import SessionRequest
 
     design = load_design(args.design)
+    data = data_folder(args.data)
     values = {"participant": args.participant, "session": args.session,
               "stimuli": args.stimuli, "calibration": args.calibration}
     if args.fast and not args.simulate:
@@ -96,7 +134,7 @@ def _cmd_run(args) -> int:
             return 1
     req = SessionRequest(
         design=design, participant=values["participant"], session=values["session"],
-        manifest=values["stimuli"], calibration=values["calibration"], data_dir=args.data,
+        manifest=values["stimuli"], calibration=values["calibration"], data_dir=str(data),
         max_calibration_age_days=args.max_calibration_age_days, simulate=args.simulate,
         observer_params=args.observer_params, seed=args.seed, fast=args.fast,
         fullscr=args.fullscr, accept_calibration_mismatch=args.accept_calibration_mismatch,
@@ -106,38 +144,105 @@ def _cmd_run(args) -> int:
     return main_run(req)
 
 
-def _cmd_status(args) -> int:
-    import json
-    from pathlib import Path
+def main_run(req) -> int:
+    """Run a session for the command line: messages on stderr, exit status.
 
-    from experiment.datafile import DataFileError, read_session, session_path
+    Returns 0 (complete or already complete), 1 (a write failed: a full disk, a read-only
+    folder; everything recorded before is kept), 2 (a pre-flight or display problem: nothing
+    was shown), 3 (quit by the operator), 130 (Ctrl-C); after 1, 3 and 130 the same command
+    continues the session.
+    """
+    from experiment.checks import PreflightError
+    from experiment.display import DisplayError
+    from experiment.session import run_session
+    from labfiles import LabFileError
+
+    again = "run the same command to continue"
+    try:
+        res = run_session(req)
+    except (PreflightError, DisplayError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"interrupted (Ctrl-C); every answered trial is kept in {req.data_dir}; "
+              f"{again}", file=sys.stderr)
+        return 130
+    except LabFileError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            what = (exc.strerror if "disk is full" in str(exc.strerror)
+                    else f"the disk is full: could not write {exc.filename or req.data_dir}")
+            print(f"error: {what}. The trials answered so far are kept in {req.data_dir}; "
+                  f"free space, then {again}", file=sys.stderr)
+        elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+            print(f"error: cannot write {exc.filename or req.data_dir} ({exc.strerror}); the "
+                  f"trials answered so far are kept; make the data folder writable, then "
+                  f"{again}", file=sys.stderr)
+        else:
+            print(f"error: {exc}; the trials answered so far are kept in {req.data_dir}",
+                  file=sys.stderr)
+        return 1
+    kept = (f"{res.trials_done} of {res.trials_total} trials are saved in {res.data_file}; "
+            f"{again} (--data {req.data_dir})")
+    if res.status == "quit":
+        print(f"session {res.session} of {res.participant} paused: {kept}", file=sys.stderr)
+        return 3
+    if res.status == "interrupted":
+        print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
+        return 130
+    if res.status == "complete":
+        print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
+              f"in {res.data_file}; log {res.log_file}")
+    return 0
+
+
+def _cmd_status(args) -> int:
+    import warnings
+
+    from experiment.datafile import (
+        DataFileError,
+        read_run_events,
+        read_session,
+        read_slider_histories,
+        runs_path,
+        session_path,
+        sliders_path,
+    )
     from experiment.participants import check_participant_id
     from experiment.plan import plan_path
+    from labfiles import TornTailWarning
 
     design = load_design(args.design)
+    data = data_folder(args.data)
     try:
         check_participant_id(args.participant)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    plan = plan_path(args.data, args.participant)
-    print(f"{args.participant}: plan {plan if plan.exists() else '(none yet)'}")
+    plan = plan_path(data, args.participant)
+    print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
     n = design.sessions.trials_per_session
     for session in range(1, design.sessions.n_sessions + 1):
-        path = session_path(args.data, args.participant, session)
-        try:
-            done = len(read_session(path))
-        except DataFileError as exc:
-            print(f"  session {session}: DAMAGED: {exc}")
-            continue
-        events = Path(args.data) / "logs" / f"{path.stem}_runs.jsonl"
-        runs = ([json.loads(line) for line in events.read_text().splitlines() if line.strip()]
-                if events.exists() else [])
-        starts = sum(1 for e in runs if e["event"] == "start")
-        last = runs[-1]["event"] if runs else "-"
+        path = session_path(data, args.participant, session)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", TornTailWarning)
+            try:
+                done = len(read_session(path))
+                runs = read_run_events(runs_path(data, args.participant, session))
+                read_slider_histories(sliders_path(data, args.participant, session))
+            except DataFileError as exc:
+                print(f"  session {session}: DAMAGED: {exc}")
+                continue
+        starts = sum(1 for e in runs if e.get("event") == "start")
+        last = runs[-1].get("event") if runs else "-"
         state = "complete" if done == n else ("not started" if done == 0 else "to resume")
         print(f"  session {session}: {done}/{n} trials, {state}; {starts} run(s), last event "
               f"{last!r}")
+        for w in caught:
+            if issubclass(w.category, TornTailWarning):
+                print(f"    WARNING: {w.message}")
     return 0
 
 
@@ -156,11 +261,15 @@ def _cmd_simulate(args) -> int:
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
         return 2
-    params = load_observer_params(args.observer_params)[args.observer]
-    observers = [make_observer(args.observer, p, rng, params, design=design)
-                 for p in args.participants]
     try:
-        paths = write_simulated_sessions(args.data, design, observers, rng)
+        params = load_observer_params(args.observer_params)[args.observer]
+        observers = [make_observer(args.observer, p, rng, params, design=design)
+                     for p in args.participants]
+    except (ValueError, TypeError, KeyError) as exc:
+        print(f"error: --observer-params {args.observer_params}: {exc}", file=sys.stderr)
+        return 2
+    try:
+        paths = write_simulated_sessions(Path(args.data).absolute(), design, observers, rng)
     except FileExistsError as exc:
         print(f"error: {exc.filename} exists; session files are never overwritten",
               file=sys.stderr)
@@ -250,7 +359,8 @@ def main(argv: list[str] | None = None) -> int:
 
     p = sub.add_parser("plan", help="make (or show) a participant's trial plan")
     p.add_argument("--participant", required=True, help="participant id, e.g. P01")
-    p.add_argument("--data-dir", default="data", help="data folder (default: data)")
+    p.add_argument("--data", "--data-dir", dest="data",
+                   help=f"data folder (default: ${DATA_ENV}; required without it)")
     p.set_defaults(func=_cmd_plan)
 
     r = sub.add_parser("run", help="run or resume a session (a dialog asks for what is missing)")
@@ -258,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--session", help="session number (1..n_sessions of the design)")
     r.add_argument("--stimuli", help="the stimulus manifest.csv (python -m stimuli render)")
     r.add_argument("--calibration", help="calibration.json (python -m calibration run)")
-    r.add_argument("--data", default="data", help="data folder (default: data)")
+    r.add_argument("--data", help=f"data folder (default: ${DATA_ENV}; required without it)")
     r.add_argument("--max-calibration-age-days", type=float, default=30.0,
                    help="refuse a calibration older than this (default 30 days)")
     r.add_argument("--accept-calibration-mismatch", action="store_true",
@@ -283,13 +393,15 @@ def main(argv: list[str] | None = None) -> int:
 
     st = sub.add_parser("status", help="how far a participant's sessions are")
     st.add_argument("--participant", required=True)
-    st.add_argument("--data", default="data", help="data folder (default: data)")
+    st.add_argument("--data", help=f"data folder (default: ${DATA_ENV}; required without it)")
     st.set_defaults(func=_cmd_status)
 
     s = sub.add_parser("simulate", help="write simulated session CSVs (observer model, no app)")
     s.add_argument("--observer", choices=["ideal", "humanlike"], required=True)
     s.add_argument("--participants", nargs="+", required=True, help="participant ids")
-    s.add_argument("--data", required=True, help="data folder (writes DATA/sessions/)")
+    s.add_argument("--data", required=True,
+                   help="data folder (writes DATA/sessions/); not the lab's data: the analysis "
+                        "report flags simulated participants")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
     s.set_defaults(func=_cmd_simulate)
@@ -306,6 +418,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return args.func(args)
+    except UsageError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     except DesignError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

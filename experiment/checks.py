@@ -7,7 +7,9 @@ the fix. None of them opens a window or imports ``psychopy.visual`` (which needs
 
 from __future__ import annotations
 
+import errno
 import os
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +18,7 @@ import pandas as pd
 
 from calibration import Calibration, CalibrationError, load_calibration
 from experiment.participants import check_participant_id
+from labfiles import temporary_path
 from stimuli import ManifestError, load_manifest, verify_manifest
 from studydesign import StudyDesign
 
@@ -23,16 +26,23 @@ __all__ = [
     "PreflightError",
     "SessionStimuli",
     "check_calibration",
+    "check_data_folder",
     "check_keyboard_libraries",
     "check_monitor_profile",
     "check_participant",
     "check_screen",
+    "check_screenshot",
     "check_session_number",
     "check_stimuli",
 ]
 
 #: Refresh rates further apart than this (relative) make a calibration not match the design's CRT.
 _REFRESH_TOLERANCE = 0.05
+#: Free space a session needs in the data folder (rows, slider histories, frame logs and plots
+#: of a long session take a few MB).
+MIN_FREE_MB = 20.0
+#: PNG colour types the session shows (PIL modes): 8-bit grey, as ``stimuli`` writes, or RGB.
+_PNG_MODES = ("L", "RGB")
 
 
 class PreflightError(ValueError):
@@ -56,6 +66,66 @@ def check_session_number(design: StudyDesign, session) -> int:
     if value is None or str(session).strip() != str(value) or not 1 <= value <= n:
         raise PreflightError(f"session {session!r} is not valid; the design has sessions 1-{n}")
     return value
+
+
+def check_data_folder(data_dir) -> Path:
+    """The data folder exists (or can be made), can be written, and has room for a session.
+
+    Returns
+    -------
+    Path
+        The folder, absolute.
+
+    Raises
+    ------
+    PreflightError
+        It cannot be made or written (read-only, no permission), or its disk has less than
+        ``MIN_FREE_MB`` free.
+    """
+    folder = Path(data_dir).absolute()
+    probe = temporary_path(folder / "write-test")
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise PreflightError(f"the disk holding the data folder {folder} is full; free "
+                                 "space, then run the same command again") from None
+        why = ("is on a read-only file system" if exc.errno == errno.EROFS
+               else f"cannot be written ({exc.strerror})")
+        raise PreflightError(
+            f"the data folder {folder} {why}; nothing was recorded. Give a writable folder with "
+            "--data (or fix its permissions)") from None
+    free_mb = shutil.disk_usage(folder).free / 1e6
+    if free_mb < MIN_FREE_MB:
+        raise PreflightError(
+            f"the disk holding the data folder {folder} has {free_mb:.1f} MB free, less than the "
+            f"{MIN_FREE_MB:g} MB a session may write; free space (or use another --data)")
+    return folder
+
+
+def check_screenshot(path) -> Path | None:
+    """A ``--screenshot`` goes into an existing, writable folder, as a PNG.
+
+    Raises
+    ------
+    PreflightError
+        The folder is missing or not writable, or the name does not end in ``.png``.
+    """
+    if path is None:
+        return None
+    path = Path(path).absolute()
+    if path.suffix.lower() != ".png":
+        raise PreflightError(f"--screenshot {path}: the screenshot is a PNG; end its name in "
+                             "'.png'")
+    if not path.parent.is_dir():
+        raise PreflightError(f"--screenshot {path}: the folder {path.parent} does not exist; "
+                             "create it first or choose another path")
+    if not os.access(path.parent, os.W_OK):
+        raise PreflightError(f"--screenshot {path}: the folder {path.parent} is not writable")
+    return path
 
 
 @dataclass(frozen=True)
@@ -115,6 +185,12 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
         )
     path = Path(frame.attrs["manifest_path"])
     rows = frame.set_index("stimulus_id").loc[ids].reset_index()
+    problems = _decode_problems(path, rows)
+    if problems:
+        more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
+        raise PreflightError(
+            f"stimulus manifest {path}: {len(problems)} image(s) of this session do not decode "
+            f"as the manifest says{more}:\n  " + "\n  ".join(problems[:10]))
     for col in ("illumination", "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm"):
         a, b = rows[col].to_numpy(), plan_rows[col].to_numpy()
         same = a == b if col == "illumination" else np.isclose(a.astype(float), b.astype(float))
@@ -139,6 +215,40 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
         "png_sha256": rows["png_sha256"].to_numpy(),
     })
     return SessionStimuli(manifest_path=path, frame=out)
+
+
+def _decode_problems(manifest_path: Path, rows: pd.DataFrame) -> list[str]:
+    """Decode every PNG; compare its size with the manifest's and its colour type with the
+    session's (8-bit grey or RGB, one type for all): one message per problem."""
+    from PIL import Image
+
+    problems, modes = [], {}
+    for row in rows.itertuples(index=False):
+        png = manifest_path.parent / str(row.png_path)
+        try:
+            with Image.open(png) as im:
+                im.load()
+                fmt, size, mode = im.format, im.size, im.mode
+        except (OSError, SyntaxError, ValueError) as exc:
+            problems.append(f"{row.stimulus_id}: {png} does not decode ({exc}); re-render it")
+            continue
+        want = (int(row.width_px), int(row.height_px))
+        if fmt != "PNG":
+            problems.append(f"{row.stimulus_id}: {png} is a {fmt} file, not a PNG; re-render it")
+        elif size != want:
+            problems.append(f"{row.stimulus_id}: {png} decodes to {size[0]}x{size[1]} px, the "
+                            f"manifest says {want[0]}x{want[1]}; re-render it")
+        elif mode not in _PNG_MODES:
+            problems.append(f"{row.stimulus_id}: {png} has colour type {mode!r}; the session "
+                            "shows 8-bit grey ('L') or RGB PNGs. Re-render it")
+        else:
+            modes.setdefault(mode, []).append(row.stimulus_id)
+    if len(modes) > 1:
+        few = min(modes, key=lambda m: len(modes[m]))
+        problems.append(f"{modes[few][:5]} are {few!r} PNGs but the session's other stimuli "
+                        f"are {sorted(set(modes) - {few})}; one colour type for all. Re-render "
+                        "them")
+    return problems
 
 
 def check_calibration(path, design: StudyDesign, *, max_age_days: float) -> Calibration:

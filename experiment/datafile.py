@@ -1,5 +1,8 @@
 """Session data files: one CSV row per trial, appended and fsynced the moment it exists.
 
+This module owns the session data formats: the column list (``SESSION_COLUMNS``), the file
+names, the writer and the readers. ``analysis`` reads sessions through :func:`read_session`.
+
 Files of one participant and session, under the data folder ``DATA_DIR``:
 
 ================================================  =================================================
@@ -10,8 +13,16 @@ Files of one participant and session, under the data folder ``DATA_DIR``:
 ``logs/<participant>_s<session>_run<k>_frames.*`` frame intervals of that run (CSV and a plot)
 ================================================  =================================================
 
-Recorded data is never overwritten: rows are only appended (``O_APPEND``, one ``write`` per row,
-then ``fsync``), and run logs take the next free run number.
+Recorded data is never overwritten: rows are only appended (``labfiles.RecordFile``: one
+``write`` per row, then ``fsync``), and run logs take the next free run number. Every
+append-only file follows ``labfiles``' one torn-tail rule: a last line cut short (a crash, a
+full disk) is moved to a side file ``<name>.torn-<UTC>`` when the session is next opened for
+writing, and that trial is taken again. Readers that must not write (``status``, the analysis)
+read up to the last whole record and warn (:class:`labfiles.TornTailWarning`).
+
+A slider-history line is written before its CSV row (the row is the commit point), so a crash
+between the two leaves a history for a trial that is taken again: a reader of the histories
+keeps the last line of each trial.
 """
 
 from __future__ import annotations
@@ -19,8 +30,10 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 import subprocess
+import warnings
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import cache
 from importlib import metadata
 from pathlib import Path
@@ -29,15 +42,31 @@ from typing import Self
 import pandas as pd
 
 from experiment.participants import check_participant_id
+from labfiles import (
+    RecordFile,
+    TornTailWarning,
+    csv_fields_check,
+    csv_record,
+    find_torn_tail,
+    json_record,
+    json_record_check,
+    read_records,
+    write_new_file,
+)
 
 __all__ = [
     "SESSION_COLUMNS",
     "DataFileError",
     "SessionWriter",
     "app_version",
+    "append_run_event",
+    "read_run_events",
     "read_session",
+    "read_slider_histories",
+    "runs_path",
     "session_path",
     "sliders_path",
+    "write_run_log",
 ]
 
 #: Columns of a session CSV, in order. ``gloss_match`` and ``depth_match`` are raw slider
@@ -49,6 +78,9 @@ SESSION_COLUMNS = (
     "depth_level", "true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match", "rt_s",
     "onset_s", "dropped_frames", "timestamp_utc", "app_version", "calibration_id",
 )
+_HEADER = csv_record(SESSION_COLUMNS)
+#: A whole session row: it parses into exactly the session's columns.
+_ROW_CHECK = csv_fields_check(len(SESSION_COLUMNS))
 
 
 class DataFileError(ValueError):
@@ -72,6 +104,37 @@ def sliders_path(data_dir, participant: str, session: int) -> Path:
     return Path(data_dir) / "sliders" / f"{_name(participant, session)}.jsonl"
 
 
+def runs_path(data_dir, participant: str, session: int) -> Path:
+    """``DATA_DIR/logs/<participant>_s<session>_runs.jsonl``: start and end of every run."""
+    return Path(data_dir) / "logs" / f"{_name(participant, session)}_runs.jsonl"
+
+
+def _whole_records(path: Path, check: Callable[[bytes], bool], *, repair: bool) -> bytes:
+    """The bytes of ``path`` up to its last whole record (the torn-tail rule; see the module).
+
+    With ``repair`` the torn tail is moved aside (``labfiles.repair_torn_tail``); without, the
+    file is not touched and a :class:`~labfiles.TornTailWarning` says what the next run does.
+    """
+    if repair:
+        lines = read_records(path, check=check)
+        return "".join(line + "\n" for line in lines).encode("utf-8")
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return b""
+    found = find_torn_tail(data, check=check)
+    if found is None:
+        return data
+    offset, reason = found
+    line = data.count(b"\n", 0, offset) + 1
+    warnings.warn(
+        f"{path}: line {line} is torn ({reason}; a crash or a full disk during a write?): read "
+        f"up to line {line - 1}; the next run of this session moves the {len(data) - offset} "
+        "damaged bytes to a side file and takes that record again", TornTailWarning,
+        stacklevel=3)
+    return data[:offset]
+
+
 @cache
 def app_version() -> str:
     """The installed glossdepth version, plus the git commit when run from a checkout."""
@@ -89,52 +152,107 @@ def app_version() -> str:
     return f"{version}+g{commit}" if commit else version
 
 
-def read_session(path) -> pd.DataFrame:
+def read_session(path, *, repair: bool = False) -> pd.DataFrame:
     """Read a session CSV written by this app (an absent file reads as no rows).
+
+    The torn-tail rule applies (see the module): a last row cut short is left out, with a
+    :class:`labfiles.TornTailWarning`; with ``repair`` it is also moved to a side file (the app
+    does so, holding the session's lock, before it appends).
+
+    Parameters
+    ----------
+    path : str or Path
+    repair : bool
+        Move a torn last row aside (only the app's run, which holds the session's lock).
+
+    Returns
+    -------
+    DataFrame
+        ``SESSION_COLUMNS``, one row per recorded trial.
 
     Raises
     ------
     DataFileError
-        Wrong header, or a last row cut off mid-write (the file does not end in a newline).
+        Wrong header, or a row in the middle of the file with a wrong number of fields.
     """
     path = Path(path)
-    if not path.exists() or path.stat().st_size == 0:
+    raw = _whole_records(path, _ROW_CHECK, repair=repair)
+    if not raw:
         return pd.DataFrame(columns=list(SESSION_COLUMNS))
-    raw = path.read_bytes()
-    if not raw.endswith(b"\n"):
+    lines = raw.decode("utf-8", errors="replace").split("\n")
+    if lines[0] != _HEADER:
+        got = next(csv.reader([lines[0]]), [])
+        missing = [c for c in SESSION_COLUMNS if c not in got]
+        extra = [c for c in got if c not in SESSION_COLUMNS]
         raise DataFileError(
-            f"{path}: the last row is incomplete (the machine lost power while writing?). Copy "
-            "the file aside as a backup, delete the partial last line, then run the session again "
-            "to resume at that trial"
+            f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
+            f"a session CSV has exactly {list(SESSION_COLUMNS)}. It was not written by this "
+            "app: move it aside"
         )
-    frame = pd.read_csv(io.BytesIO(raw), dtype={"participant": str, "stimulus_id": str,
-                                                "calibration_id": str, "app_version": str})
-    if tuple(frame.columns) != SESSION_COLUMNS:
-        raise DataFileError(
-            f"{path}: columns {list(frame.columns)} are not a session file's "
-            f"{list(SESSION_COLUMNS)}; it was not written by this app. Move it aside"
-        )
-    return frame
+    for number, line in enumerate(lines[1:-1], start=2):
+        if not _ROW_CHECK(line.encode("utf-8")):
+            raise DataFileError(
+                f"{path}: line {number} is not a whole session row ({len(SESSION_COLUMNS)} "
+                "fields); the file was edited or damaged. Keep a copy, then ask the study lead "
+                "(the trials after it were recorded and are kept)"
+            )
+    return pd.read_csv(io.BytesIO(raw), dtype={"participant": str, "stimulus_id": str,
+                                               "calibration_id": str, "app_version": str})
 
 
-def _fsync_dir(folder: Path) -> None:
-    fd = os.open(folder, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+def read_run_events(path, *, repair: bool = False) -> list[dict]:
+    """The records of a JSON-lines file such as a ``*_runs.jsonl`` run log (torn-tail rule as
+    :func:`read_session`)."""
+    path = Path(path)
+    raw = _whole_records(path, json_record_check, repair=repair)
+    events = []
+    for number, line in enumerate(raw.decode("utf-8", errors="replace").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            events.append(json.loads(line))
+        except ValueError:
+            raise DataFileError(
+                f"{path}: line {number} is not a JSON record; the file was edited or damaged. "
+                "Move it aside (keep it) and run again"
+            ) from None
+    return events
+
+
+def read_slider_histories(path, *, repair: bool = False) -> list[dict]:
+    """The trials of a slider-histories file, the last line of each trial (a trial taken again
+    after a crash between its history and its row has two); torn-tail rule as
+    :func:`read_session`."""
+    by_trial = {}
+    for record in read_run_events(path, repair=repair):
+        by_trial[int(record["trial"])] = record
+    return [by_trial[t] for t in sorted(by_trial)]
+
+
+def append_run_event(path, event: dict) -> None:
+    """Append one event (a JSON line, fsynced) to a ``*_runs.jsonl`` run log."""
+    with RecordFile(path, check=json_record_check) as records:
+        records.append(json_record(event))
+
+
+def write_run_log(path, log: dict) -> Path:
+    """Write a run's log (JSON) atomically; an existing log is never replaced."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_new_file(path, json.dumps(log, indent=2, default=str))
 
 
 class SessionWriter:
     """Append-only writer of one session's CSV and slider histories (a context manager).
 
-    Each :meth:`append` writes one complete CSV row with a single ``write`` on an ``O_APPEND``
-    file descriptor: when it returns, the row is in the kernel and survives a crash or
-    ``kill -9`` of the app. It is then ``fsync``-ed to the disk (survives a power cut): at once
-    (``background_fsync=False``) or on a worker thread while the app draws the next stimulus
-    (``True``; the fsync of one trial always completes before the next trial is appended and
-    before the file is closed, and its errors are raised there). A crash during the ``write``
-    itself can at worst leave one partial last line, which :func:`read_session` detects.
+    Both files are ``labfiles.RecordFile``s: opening applies the torn-tail rule (what it moved
+    aside is in :attr:`torn`), and each :meth:`append` writes one complete line with a single
+    ``write``; when it returns, the row is in the kernel and survives a crash or ``kill -9``. It
+    is then ``fsync``-ed (survives a power cut): at once (``background_fsync=False``) or on a
+    worker thread while the app draws the next stimulus (``True``; the fsync of one trial always
+    completes before the next trial is appended and before the file is closed, and its errors
+    are raised there). A write that fails part-way (a full disk) is cut back to the last whole
+    record and raises ``OSError`` (``ENOSPC`` names the file).
 
     Parameters
     ----------
@@ -144,31 +262,33 @@ class SessionWriter:
     background_fsync : bool
         Run the fsync beside the next stimulus's drawing (the session app does: the fsync of two
         files costs about half a frame, see bench/experiment_frame_cost.py).
+
+    Raises
+    ------
+    labfiles.LabFileError
+        The session CSV starts with another header.
     """
 
     def __init__(self, data_dir, participant: str, session: int, *,
                  background_fsync: bool = False):
         self.path = session_path(data_dir, participant, session)
         self.sliders = sliders_path(data_dir, participant, session)
-        self._fd = self._sfd = None
+        self._rows = RecordFile(self.path, header=_HEADER, check=_ROW_CHECK, sync=False)
+        self._histories = RecordFile(self.sliders, check=json_record_check, sync=False)
         self._background = background_fsync
         self._pool = None
         self._pending = None
+        self.torn: list = []
 
     def __enter__(self) -> Self:
-        for p in (self.path, self.sliders):
-            p.parent.mkdir(parents=True, exist_ok=True)
-        new = not self.path.exists() or self.path.stat().st_size == 0
-        self._fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        self._sfd = os.open(self.sliders, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
-        if new:
-            self._write(self._fd, _csv_line(SESSION_COLUMNS))
-            os.fsync(self._fd)
-            _fsync_dir(self.path.parent)
-            _fsync_dir(self.sliders.parent)
+        self._histories.__enter__()
+        try:
+            self._rows.__enter__()
+        except BaseException:
+            self._histories.close()
+            raise
+        self.torn = [t for t in (self._rows.torn, self._histories.torn) if t is not None]
         if self._background:
-            from concurrent.futures import ThreadPoolExecutor
-
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fsync")
         return self
 
@@ -179,10 +299,8 @@ class SessionWriter:
             if self._pool is not None:
                 self._pool.shutdown(wait=True)
                 self._pool = None
-            for fd in (self._fd, self._sfd):
-                if fd is not None:
-                    os.close(fd)
-            self._fd = self._sfd = None
+            self._rows.close()
+            self._histories.close()
 
     def wait(self) -> None:
         """Block until the last row is on the disk (raises the fsync's error, if any)."""
@@ -190,16 +308,9 @@ class SessionWriter:
             pending, self._pending = self._pending, None
             pending.result()
 
-    @staticmethod
-    def _write(fd: int, text: str) -> None:
-        data = text.encode("utf-8")
-        written = os.write(fd, data)
-        if written != len(data):
-            raise OSError(f"short write ({written} of {len(data)} bytes); is the disk full?")
-
     def _fsync(self) -> None:
-        os.fsync(self._sfd)
-        os.fsync(self._fd)
+        self._histories.sync()
+        self._rows.sync()
 
     def append(self, row: dict, sliders: dict | None = None) -> None:
         """Write one trial: its slider histories first, then its CSV row (the commit point).
@@ -214,37 +325,15 @@ class SessionWriter:
         missing = [c for c in SESSION_COLUMNS if c not in row]
         if missing:
             raise ValueError(f"session row lacks {missing}")
-        if self._fd is None:
+        if self._rows.fd is None:
             raise RuntimeError("SessionWriter used outside its `with` block")
         self.wait()
         if sliders is not None:
             record = {"participant": row["participant"], "session": int(row["session"]),
                       "trial": int(row["trial"]), "stimulus_id": row["stimulus_id"], **sliders}
-            self._write(self._sfd, json.dumps(record) + "\n")
-        self._write(self._fd, _csv_line([row[c] for c in SESSION_COLUMNS]))
+            self._histories.append(json_record(record))
+        self._rows.append(csv_record([row[c] for c in SESSION_COLUMNS]))
         if self._pool is not None:
             self._pending = self._pool.submit(self._fsync)
         else:
             self._fsync()
-
-
-def _csv_line(values) -> str:
-    buf = io.StringIO()
-    csv.writer(buf, lineterminator="\n").writerow(values)
-    return buf.getvalue()
-
-
-def write_json_new(path, obj) -> Path:
-    """Write JSON to ``path`` atomically, refusing to replace an existing file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as fh:
-        json.dump(obj, fh, indent=2, default=str)
-        fh.flush()
-        os.fsync(fh.fileno())
-    try:
-        os.link(tmp, path)
-    finally:
-        os.unlink(tmp)
-    return path

@@ -7,14 +7,13 @@ so that session 2 runs exactly the stimuli session 1 did not.
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from experiment.participants import check_participant_id
+from labfiles import write_new_file
 from studydesign import StudyDesign
 
 __all__ = ["PLAN_COLUMNS", "PlanError", "load_or_create_plan", "make_plan", "participant_seed", "plan_path"]
@@ -99,23 +98,17 @@ def _validate(plan: pd.DataFrame, design: StudyDesign, participant: str, path: P
 
 
 def load_or_create_plan(design: StudyDesign, participant: str, data_dir: str | Path) -> pd.DataFrame:
-    """Load the participant's plan, or make and write it (atomically) if none exists yet."""
+    """Load the participant's plan, or make and write it (atomically, with the umask's
+    permissions) if none exists yet."""
     path = plan_path(data_dir, participant)
     if path.exists():
         return _validate(pd.read_csv(path), design, participant, path)
     seed = participant_seed(participant)
     plan = make_plan(design, participant, np.random.default_rng(seed), seed=seed)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
     try:
-        with os.fdopen(fd, "w", newline="") as fh:
-            plan.to_csv(fh, index=False)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # link() fails if another process wrote the plan meanwhile: never overwrite a plan.
-        os.link(tmp, path)
+        # Refuses to replace a plan another process wrote meanwhile: a plan is never overwritten.
+        write_new_file(path, plan.to_csv(index=False))
     except FileExistsError:
         return _validate(pd.read_csv(path), design, participant, path)
-    finally:
-        os.unlink(tmp)
     return plan

@@ -3,27 +3,29 @@
 ``run_session`` is what ``python -m experiment run`` calls. In order:
 
 1. pre-flight, before any window (``experiment.checks``): participant id, session number, the
-   participant's plan, what this session already recorded (resume), the stimulus manifest
-   (every PNG present, SHA-256 unchanged), the calibration (present, recent, the design's CRT),
-   the X screen's size;
+   data folder (writable, space left), the participant's plan, what this session already
+   recorded (resume; a torn last row is announced), the stimulus manifest (every PNG present,
+   SHA-256 unchanged, decodable at the manifest's size), the calibration (present, recent, the
+   design's CRT), that a resumed session keeps the calibration and stimuli it started with, the
+   simulated observer's parameters, the screenshot's folder, the X screen's size;
 2. the window (``experiment.display``) with all of the session's textures preloaded;
-3. trials from the first unanswered one: stimulus and two sliders; space only once both are set;
-   Esc pauses, Esc again quits (nothing is lost); each answer is appended to the session CSV and
-   fsynced before the next stimulus is drawn;
+3. trials from the first unanswered one (``experiment.trial.run_trial``): stimulus and two sliders; space
+   only once both are set; Esc pauses, Esc again quits (nothing is lost); each answer is appended
+   to the session CSV and fsynced before the next stimulus is drawn;
 4. the run's log: frame intervals, dropped frames, response -> next onset latency, monitor,
    versions (``DATA_DIR/logs``).
 
-A run holds an exclusive lock on its session (``fcntl.flock``, released by the kernel even on
-``kill -9``), so two runs never write one file.
+A run holds an exclusive lock on its session (``labfiles.FolderLock``, released by the kernel
+even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like a quit (status
+``interrupted``): every answered trial is kept and the log is written.
 """
 
 from __future__ import annotations
 
-import fcntl
-import json
+import hashlib
 import os
 import platform
-import sys
+import warnings
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -35,10 +37,12 @@ from experiment.checks import (
     PreflightError,
     SessionStimuli,
     check_calibration,
+    check_data_folder,
     check_keyboard_libraries,
     check_monitor_profile,
     check_participant,
     check_screen,
+    check_screenshot,
     check_session_number,
     check_stimuli,
 )
@@ -47,31 +51,42 @@ from experiment.datafile import (
     DataFileError,
     SessionWriter,
     app_version,
+    append_run_event,
+    read_run_events,
     read_session,
+    read_slider_histories,
+    runs_path,
     session_path,
-    write_json_new,
+    sliders_path,
+    write_run_log,
 )
 from experiment.plan import PlanError, load_or_create_plan, participant_seed
+from experiment.trial import TrialResult, run_trial
+from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
 from studydesign import StudyDesign
 
 __all__ = ["SessionOutcome", "SessionRequest", "prepare_session", "run_session"]
 
-#: How long the "set both sliders" hint stays up after an early space press (s).
-HINT_S = 2.0
 #: A frame interval longer than this many nominal frames counts as dropped.
 DROP_FACTOR = 1.5
+#: Header of a run's frame-interval CSV.
+_FRAMES_HEADER = "trial,interval_s"
 
 
 @dataclass(frozen=True)
 class SessionRequest:
-    """What the operator asked for (validated by :func:`prepare_session`)."""
+    """What the operator asked for (validated by :func:`prepare_session`).
+
+    ``data_dir`` is the lab's data folder; the command line resolves it (``--data`` or the
+    ``GLOSSDEPTH_DATA`` environment variable) to an absolute path, never the working directory.
+    """
 
     design: StudyDesign
     participant: str
     session: int
     manifest: str | None
     calibration: str | None
-    data_dir: str = "data"
+    data_dir: str
     max_calibration_age_days: float = 30.0
     simulate: str | None = None
     observer_params: str | None = None
@@ -96,11 +111,14 @@ class Prepared:
     screen_px: tuple
     monitor_profile: Path | None = None
     warnings: list = field(default_factory=list)
+    inputs: dict = field(default_factory=dict)
+    observer: object = None
 
 
 @dataclass(frozen=True)
 class SessionOutcome:
-    """How a run ended: ``status`` is ``complete``, ``quit`` or ``already complete``."""
+    """How a run ended: ``status`` is ``complete``, ``quit``, ``interrupted`` (Ctrl-C) or
+    ``already complete``."""
 
     status: str
     participant: str
@@ -133,33 +151,118 @@ def _check_done(done: pd.DataFrame, plan: pd.DataFrame, path: Path) -> None:
         )
 
 
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
+    """What a session's data depend on, as checksums: recorded at its first run.
+
+    Returns
+    -------
+    dict
+        ``calibration`` (absolute path), ``calibration_id``, ``calibration_sha256`` (of the
+        file), ``manifest`` (absolute path) and ``stimuli_sha256``: SHA-256 of this session's
+        ``stimulus_id:png_sha256`` lines, sorted (so rows the manifest gains later for other
+        stimuli do not count, but any change to one of this session's images does).
+    """
+    cal_file = Path(calibration_path)
+    cal_file = cal_file / "calibration.json" if cal_file.is_dir() else cal_file
+    lines = sorted(f"{i}:{h}" for i, h in zip(stim.frame["stimulus_id"], stim.frame["png_sha256"]))
+    return {"calibration": str(cal_file.resolve()), "calibration_id": cal.calibration_id,
+            "calibration_sha256": _sha256(cal_file),
+            "manifest": str(Path(stim.manifest_path).resolve()),
+            "stimuli_sha256": hashlib.sha256("\n".join(lines).encode()).hexdigest()}
+
+
+def _check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], path: Path) -> None:
+    """A resumed session must use the calibration and stimuli it started with.
+
+    Raises
+    ------
+    PreflightError
+        Another calibration (by id in the recorded rows, or by checksum in the run log) or other
+        stimulus images than the first run's; the message names the files to use.
+    """
+    if done.empty:
+        return
+    ids = sorted(set(done["calibration_id"].astype(str)) - {inputs["calibration_id"]})
+    first = next((e for e in events if e.get("event") == "start" and "calibration_sha256" in e),
+                 None)
+    if ids:
+        used = f" ({first['calibration']})" if first else ""
+        raise PreflightError(
+            f"{path}: the {len(done)} trials recorded so far used calibration {ids}{used}, this "
+            f"run calibration {inputs['calibration_id']!r} ({inputs['calibration']}); a session "
+            "is finished with the calibration it started with. Pass that calibration with "
+            "--calibration (or start the participant's data anew in another data folder)")
+    if first is None:
+        return
+    if first["calibration_sha256"] != inputs["calibration_sha256"]:
+        raise PreflightError(
+            f"{path}: this session started with calibration file {first['calibration']} "
+            f"(SHA-256 {first['calibration_sha256'][:12]}...), this run has {inputs['calibration']} "
+            f"(SHA-256 {inputs['calibration_sha256'][:12]}...), which differs although its id is "
+            "the same; pass the first file with --calibration")
+    if first["stimuli_sha256"] != inputs["stimuli_sha256"]:
+        raise PreflightError(
+            f"{path}: this session started with the stimuli of {first['manifest']}; the images "
+            f"this run would show ({inputs['manifest']}) are not the same (other checksums, e.g. "
+            "re-rendered or another size). Pass the first manifest with --stimuli (restore its "
+            "images if they were replaced)")
+
+
+def _read_recorded(read, path: Path, warned: list):
+    """``read(path)`` (a session CSV or run log reader) with a torn tail turned into a
+    pre-flight warning (nothing is moved yet: the run does that, holding the lock)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", TornTailWarning)
+        try:
+            records = read(path)
+        except DataFileError as exc:
+            raise PreflightError(str(exc)) from exc
+    warned += [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    return records
+
+
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
     check_participant(req.participant)
     session = check_session_number(design, req.session)
+    check_data_folder(req.data_dir)
     try:
         plan = load_or_create_plan(design, req.participant, req.data_dir)
     except PlanError as exc:
         raise PreflightError(str(exc)) from exc
     rows = plan[plan["session"] == session].sort_values("trial").reset_index(drop=True)
     path = session_path(req.data_dir, req.participant, session)
-    try:
-        done = read_session(path)
-    except DataFileError as exc:
-        raise PreflightError(str(exc)) from exc
+    notes: list = []
+    done = _read_recorded(read_session, path, notes)
+    _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
+                   notes)
     _check_done(done, rows, path)
     todo = rows.iloc[len(done):].reset_index(drop=True)
-    warnings = []
     for earlier in range(1, session):
-        n = len(read_session(session_path(req.data_dir, req.participant, earlier)))
+        n = len(_read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
+                               notes))
         if n < design.sessions.trials_per_session:
-            warnings.append(f"session {earlier} of {req.participant} has {n} of "
-                            f"{design.sessions.trials_per_session} trials (not finished)")
-    stim = check_stimuli(req.manifest, rows) if len(todo) else None
-    cal = check_calibration(req.calibration, design,
-                            max_age_days=req.max_calibration_age_days) if len(todo) else None
-    if stim is not None:
+            notes.append(f"session {earlier} of {req.participant} has {n} of "
+                         f"{design.sessions.trials_per_session} trials (not finished)")
+    screen = profile = stim = cal = observer = None
+    inputs: dict = {}
+    if len(todo):
+        stim = check_stimuli(req.manifest, rows)
+        cal = check_calibration(req.calibration, design,
+                                max_age_days=req.max_calibration_age_days)
+        inputs = session_inputs(stim, req.calibration, cal)
+        events = _read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
+                                                           session), notes)
+        _check_same_inputs(inputs, done, events, path)
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
         if other:
             msg = (f"the stimuli were gamma-corrected for calibration {other}, but this session "
@@ -168,9 +271,9 @@ def prepare_session(req: SessionRequest) -> Prepared:
             if not req.accept_calibration_mismatch:
                 raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
                                      "in the session log)")
-            warnings.append(msg)
-    screen = profile = None
-    if len(todo):
+            notes.append(msg)
+        observer = _make_observer(req) if req.simulate is not None else None
+        check_screenshot(req.screenshot)
         from experiment.display import DisplayError, plan_layout
 
         profile = check_monitor_profile(req.calibration, cal)
@@ -182,47 +285,25 @@ def prepare_session(req: SessionRequest) -> Prepared:
         screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,
                     stimuli=stim, calibration=cal, screen_px=screen, monitor_profile=profile,
-                    warnings=warnings)
+                    warnings=notes, inputs=inputs, observer=observer)
 
 
-class _SessionLock:
-    """``DATA_DIR/logs/<p>_s<n>.lock`` held with ``flock`` for the run's lifetime."""
+def _make_observer(req: SessionRequest):
+    """The simulated observer, the same in every session and run of a participant (its own
+    intercepts and slopes); the trial noise differs per session and run (:func:`_start_hand`)."""
+    from experiment.observers import load_observer_params, make_observer
 
-    def __init__(self, folder: Path, stem: str):
-        folder.mkdir(parents=True, exist_ok=True)
-        self.path = folder / f"{stem}.lock"
-        self.fd = None
-
-    def __enter__(self):
-        self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(self.fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(self.fd)
-            self.fd = None
-            raise PreflightError(f"another run of this session is active (lock {self.path}); "
-                                 "close it first") from None
-        return self
-
-    def __exit__(self, *exc):
-        if self.fd is not None:
-            os.close(self.fd)
-
-
-def _append_event(path: Path, event: dict) -> None:
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
     try:
-        os.write(fd, (json.dumps(event, default=str) + "\n").encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _run_number(events: Path) -> int:
-    if not events.exists():
-        return 1
-    lines = events.read_text(encoding="utf-8").splitlines()
-    return 1 + sum(1 for line in lines if line.strip() and json.loads(line).get("event") == "start")
+        params = (load_observer_params(req.observer_params)[req.simulate]
+                  if req.observer_params is not None else None)
+        base = req.seed if req.seed is not None else participant_seed(req.participant)
+        return make_observer(req.simulate, req.participant, np.random.default_rng([base, 0]),
+                             params, design=req.design)
+    except (ValueError, TypeError, KeyError) as exc:
+        raise PreflightError(
+            f"--observer-params {req.observer_params}: {exc}; fix the file (TOML, see "
+            "experiment/observers.toml) or leave the option out for the shipped parameters"
+        ) from exc
 
 
 def _now() -> str:
@@ -271,8 +352,13 @@ def _plot_frames(intervals_s, frame_s: float, threshold_s: float, path: Path, ti
     ax.set_title(title)
     ax.legend(loc="upper right", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
+    finally:
+        plt.close(fig)
+
+
 
 
 def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
@@ -284,6 +370,8 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         A problem found before any window opened (the message says what to fix).
     experiment.display.DisplayError
         The window could not show the session as required (it is closed again).
+    OSError
+        A write failed (``ENOSPC``: the disk is full; everything recorded before is kept).
     """
     prep = prepare_session(req)
     data = session_path(req.data_dir, req.participant, prep.session)
@@ -296,46 +384,117 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         return SessionOutcome("already complete", req.participant, prep.session, total, total,
                               str(data))
     logs = Path(req.data_dir) / "logs"
-    stem = data.stem
-    with _SessionLock(logs, stem):
-        if len(read_session(data)) != len(prep.done):
-            raise PreflightError(f"{data} changed while this run was starting (another run of "
-                                 "the session?); start the session again")
-        events = logs / f"{stem}_runs.jsonl"
-        run = _run_number(events)
-        _append_event(events, {"event": "start", "run": run, "utc": _now(),
-                               "first_trial": int(prep.todo["trial"].iloc[0]), "pid": os.getpid()})
-        return _run_trials(prep, data, logs, stem, run, events, out)
+    try:
+        lock = FolderLock(logs, f"{data.stem}.lock",
+                          what=f"session {prep.session} of {req.participant} (data folder)")
+        lock.__enter__()
+    except FolderLocked as exc:
+        raise PreflightError(str(exc)) from None
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", TornTailWarning)
+            events = runs_path(req.data_dir, req.participant, prep.session)
+            run = 1 + sum(1 for e in read_run_events(events, repair=True)
+                          if e.get("event") == "start")
+            read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
+                                  repair=True)
+            if len(read_session(data, repair=True)) != len(prep.done):
+                raise PreflightError(f"{data} changed while this run was starting (another run "
+                                     "of the session?); start the session again")
+        for w in caught:
+            out(f"warning: {w.message}")
+        append_run_event(events, {"event": "start", "run": run, "utc": _now(),
+                                  "first_trial": int(prep.todo["trial"].iloc[0]),
+                                  "pid": os.getpid(), **prep.inputs})
+        return _run_trials(prep, data, logs, run, events, out)
+    finally:
+        lock.__exit__(None, None, None)
 
 
-def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, events: Path,
-                out) -> SessionOutcome:
-    from experiment.display import SessionDisplay
-
+def _start_log(prep: Prepared, data: Path, run: int) -> dict:
     req, cal = prep.request, prep.calibration
-    design = req.design
-    stim_frame = prep.stimuli.frame
-    todo_ids = set(prep.todo["stimulus_id"])
-    stim_frame = stim_frame[stim_frame["stimulus_id"].isin(todo_ids)].reset_index(drop=True)
     frame_s = 1.0 / cal.refresh_hz
-    hand = None
-    status = "error"
-    log: dict = {
+    return {
         "participant": req.participant, "session": prep.session, "run": run,
-        "started_utc": _now(), "data_file": str(data), "design": design.source,
+        "started_utc": _now(), "data_file": str(data), "design": req.design.source,
         "manifest": str(prep.stimuli.manifest_path), "calibration": str(req.calibration),
         "calibration_id": cal.calibration_id, "calibration_age_days": cal.age_days(),
         "calibration_warnings": list(cal.warnings), "screen_px": list(prep.screen_px),
         "fullscr": req.fullscr, "fast": req.fast, "warnings": list(prep.warnings),
+        "inputs": dict(prep.inputs),
         "first_trial": int(prep.todo["trial"].iloc[0]), "trials_total": len(prep.plan),
         "frame_s_calibrated": frame_s, "dropped_frame_threshold_s": DROP_FACTOR * frame_s,
     }
+
+
+def _check_refresh(win, cal, log: dict, out) -> None:
+    """Measure the refresh rate; warn (and log) when it is not the calibration's."""
+    frame_s = 1.0 / cal.refresh_hz
+    measured = win.getActualFrameRate(nIdentical=20, nMaxFrames=240, nWarmUpFrames=20,
+                                      threshold=1)
+    log["refresh_hz_measured"] = measured
+    if measured is None or abs(measured * frame_s - 1) > 0.02:
+        got = ("could not be measured (unstable frame intervals: no vsync?)"
+               if measured is None else f"measured {measured:.2f} Hz")
+        w = (f"refresh rate {got}, the calibration's is {cal.refresh_hz:.2f} Hz; check "
+             "the display mode and sync-to-vblank before going on")
+        out(f"warning: {w}")
+        log["warnings"].append(w)
+
+
+def _session_row(row: dict, result: TrialResult, calibration_id: str) -> dict:
+    """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer."""
+    record = {c: row[c] for c in ("participant", "session", "trial", "order", "stimulus_id",
+                                  "illumination", "gloss_level", "depth_level",
+                                  "true_gloss_pct", "true_depth_cm")}
+    record.update(gloss_match=result.gloss_match, depth_match=result.depth_match,
+                  rt_s=result.rt_s, onset_s=result.onset_s,
+                  dropped_frames=result.dropped_frames, timestamp_utc=_now(),
+                  app_version=app_version(), calibration_id=calibration_id)
+    return {c: record[c] for c in SESSION_COLUMNS}
+
+
+class _FrameLog:
+    """The run's frame intervals, appended after every trial (``*_run<k>_frames.csv``)."""
+
+    def __init__(self, path: Path):
+        self.file = RecordFile(path, header=_FRAMES_HEADER, sync=False)
+        self.written = 0
+
+    def __enter__(self):
+        self.file.__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.file.close()
+
+    def append(self, intervals, trial: int) -> None:
+        new = intervals[self.written:]
+        for v in new:
+            self.file.append(f"{trial},{v:.6f}")
+        if new:
+            self.file.sync()
+        self.written += len(new)
+
+
+def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
+                out) -> SessionOutcome:
+    from experiment.display import SessionDisplay
+
+    req, cal = prep.request, prep.calibration
+    stem = data.stem
+    stim_frame = prep.stimuli.frame
+    stim_frame = stim_frame[stim_frame["stimulus_id"].isin(set(prep.todo["stimulus_id"]))]
+    log = _start_log(prep, data, run)
     trials_log: list[dict] = []
-    frames_csv = logs / f"{stem}_run{run}_frames.csv"
-    with SessionDisplay(design, cal, stim_frame, fullscr=req.fullscr, fast=req.fast,
-                        monitor_profile=prep.monitor_profile) as disp, \
+    hand = None
+    status = "error"
+    log_path = None
+    with SessionDisplay(req.design, cal, stim_frame.reset_index(drop=True), fullscr=req.fullscr,
+                        fast=req.fast, monitor_profile=prep.monitor_profile) as disp, \
             SessionWriter(req.data_dir, req.participant, prep.session,
-                          background_fsync=True) as writer:
+                          background_fsync=True) as writer, \
+            _FrameLog(logs / f"{stem}_run{run}_frames.csv") as frames:
         from psychopy import core
 
         win = disp.win
@@ -345,231 +504,95 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, stem: str, run: int, eve
             f"calibration {cal.calibration_id} ({cal.age_days():.1f} days old), gamma: no hardware "
             f"table (stimuli pre-corrected), keyboard {disp.info['keyboard_backend']}")
         log["versions"] = _versions()
-        win.refreshThreshold = DROP_FACTOR * frame_s
+        win.refreshThreshold = DROP_FACTOR / cal.refresh_hz
         if req.simulate is None:
-            measured = win.getActualFrameRate(nIdentical=20, nMaxFrames=240, nWarmUpFrames=20,
-                                              threshold=1)
-            log["refresh_hz_measured"] = measured
-            if measured is None or abs(measured * frame_s - 1) > 0.02:
-                got = ("could not be measured (unstable frame intervals: no vsync?)"
-                       if measured is None else f"measured {measured:.2f} Hz")
-                w = (f"refresh rate {got}, the calibration's is {cal.refresh_hz:.2f} Hz; check "
-                     "the display mode and sync-to-vblank before going on")
-                out(f"warning: {w}")
-                log["warnings"].append(w)
+            _check_refresh(win, cal, log, out)
         else:
             hand = _start_hand(req, prep, disp, log)
         clock = core.Clock()
         win.recordFrameIntervals = True
-        frames_written = 0
         shot = req.screenshot
         last_response_s = None
         try:
             for row in prep.todo.to_dict("records"):
-                result = _one_trial(disp, row, clock, hand, shot, out)
+                result = run_trial(disp, row, clock, hand, shot)
                 if result is None:
                     status = "quit"
-                    _append_event(events, {"event": "operator_quit", "run": run, "utc": _now(),
-                                           "at_trial": int(row["trial"])})
+                    append_run_event(events, {"event": "operator_quit", "run": run,
+                                              "utc": _now(), "at_trial": int(row["trial"])})
                     break
-                shot = None if result.get("screenshot") else shot
-                response_s = result["onset_s"] + result["rt_s"]
+                shot = None if result.screenshot_taken else shot
                 if last_response_s is not None:
-                    trials_log[-1]["response_to_next_onset_s"] = result["onset_s"] - last_response_s
-                last_response_s = response_s
-                record = {
-                    **{c: row[c] for c in ("participant", "session", "trial", "order",
-                                           "stimulus_id", "illumination", "gloss_level",
-                                           "depth_level", "true_gloss_pct", "true_depth_cm")},
-                    "gloss_match": result["gloss"], "depth_match": result["depth"],
-                    "rt_s": result["rt_s"], "onset_s": result["onset_s"],
-                    "dropped_frames": result["dropped"], "timestamp_utc": _now(),
-                    "app_version": app_version(), "calibration_id": cal.calibration_id,
-                }
-                writer.append({c: record[c] for c in SESSION_COLUMNS},
-                              sliders={"onset_s": result["onset_s"],
-                                       "gloss_history": result["gloss_history"],
-                                       "depth_history": result["depth_history"],
-                                       "gloss_trace": result["gloss_trace"],
-                                       "depth_trace": result["depth_trace"],
-                                       "early_space_s": result["early_space_s"],
-                                       "pauses": result["pauses"]})
-                trials_log.append({"trial": int(row["trial"]), "onset_s": result["onset_s"],
-                                   "rt_s": result["rt_s"], "dropped_frames": result["dropped"]})
-                frames_written = _append_frames(frames_csv, win.frameIntervals, frames_written,
-                                                int(row["trial"]))
+                    trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
+                last_response_s = result.onset_s + result.rt_s
+                writer.append(_session_row(row, result, cal.calibration_id),
+                              sliders=result.slider_record())
+                trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
+                                   "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})
+                frames.append(win.frameIntervals, int(row["trial"]))
             else:
                 status = "complete"
+        except KeyboardInterrupt:
+            status = "interrupted"
         finally:
             if hand is not None:
                 hand.stop()
-            log["finished_utc"] = _now()
-            log["status"] = status
-            intervals = list(win.frameIntervals)
-            log["frame_intervals"] = _stats_ms(intervals)
-            log["dropped_frames"] = int(win.nDroppedFrames)
-            latencies = [t["response_to_next_onset_s"] for t in trials_log
-                         if "response_to_next_onset_s" in t]
-            log["response_to_next_onset"] = _stats_ms(latencies)
-            log["trials_this_run"] = len(trials_log)
-            log["trials"] = trials_log
-            if hand is not None:
-                log["simulated"]["intended"] = {str(k): v for k, v in hand.intended.items()}
-                if hand.error is not None:
-                    log["simulated"]["error"] = repr(hand.error)
-            if intervals:
-                _plot_frames(intervals, frame_s, DROP_FACTOR * frame_s,
-                             logs / f"{stem}_run{run}_frames.png",
-                             f"{stem} run {run}: {len(intervals)} frames, "
-                             f"{win.nDroppedFrames} dropped")
-            log_path = write_json_new(logs / f"{stem}_run{run}.json", log)
-            _append_event(events, {"event": status, "run": run, "utc": _now(),
-                                   "trials_this_run": len(trials_log)})
+            log_path = _finish_log(log, status, win, trials_log, hand, logs, stem, run, out)
+            try:
+                append_run_event(events, {"event": status, "run": run, "utc": _now(),
+                                          "trials_this_run": len(trials_log)})
+            except OSError as exc:
+                # Never hides the error that ended the run (a full disk fails here too).
+                out(f"warning: the run's end was not recorded in {events} ({exc})")
     done = len(prep.done) + len(trials_log)
     return SessionOutcome(status, req.participant, prep.session, done, len(prep.plan), str(data),
-                          str(log_path))
+                          None if log_path is None else str(log_path))
 
 
-def _append_frames(path: Path, intervals, start: int, trial: int) -> int:
-    new = intervals[start:]
-    if not new:
-        return start
-    text = "".join(f"{trial},{v:.6f}\n" for v in new)
-    header = "" if path.exists() else "trial,interval_s\n"
-    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+def _finish_log(log: dict, status: str, win, trials_log: list, hand, logs: Path, stem: str,
+                run: int, out) -> Path | None:
+    """Complete and write the run's log and frame plot; returns the log's path.
+
+    A failure to write (a full disk) is reported through ``out`` and returns None, so that the
+    error that ended the run is the one raised.
+    """
+    frame_s = log["frame_s_calibrated"]
+    log["finished_utc"] = _now()
+    log["status"] = status
+    intervals = list(win.frameIntervals)
+    log["frame_intervals"] = _stats_ms(intervals)
+    log["dropped_frames"] = int(win.nDroppedFrames)
+    latencies = [t["response_to_next_onset_s"] for t in trials_log
+                 if "response_to_next_onset_s" in t]
+    log["response_to_next_onset"] = _stats_ms(latencies)
+    log["trials_this_run"] = len(trials_log)
+    log["trials"] = trials_log
+    if hand is not None:
+        log["simulated"]["intended"] = {str(k): v for k, v in hand.intended.items()}
+        if hand.error is not None:
+            log["simulated"]["error"] = repr(hand.error)
     try:
-        os.write(fd, (header + text).encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    return start + len(new)
+        if intervals:
+            _plot_frames(intervals, frame_s, DROP_FACTOR * frame_s,
+                         logs / f"{stem}_run{run}_frames.png",
+                         f"{stem} run {run}: {len(intervals)} frames, "
+                         f"{win.nDroppedFrames} dropped")
+        return write_run_log(logs / f"{stem}_run{run}.json", log)
+    except OSError as exc:
+        out(f"warning: the run's log {logs / f'{stem}_run{run}.json'} was not written ({exc})")
+        return None
 
 
 def _start_hand(req: SessionRequest, prep: Prepared, disp, log: dict):
-    from experiment.observers import load_observer_params, make_observer
     from experiment.simulate import SimulatedHand
 
-    params = None
-    if req.observer_params is not None:
-        params = load_observer_params(req.observer_params)[req.simulate]
     base = req.seed if req.seed is not None else participant_seed(req.participant)
-    # The observer (its own intercepts and slopes) is the same in every session and run;
-    # the trial noise differs per session and run.
-    observer = make_observer(req.simulate, req.participant, np.random.default_rng([base, 0]),
-                             params, design=req.design)
     run = log["run"]
-    hand = SimulatedHand(observer, np.random.default_rng([base, prep.session, run]),
+    hand = SimulatedHand(prep.observer, np.random.default_rng([base, prep.session, run]),
                          lambda: disp.frame_count, fast=req.fast,
                          early_space_probability=req.early_space_probability,
                          quit_at_trial=req.quit_at_trial)
     hand.start()
-    log["simulated"] = {"observer": observer.to_dict(), "seed": [base, prep.session, run],
+    log["simulated"] = {"observer": prep.observer.to_dict(), "seed": [base, prep.session, run],
                         "input": "XTEST events into the X display"}
     return hand
-
-
-def _one_trial(disp, row: dict, clock, hand, screenshot, out) -> dict | None:
-    """Show one trial until a valid response (dict) or a confirmed quit (None)."""
-    win, kb = disp.win, disp.kb
-    sid = row["stimulus_id"]
-    pauses: list = []
-    early: list = []
-    while True:  # a pause restarts the trial
-        disp.reset_sliders()
-        kb.clearEvents()
-        onset: dict = {}
-
-        def at_onset(onset=onset):
-            onset["t"] = clock.getTime()
-            kb.clock.reset()
-
-        win.callOnFlip(at_onset)
-        drop0 = win.nDroppedFrames
-        hint_until = -1.0
-        traces = {"gloss": [], "depth": []}
-        first = True
-        took_shot = False
-        while True:
-            disp.draw_trial(sid, hint=clock.getTime() < hint_until)
-            sliders = (disp.gloss_slider, disp.depth_slider)
-            if (screenshot and not took_shot and all(s.rating is not None for s in sliders)
-                    and not any(s._dragging for s in sliders)):
-                win.getMovieFrame(buffer="back")
-                win.saveMovieFrames(screenshot)
-                took_shot = True
-            disp.flip()
-            if first:
-                first = False
-                if hand is not None:
-                    hand.trial(row, disp.slider_geometry())
-            now = clock.getTime() - onset["t"]
-            for name, s in (("gloss", disp.gloss_slider), ("depth", disp.depth_slider)):
-                pos = s.markerPos
-                if pos is not None and (not traces[name] or traces[name][-1][0] != pos):
-                    traces[name].append((float(pos), now))
-            if hand is not None and hand.error is not None:
-                raise RuntimeError(f"the simulated observer failed: {hand.error!r}")
-            keys = kb.getKeys(["space", "escape"], waitRelease=False)
-            if any(k.name == "escape" for k in keys):
-                t_pause = clock.getTime()
-                if _pause(disp):
-                    return None
-                pauses.append((t_pause - onset["t"], clock.getTime() - onset["t"]))
-                break
-            if any(k.name == "space" for k in keys):
-                key = next(k for k in keys if k.name == "space")
-                g, d = disp.gloss_slider.rating, disp.depth_slider.rating
-                if g is None or d is None:
-                    early.append(float(key.rt))
-                    hint_until = clock.getTime() + HINT_S
-                    continue
-                return {"gloss": float(g), "depth": float(d), "rt_s": float(key.rt),
-                        "onset_s": float(onset["t"]),
-                        "dropped": int(win.nDroppedFrames - drop0),
-                        "gloss_history": [(float(r), float(t)) for r, t in
-                                          disp.gloss_slider.getHistory()],
-                        "depth_history": [(float(r), float(t)) for r, t in
-                                          disp.depth_slider.getHistory()],
-                        "gloss_trace": traces["gloss"], "depth_trace": traces["depth"],
-                        "early_space_s": early, "pauses": pauses, "screenshot": took_shot}
-
-
-def _pause(disp) -> bool:
-    """The pause screen; True when the operator confirms quitting (Esc again)."""
-    kb = disp.kb
-    kb.clearEvents()
-    while True:
-        disp.draw_message("Paused. Your answers so far are saved.\n\nPress Esc again to quit "
-                          "(run the same command later to continue where you stopped), "
-                          "or space to go on.")
-        disp.flip()
-        keys = kb.getKeys(["space", "escape"], waitRelease=False)
-        if any(k.name == "escape" for k in keys):
-            return True
-        if any(k.name == "space" for k in keys):
-            return False
-
-
-def main_run(req: SessionRequest) -> int:
-    """Run a session for the command line: messages on stderr, exit status.
-
-    Returns 0 (complete or already complete), 2 (a pre-flight or display problem: nothing was
-    shown), 3 (quit by the operator; run the same command to resume).
-    """
-    from experiment.display import DisplayError
-
-    try:
-        res = run_session(req)
-    except (PreflightError, DisplayError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    if res.status == "quit":
-        print(f"session {res.session} of {res.participant} paused after {res.trials_done} of "
-              f"{res.trials_total} trials (saved in {res.data_file}); run the same command to "
-              "continue", file=sys.stderr)
-        return 3
-    if res.status == "complete":
-        print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
-              f"in {res.data_file}; log {res.log_file}")
-    return 0
-

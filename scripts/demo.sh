@@ -81,35 +81,32 @@ step "experiment: two simulated humanlike observers x two sessions through the a
 # The real session app, windowed under Xvfb, a simulated participant at the X mouse and keyboard;
 # --fast: no waiting for the vertical blank or the observer's response times.
 STIM_MANIFEST="$RUN/stimuli/experiment/manifest.csv"
-if [ ! -f "$STIM_MANIFEST" ]; then
-  echo "experiment sessions skipped: no rendered stimuli at $STIM_MANIFEST (the stimuli step wrote none)"
-else
-  EXP_CAL="$RUN/calibration/calibration.json"
-  EXP_FLAGS=()
-  # The stimuli should be gamma-corrected for this calibration; if the stimuli step used another
-  # one, say so and run anyway (a lab session would refuse; the flag is recorded in the log).
-  if ! "$PY" - "$STIM_MANIFEST" "$EXP_CAL" <<'PYEOF'
+[ -f "$STIM_MANIFEST" ] || { echo "error: the stimuli step wrote no $STIM_MANIFEST" >&2; exit 1; }
+EXP_CAL="$RUN/calibration/calibration.json"
+EXP_FLAGS=()
+# The stimuli should be gamma-corrected for this calibration; if the stimuli step used another
+# one, say so and run anyway (a lab session would refuse; the flag is recorded in the log).
+if ! "$PY" - "$STIM_MANIFEST" "$EXP_CAL" <<'PYEOF'
 import sys
 import pandas as pd
 from calibration import load_calibration
 ids = set(pd.read_csv(sys.argv[1], dtype=str)["calibration_id"])
 sys.exit(0 if ids == {load_calibration(sys.argv[2]).calibration_id} else 1)
 PYEOF
-  then
-    echo "note: stimuli were corrected for another calibration; running with --accept-calibration-mismatch"
-    EXP_FLAGS+=(--accept-calibration-mismatch)
-  fi
-  xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
-    set -euo pipefail
-    PY=$1; MANIFEST=$2; CAL=$3; DATA=$4; shift 4
-    for p in D01 D02; do
-      for s in 1 2; do
-        "$PY" -m experiment run --participant "$p" --session "$s" --stimuli "$MANIFEST" \
-          --calibration "$CAL" --data "$DATA" --simulate humanlike --fast "$@"
-      done
-    done
-  ' experiment "$PY" "$STIM_MANIFEST" "$EXP_CAL" "$RUN/data" ${EXP_FLAGS[@]+"${EXP_FLAGS[@]}"}
+then
+  echo "note: stimuli were corrected for another calibration; running with --accept-calibration-mismatch"
+  EXP_FLAGS+=(--accept-calibration-mismatch)
 fi
+xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
+  set -euo pipefail
+  PY=$1; MANIFEST=$2; CAL=$3; DATA=$4; shift 4
+  for p in D01 D02; do
+    for s in 1 2; do
+      "$PY" -m experiment run --participant "$p" --session "$s" --stimuli "$MANIFEST" \
+        --calibration "$CAL" --data "$DATA" --simulate humanlike --fast "$@"
+    done
+  done
+' experiment "$PY" "$STIM_MANIFEST" "$EXP_CAL" "$RUN/data" ${EXP_FLAGS[@]+"${EXP_FLAGS[@]}"}
 # Ideal observers (same ids, so the same plans) for the sim-to-real diagnosis, without the app.
 "$PY" -m experiment simulate --observer ideal --participants D01 D02 --data "$RUN/data_ideal" --seed 1
 # --- end experiment ---
@@ -117,11 +114,7 @@ fi
 # --- analysis report (issue 6) ---
 step "analysis report: figures, mixed models (lme4's formulation), bootstrap"
 # 2,000 bootstrap runs per model instead of the default 10,000, to keep the demo near a minute.
-if [ -d "$RUN/data/sessions" ]; then
-  "$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1
-else
-  echo "analysis report skipped: no sessions in \$RUN/data/sessions (the experiment step wrote none)"
-fi
+"$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1
 # --- end analysis report ---
 
 # --- image statistics (issue 9) ---
@@ -130,23 +123,13 @@ step "image statistics: a stratified subset of the imagestats set, statistics on
 # images at 192 px (the smallest size whose array square suits the Portilla-Simoncelli pyramid),
 # 16 spp; the full set is 58,564 images (protocol.md, 7.1).
 IS="$RUN/imagestats"
-if "$PY" -m stimuli list --set imagestats --limit 1 >/dev/null 2>&1; then
-  "$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
-    --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
-    --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress
-  "$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \
-    --batch-size 3 --quiet
-  SESSIONS=()
-  if [ -d "$RUN/data/sessions" ]; then
-    SESSIONS=(--sessions "$RUN/data")
-  else
-    echo "image statistics: no sessions in \$RUN/data/sessions; relating to depth only"
-  fi
-  "$PY" -m analysis imagestats relate "$IS/stats.parquet" ${SESSIONS[@]+"${SESSIONS[@]}"} \
-    --out "$IS/report" --n-boot 200 --seed 1
-else
-  echo "image statistics skipped: the stimuli CLI has no 'imagestats' set (python -m stimuli list --set imagestats)"
-fi
+"$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
+  --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
+  --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress
+"$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \
+  --batch-size 3 --quiet
+"$PY" -m analysis imagestats relate "$IS/stats.parquet" --sessions "$RUN/data" \
+  --out "$IS/report" --n-boot 200 --seed 1
 # --- end image statistics ---
 
 # --- sim-to-real gap (issue 8) ---
@@ -160,7 +143,7 @@ if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
     --sim "$RUN/data_ideal/sessions" --out "$GAP/observer"
   GAP_REAL+=("observer=$RUN/data/sessions"); GAP_SIM+=("observer=$RUN/data_ideal/sessions")
 else
-  echo "gap observer layer skipped: needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)"
+  echo "error: the gap observer layer needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)" >&2; exit 1
 fi
 # Display: photometer readings against the calibration (the noise floor needs >= 2 repeats per patch).
 if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings.csv" ]; then
@@ -169,7 +152,7 @@ if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings
     --sim "$RUN/calibration/calibration.json" --out "$GAP/display"
   GAP_REAL+=("display=$READINGS"); GAP_SIM+=("display=$RUN/calibration/calibration.json")
 else
-  echo "gap display layer skipped: no \$RUN/calibration/calibration.json and readings.csv"
+  echo "error: the gap display layer needs \$RUN/calibration/calibration.json and readings.csv" >&2; exit 1
 fi
 # Render: the synthetic photos against their Ward fit (the gloss fit's residual files).
 if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
@@ -177,7 +160,7 @@ if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
     --out "$GAP/render"
   GAP_REAL+=("render=$RUN/glossfit")
 else
-  echo "gap render layer skipped: no \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)"
+  echo "error: the gap render layer needs \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)" >&2; exit 1
 fi
 if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \

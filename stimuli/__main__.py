@@ -125,9 +125,14 @@ def _cmd_export_print(args) -> int:
     ok, why = mesh_edges_ok(mesh)
     if not ok:
         raise ValueError(f"print mesh is not watertight ({why}); report this as a bug")
-    path = write_mesh(mesh, args.out)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    path = write_mesh(mesh, args.out, units=args.units)
+    scale = 10.0 if args.units == "mm" else 1.0
+    size = (mesh.vertices.max(axis=0) - mesh.vertices.min(axis=0)) * scale
     print(json.dumps({"file": str(path), "depth_level": args.depth_level, "seed": seed,
-                      "vertices": len(mesh.vertices), "faces": len(mesh.faces), "units": "cm",
+                      "vertices": len(mesh.vertices), "faces": len(mesh.faces),
+                      "units": args.units,
+                      "size": f"{size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} {args.units}",
                       "watertight": why}, indent=1))
     return 0
 
@@ -192,13 +197,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="array seed (default: that of the rendered stimuli)")
     p.add_argument("--spacing-cm", type=float, default=0.02, help="height-field grid, cm")
     p.add_argument("--base-cm", type=float, default=0.3, help="base slab thickness, cm")
-    p.add_argument("out", type=Path, help="output .stl or .ply (units: cm)")
+    p.add_argument("--units", choices=["mm", "cm"], default="mm",
+                   help="length unit in the file (default mm: slicers read STL as mm)")
+    p.add_argument("out", type=Path, help="output .stl or .ply")
     p.set_defaults(func=_cmd_export_print)
 
     p = sub.add_parser("check-env", help="select the Mitsuba variant and smoke-test a render")
     p.add_argument("--variant")
     p.set_defaults(func=_cmd_check_env)
-    __import__("stimuli.glossfit.cli").glossfit.cli.register(sub)  # fit-gloss, synth-photos (issue 7)
+    __import__("stimuli.glossfit.cli").glossfit.cli.register(sub)  # fit-gloss, synth-photos
     return parser
 
 

@@ -251,27 +251,50 @@ def mesh_edges_ok(mesh: Mesh) -> tuple[bool, str]:
     return True, "closed, oriented, genus 0"
 
 
-def write_mesh(mesh: Mesh, path: str | os.PathLike) -> Path:
-    """Write a mesh as binary STL (``.stl``) or ASCII PLY (``.ply``), in cm, atomically."""
+#: Length units a mesh file can be written in: name -> units per cm.
+MESH_UNITS_PER_CM = {"mm": 10.0, "cm": 1.0}
+
+
+def write_mesh(mesh: Mesh, path: str | os.PathLike, *, units: str) -> Path:
+    """Write a mesh as binary STL (``.stl``) or ASCII PLY (``.ply``), atomically.
+
+    Parameters
+    ----------
+    mesh : Mesh
+        Vertices in cm.
+    path : str or PathLike
+    units : {"mm", "cm"}
+        Length unit of the numbers in the file. STL has no unit field and slicers (Cura,
+        PrusaSlicer, GrabCAD Print) read it as millimetres, so "mm" prints at true size;
+        the unit is also named in the STL header and a PLY comment.
+
+    Raises
+    ------
+    ValueError
+        Another suffix or unit.
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in (".stl", ".ply"):
         raise ValueError(f"mesh file {path} must end in .stl or .ply")
-    v = np.asarray(mesh.vertices, dtype=np.float64)
+    if units not in MESH_UNITS_PER_CM:
+        raise ValueError(f"units {units!r}: use one of {list(MESH_UNITS_PER_CM)}")
+    scale = MESH_UNITS_PER_CM[units]
+    v = np.asarray(mesh.vertices, dtype=np.float64) * scale
     f = np.asarray(mesh.faces, dtype=np.int64)
     with atomic_open(path, "wb") as fh:
         if suffix == ".stl":
             tri = v[f].astype(np.float32)
             nrm = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
             nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
-            header = b"glossdepth ellipsoid array, units cm"
+            header = f"glossdepth ellipsoid array, units {units}".encode()
             fh.write(header.ljust(80, b" "))
             fh.write(struct.pack("<I", len(f)))
             rec = np.zeros(len(f), dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
             rec["n"], rec["v"] = nrm, tri
             fh.write(rec.tobytes())
         else:
-            lines = ["ply", "format ascii 1.0", "comment units cm",
+            lines = ["ply", "format ascii 1.0", f"comment units {units}",
                      f"element vertex {len(v)}", "property float x", "property float y",
                      "property float z", f"element face {len(f)}",
                      "property list uchar int vertex_indices", "end_header"]

@@ -21,6 +21,7 @@ import numpy as np
 from labfiles import atomic_path
 from stimuli.errors import IlluminationError
 from stimuli.manifest import sha256_file
+from studydesign import REC709_Y, rec709_luminance
 
 __all__ = [
     "NORMALISE_MODES",
@@ -38,8 +39,6 @@ __all__ = [
 
 #: Folder of the light probes shipped with the package.
 SHIPPED_PROBES = Path(__file__).resolve().parent / "probes"
-#: CIE Y from linear Rec. 709 / sRGB primaries (D65), ITU-R BT.709-6 item 3.2.
-REC709_Y = (0.2126, 0.7152, 0.0722)
 #: Intensity normalisations: none, or scale so the solid-angle-weighted mean luminance = target.
 NORMALISE_MODES = ("none", "mean_luminance")
 #: Negative values down to this fraction of the mean |value| are compression ringing, set to 0.
@@ -148,11 +147,9 @@ def write_exr(path: str | os.PathLike, image: np.ndarray) -> Path:
 
 
 def luminance(rgb: np.ndarray) -> np.ndarray:
-    """CIE Y of linear Rec. 709 RGB, shape (..., 3) -> (...); same units as the input."""
-    rgb = np.asarray(rgb)
-    if rgb.ndim < 1 or rgb.shape[-1] != 3:
-        raise ValueError(f"luminance needs a last axis of 3 (R, G, B), got shape {rgb.shape}")
-    return rgb @ np.asarray(REC709_Y, dtype=rgb.dtype if rgb.dtype.kind == "f" else float)
+    """CIE Y of linear Rec. 709 RGB, shape (..., 3) -> (...); same units as the input
+    (``studydesign.rec709_luminance``)."""
+    return rec709_luminance(rgb)
 
 
 def solid_angle_weights(height: int, width: int) -> np.ndarray:

@@ -9,6 +9,7 @@ frozen :class:`StudyDesign` loaded from ``design.toml``.
 162
 """
 
+from studydesign.colour import REC709_Y, rec709_luminance
 from studydesign.design import (
     STIMULUS_COLUMNS,
     AnalysisSpec,
@@ -27,6 +28,7 @@ from studydesign.design import (
 )
 
 __all__ = [
+    "REC709_Y",
     "STIMULUS_COLUMNS",
     "AnalysisSpec",
     "ArraySpec",
@@ -41,4 +43,5 @@ __all__ = [
     "ToneMapSpec",
     "default_design_path",
     "load_design",
+    "rec709_luminance",
 ]

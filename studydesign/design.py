@@ -273,6 +273,22 @@ class SliderSpec:
         """Slider position(s) in [min, max] -> matched gloss in % (``10 * (v - 1)``)."""
         return self.gloss_pct_per_unit * (self._check(value) - 1.0)
 
+    def from_depth_cm(self, depth_cm, *, clip: bool):
+        """Depth in cm -> slider position(s), the inverse of :meth:`to_depth_cm`.
+
+        ``clip=True`` clips to [min, max], where a slider's marker can be (a simulated
+        observer's answer); ``clip=False`` returns positions the slider may not reach.
+        """
+        v = np.asarray(depth_cm, dtype=float) / self.depth_cm_per_unit
+        return np.clip(v, self.min, self.max) if clip else v
+
+    def from_gloss_pct(self, gloss_pct, *, clip: bool):
+        """Gloss in % -> slider position(s), the inverse of :meth:`to_gloss_pct` (whatever
+        ``min`` is, ``to_gloss_pct(from_gloss_pct(g)) == g``); ``clip`` as
+        :meth:`from_depth_cm`."""
+        v = 1.0 + np.asarray(gloss_pct, dtype=float) / self.gloss_pct_per_unit
+        return np.clip(v, self.min, self.max) if clip else v
+
 
 @dataclass(frozen=True)
 class AnalysisSpec:

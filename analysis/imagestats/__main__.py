@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from studydesign import DesignError, load_design
 
@@ -64,6 +65,7 @@ def _compute(argv: list[str]) -> int:
     from analysis.imagestats.config import StatsConfig
     from analysis.imagestats.images import ImageStatsError
     from analysis.imagestats.run import compute_stats, problems_path
+    from analysis.imagestats.store import parts_dir
 
     args = _compute_parser().parse_args(argv)
     try:
@@ -74,6 +76,15 @@ def _compute(argv: list[str]) -> int:
     except (ImageStatsError, DesignError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        parts = parts_dir(Path(args.out).absolute())
+        n = len(list(parts.glob("part-*.parquet"))) if parts.is_dir() else 0
+        print(f"interrupted (Ctrl-C): {n} finished batch(es) are kept in {parts}; run the same "
+              "command to resume (images already measured are not measured again)",
+              file=sys.stderr)
+        return 130
+    for note in run.notes:
+        print(f"warning: {note}", file=sys.stderr)
     print(f"{run.path}: {run.n_images} images in the manifest, {run.n_skipped} already done, "
           f"{run.n_computed} computed on {run.workers} workers in {run.seconds:.1f} s")
     if run.problems:

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import html
 import json
-import os
 from dataclasses import asdict
 from pathlib import Path
 
@@ -25,15 +24,15 @@ from analysis.imagestats.relate import (
 from analysis.imagestats.store import load_stats
 from analysis.load import load_sessions
 from analysis.report import ReportExistsError
+from labfiles import atomic_open, atomic_write_text
 from studydesign import StudyDesign
 
 __all__ = ["ReportExistsError", "build_relate_report"]
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text, encoding="utf-8")
-    os.replace(tmp, path)
+def _write_csv(frame: pd.DataFrame, path: Path) -> None:
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
+        frame.to_csv(fh, index=False)
 
 
 def _table(frame: pd.DataFrame) -> str:
@@ -95,9 +94,9 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
                  "statistics. Red: p_holm &lt; 0.05.</p>" + _table(eff))
     save_figure(plot_depth_effects(effects), out / "depth_effects.png")
     parts.append('<img src="depth_effects.png">')
-    eff.to_csv(out / "depth_effects.csv", index=False)
-    per_cell.to_csv(out / "depth_slopes_per_cell.csv", index=False)
-    cells.to_csv(out / "cell_means.csv", index=False)
+    _write_csv(eff, out / "depth_effects.csv")
+    _write_csv(per_cell, out / "depth_slopes_per_cell.csv")
+    _write_csv(cells, out / "cell_means.csv")
     parts.append("<h2>Each statistic over the gloss x depth grid</h2>"
                  "<p>Mean over the images of each cell (light fields, arrays).</p>")
     for name in names:
@@ -112,7 +111,7 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
         rng = np.random.default_rng(seed)
         reg = gloss_regression(joined, names, n_boot=n_boot, rng=rng)
         observer = ImageStatsObserver.fit(stats, trials)
-        _write_text(out / "observer.json", observer.to_json())
+        atomic_write_text(out / "observer.json", observer.to_json())
         obs_cells = trials.groupby(list(CELL), as_index=False)[
             ["gloss_match_pct", "true_depth_cm"]].mean()
         pred = pd.DataFrame({"pred": observer.predict_trials(trials, stats)},
@@ -158,10 +157,10 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
             '<img src="observer_fit.png">')
     else:
         parts.append("<p>No session data given (--sessions): perception analyses left out.</p>")
-    _write_text(out / "results.json", json.dumps(results, indent=1, default=float))
+    atomic_write_text(out / "results.json", json.dumps(results, indent=1, default=float))
     page = ("<!doctype html><html><head><meta charset='utf-8'><title>Image statistics</title>"
             "<style>body{font-family:sans-serif;max-width:70em;margin:auto}"
             "table{border-collapse:collapse;font-size:90%}td,th{padding:2px 8px}"
             "img{max-width:100%}</style></head><body>" + "\n".join(parts) + "</body></html>")
-    _write_text(out / "index.html", page)
+    atomic_write_text(out / "index.html", page)
     return out / "index.html"

@@ -11,6 +11,7 @@ import contextlib
 import logging
 import os
 import time
+import warnings
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from analysis.imagestats.config import StatsConfig
 from analysis.imagestats.images import ImageStatsError
 from analysis.imagestats.measure import measure_batch
 from analysis.imagestats.store import (
+    DamagedPartWarning,
     consolidate,
     discard_parts,
     has_parts,
@@ -27,6 +29,7 @@ from analysis.imagestats.store import (
     start,
     write_part,
 )
+from labfiles import atomic_open
 from stimuli import MANIFEST_COLUMNS, ManifestError, load_manifest
 from studydesign import StudyDesign
 
@@ -54,6 +57,8 @@ class StatsRun:
         Wall time of the run.
     workers : int
         Dask workers used (0 when nothing was left to compute).
+    notes : tuple of str
+        What was repaired on the way (a damaged part moved aside and measured again).
     """
 
     path: Path
@@ -63,6 +68,7 @@ class StatsRun:
     problems: tuple
     seconds: float
     workers: int
+    notes: tuple = ()
 
     @property
     def ok(self) -> bool:
@@ -194,7 +200,10 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     meta = {"config": asdict(config), "extent_cm": float(design.array.extent_cm),
             "image": "exr_luminance", "region": "array_square"}
     start(out, meta)
-    done = read_done(out)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DamagedPartWarning)
+        done = read_done(out)
+    notes = tuple(str(w.message) for w in caught if issubclass(w.category, DamagedPartWarning))
     _check_done(done, manifest, out)
     problems = _folder_problems(manifest, root)
     todo = manifest[~manifest["stimulus_id"].isin(set(done["stimulus_id"]))]
@@ -230,13 +239,12 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     _write_problems(problems_path(out), problems)
     return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),
                     n_computed=n_computed, problems=tuple(problems),
-                    seconds=time.perf_counter() - t0, workers=n_workers)
+                    seconds=time.perf_counter() - t0, workers=n_workers, notes=notes)
 
 
 def _write_problems(path: Path, problems: list[tuple[str, str]]) -> None:
     if not problems:
         path.unlink(missing_ok=True)
         return
-    tmp = path.with_name(f".{path.name}.tmp")
-    pd.DataFrame(problems, columns=["item", "problem"]).to_csv(tmp, index=False)
-    os.replace(tmp, path)
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
+        pd.DataFrame(problems, columns=["item", "problem"]).to_csv(fh, index=False)

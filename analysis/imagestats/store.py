@@ -2,16 +2,21 @@
 
 While a run is going, each finished batch is written at once, atomically, as
 ``<out>.partial/part-NNNNNN.parquet``; a kill loses only the batches still being computed. At the
-end the parts and any earlier ``<out>`` are merged into a new ``<out>`` (written to a temporary
-file, then renamed over it), and the parts are removed. The options that define the table
-(`StatsConfig`, the array extent) are stored in the Parquet metadata and in
-``<out>.partial/meta.json``; resuming with other options is refused.
+end the parts and any earlier ``<out>`` are merged into a new ``<out>`` (``labfiles``' atomic
+write), and the parts are removed. The options that define the table (`StatsConfig`, the array
+extent) are stored in the Parquet metadata and in ``<out>.partial/meta.json``; resuming with
+other options is refused.
+
+A part that does not read as Parquet (a copy cut short, a disk that filled up under another
+writer) is moved to ``<out>.damaged/`` with a :class:`DamagedPartWarning` naming it; its images
+are not in the table, so the run measures them again.
 """
 
 from __future__ import annotations
 
 import json
-import os
+import warnings
+from datetime import UTC, datetime
 from pathlib import Path
 
 import pandas as pd
@@ -19,9 +24,11 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from analysis.imagestats.images import ImageStatsError
+from labfiles import TEMPORARY_GLOB, atomic_path, atomic_write_text
 
 __all__ = [
     "META_KEY",
+    "DamagedPartWarning",
     "consolidate",
     "discard_parts",
     "has_parts",
@@ -41,15 +48,8 @@ def parts_dir(out: Path) -> Path:
     return out.with_name(out.name + ".partial")
 
 
-def _fsync_replace(tmp: Path, final: Path) -> None:
-    with open(tmp, "rb") as fh:
-        os.fsync(fh.fileno())
-    os.replace(tmp, final)
-    dirfd = os.open(final.parent, os.O_RDONLY)
-    try:
-        os.fsync(dirfd)
-    finally:
-        os.close(dirfd)
+class DamagedPartWarning(UserWarning):
+    """A part file did not read and was moved aside; its images are measured again."""
 
 
 def read_meta(out: Path) -> dict | None:
@@ -114,9 +114,7 @@ def start(out: Path, meta: dict) -> None:
             )
         return
     parts.mkdir(parents=True, exist_ok=True)
-    tmp = parts / ".meta.json.tmp"
-    tmp.write_text(json.dumps(meta, sort_keys=True))
-    _fsync_replace(tmp, meta_file)
+    atomic_write_text(meta_file, json.dumps(meta, sort_keys=True))
 
 
 def _part_files(parts: Path) -> list[Path]:
@@ -132,12 +130,26 @@ def read_done(out: Path) -> pd.DataFrame:
     """Every row already computed: ``out`` (if it exists) and the parts of an interrupted run
     (a row can appear in both after a kill during `consolidate`; it is then kept once)."""
     frames = [pd.read_parquet(out)] if out.is_file() else []
-    frames += [pd.read_parquet(p) for p in _part_files(parts_dir(out))]
+    frames += [f for f in map(_read_part, _part_files(parts_dir(out))) if f is not None]
     frames = [f for f in frames if len(f)]
     if not frames:
         return pd.DataFrame(columns=["stimulus_id", "exr_sha256"])
     return pd.concat(frames, ignore_index=True).drop_duplicates(
         subset=["stimulus_id", "exr_sha256"], keep="first").reset_index(drop=True)
+
+
+def _read_part(part: Path) -> pd.DataFrame | None:
+    """A part's rows; None when it does not read (it is then moved aside, with a warning)."""
+    try:
+        return pd.read_parquet(part)
+    except (pa.ArrowInvalid, OSError) as exc:
+        damaged = part.parent.with_name(part.parent.name.removesuffix(".partial") + ".damaged")
+        damaged.mkdir(exist_ok=True)
+        stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+        kept = part.rename(damaged / f"{part.stem}-{stamp}{part.suffix}")
+        warnings.warn(f"{part} does not read as Parquet ({exc}); moved it to {kept}, and its "
+                      "images are measured again", DamagedPartWarning, stacklevel=3)
+        return None
 
 
 def write_part(out: Path, records: list[dict]) -> Path:
@@ -146,9 +158,8 @@ def write_part(out: Path, records: list[dict]) -> Path:
     existing = _part_files(parts)
     index = int(existing[-1].stem.split("-")[1]) + 1 if existing else 0
     final = parts / f"part-{index:06d}.parquet"
-    tmp = parts / f".part-{index:06d}.tmp"
-    pd.DataFrame.from_records(records).to_parquet(tmp, index=False)
-    _fsync_replace(tmp, final)
+    with atomic_path(final) as tmp:
+        pd.DataFrame.from_records(records).to_parquet(tmp, index=False)
     return final
 
 
@@ -181,9 +192,8 @@ def consolidate(out: Path, meta: dict, columns: list[str]) -> int:
     table = table.replace_schema_metadata(
         {**(table.schema.metadata or {}), META_KEY: json.dumps(meta, sort_keys=True).encode()}
     )
-    tmp = out.with_name(f".{out.name}.tmp")
-    pq.write_table(table, tmp)
-    _fsync_replace(tmp, out)
+    with atomic_path(out) as tmp:
+        pq.write_table(table, tmp)
     discard_parts(out)
     return len(frame)
 
@@ -196,6 +206,7 @@ def discard_parts(out: Path) -> None:
     for p in _part_files(parts):
         p.unlink()
     (parts / "meta.json").unlink(missing_ok=True)
-    for leftover in parts.glob(".*.tmp"):
-        leftover.unlink()
+    for pattern in (TEMPORARY_GLOB, ".*.tmp"):  # an interrupted write's leftovers
+        for leftover in parts.glob(pattern):
+            leftover.unlink()
     parts.rmdir()

@@ -22,6 +22,7 @@ import numpy as np
 
 from stimuli.glossfit.mitsuba_setup import FIT_VARIANT
 from stimuli.glossfit.photoset import PhotoSetup
+from studydesign import rec709_luminance
 
 __all__ = [
     "Camera",
@@ -34,13 +35,9 @@ __all__ = [
     "ward_bsdf",
 ]
 
-#: Rec. 709 / sRGB luminance weights of linear RGB.
-_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
-
-
 def luminance(rgb: np.ndarray) -> np.ndarray:
     """Luminance (Rec. 709 weights) of a linear RGB image, shape (..., 3) -> (...)."""
-    return np.asarray(rgb, dtype=np.float32) @ _LUMA
+    return rec709_luminance(rgb, dtype=np.float32)
 
 
 @dataclass(frozen=True)

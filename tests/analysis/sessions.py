@@ -12,8 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.load import SESSION_COLUMNS
-from experiment import make_plan
+from experiment import SESSION_COLUMNS, make_plan
 
 
 def answer(plan: pd.DataFrame, design, rng: np.random.Generator, kind: str) -> pd.DataFrame:
@@ -32,8 +31,8 @@ def answer(plan: pd.DataFrame, design, rng: np.random.Generator, kind: str) -> p
         raise ValueError(kind)
     s = design.slider
     out = plan.copy()
-    out["gloss_match"] = np.clip(gloss_pct / s.gloss_pct_per_unit + 1, s.min, s.max)
-    out["depth_match"] = np.clip(depth_cm / s.depth_cm_per_unit, s.min, s.max)
+    out["gloss_match"] = s.from_gloss_pct(gloss_pct, clip=True)
+    out["depth_match"] = s.from_depth_cm(depth_cm, clip=True)
     return out
 
 

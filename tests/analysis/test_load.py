@@ -6,7 +6,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.load import SESSION_COLUMNS, SessionDataError, load_sessions
+from analysis.load import SessionDataError, load_sessions
+from experiment import SESSION_COLUMNS
 
 from .sessions import write_sessions
 
@@ -91,3 +92,30 @@ def test_empty_folder_and_bad_file_name(tmp_path, design):
     (tmp_path / "sessions" / "notes.csv").write_text("a,b\n1,2\n")
     with pytest.raises(SessionDataError, match="file name is not"):
         load_sessions(tmp_path, design)
+
+
+def test_torn_last_row_is_left_out_and_named(folder, design):
+    """A row cut off mid-write (fields missing, a number cut short) was accepted as a trial;
+    the experiment's reader leaves it out, and the file is not changed."""
+    path = folder / "sessions" / "S01_s1.csv"
+    text = path.read_text()
+    last = text.splitlines()[-1]
+    torn = text[: len(text) - len(last) - 1] + last[: last.index(",", 60) + 3]
+    path.write_text(torn)
+    data = load_sessions(folder, design)
+    n = design.sessions.trials_per_session
+    assert (data.frame["participant"] == "S01").sum() == 2 * n - 1
+    assert any("S01_s1.csv: torn last row left out" in w and f"line {n + 1} is torn" in w
+               for w in data.warnings)
+    assert path.read_text() == torn
+
+
+def test_simulated_and_mixed_calibration_data_are_listed(folder, design):
+    _edit(folder, "S02_s1.csv", _set("calibration_id", slice(None), "simulated"))
+    _edit(folder, "S01_s2.csv", _set("calibration_id", slice(0, 9), "crt-2026-11"))
+    data = load_sessions(folder, design)
+    assert any("simulated data included: participants ['S02']" in w for w in data.warnings)
+    assert any("S01 session 2: trials recorded with calibrations ['crt-2026-11', 'default']"
+               in w for w in data.warnings)
+    assert ("simulated", ("S02",), design.sessions.trials_per_session) in data.calibrations
+    assert any(w.startswith("data of more than one calibration") for w in data.warnings)

@@ -85,7 +85,7 @@ def test_no_metamers_for_observers_without_a_depth_effect(tmp_path, design):
     build_report(tmp_path / "data", tmp_path / "r", design, n_boot=0, progress=False)
     results = json.loads((tmp_path / "r" / "results.json").read_text(encoding="utf-8"))
     assert results["metamers"] == []
-    assert not results["seed_pattern"]["depth effect on estimated gloss"]["holds"]
+    assert not results["source_study_pattern"]["depth effect on estimated gloss"]["holds"]
 
 
 def test_imagestats_is_passed_through_or_named_as_missing():
@@ -97,3 +97,26 @@ def test_imagestats_is_passed_through_or_named_as_missing():
         assert out.returncode == 2 and "not built yet" in out.stderr
     else:
         assert out.returncode == 0, out.stderr
+
+
+def test_command_line_lists_simulated_data_and_shares_the_report(tmp_path, design):
+    """Simulated participants in the data folder are named on the command line and in the
+    report, and the report's files get the umask's permissions (not 0600)."""
+    import os
+
+    import pandas as pd
+
+    write_sessions(tmp_path / "data", design, np.random.default_rng(5), n_participants=3)
+    path = tmp_path / "data" / "sessions" / "S03_s1.csv"
+    frame = pd.read_csv(path, dtype=str)
+    frame.assign(calibration_id="simulated").to_csv(path, index=False)
+    res = subprocess.run([sys.executable, "-m", "analysis", "report", str(tmp_path / "data"),
+                          "--out", str(tmp_path / "r"), "--bootstrap", "0", "--quiet"],
+                         capture_output=True, text=True, timeout=300, check=False,
+                         preexec_fn=lambda: os.umask(0o002))
+    assert res.returncode == 0, res.stderr
+    assert "warning: simulated data included: participants ['S03']" in res.stderr
+    text = (tmp_path / "r" / "index.html").read_text(encoding="utf-8")
+    assert "simulated data included" in text and "Calibrations in these data" in text
+    for name in ("index.html", "results.json", "depth_matches.png"):
+        assert (tmp_path / "r" / name).stat().st_mode & 0o777 == 0o664, name

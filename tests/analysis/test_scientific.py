@@ -16,9 +16,10 @@ import numpy as np
 import pytest
 
 import experiment
-from analysis.load import SESSION_COLUMNS, load_sessions
+from analysis.load import load_sessions
 from analysis.models import fit_seed_models
-from analysis.report import seed_pattern
+from analysis.report import source_study_pattern
+from experiment import SESSION_COLUMNS
 
 from .sessions import write_sessions
 
@@ -45,7 +46,7 @@ def _pattern(tmp_path, design, kind, seed):
     _write(tmp_path, design, kind, seed)
     frame = load_sessions(tmp_path, design).frame
     assert frame["participant"].nunique() == N_OBSERVERS
-    return seed_pattern(fit_seed_models(frame, design), frame)
+    return source_study_pattern(fit_seed_models(frame, design), frame)
 
 
 @pytest.mark.parametrize("seed", [11, 12])

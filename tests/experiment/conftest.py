@@ -81,3 +81,32 @@ def run_app(*args, timeout=600, check_display=True) -> subprocess.CompletedProce
     return subprocess.run([sys.executable, "-m", "experiment", *map(str, args)], cwd=REPO,
                           check=False,
                           env=app_env(), capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """``small_disk(size, read_only=False)``: a real small file system (tmpfs) for a test.
+
+    Needs root (``mount``); fails loudly when it cannot mount, rather than skipping.
+    """
+    import contextlib
+
+    mounts = []
+
+    @contextlib.contextmanager
+    def mount(size: str, *, read_only: bool = False):
+        point = tmp_path / f"disk{len(mounts)}"
+        point.mkdir()
+        opts = f"size={size}" + (",ro" if read_only else "")
+        res = subprocess.run(["mount", "-t", "tmpfs", "-o", opts, "tmpfs", str(point)],
+                             capture_output=True, text=True, check=False)
+        if res.returncode != 0:
+            pytest.fail(f"cannot mount a {size} tmpfs for this test (run the tests as root, as "
+                        f"CI does): {res.stderr.strip()}")
+        mounts.append(point)
+        try:
+            yield point
+        finally:
+            subprocess.run(["umount", "-l", str(point)], check=False)
+
+    return mount

@@ -6,13 +6,16 @@ import dataclasses
 import json
 import os
 import subprocess
+from pathlib import Path
 
 import pandas as pd
 import pytest
+from PIL import Image
 
 from calibration import load_calibration, save_calibration
 from experiment import SESSION_COLUMNS
 from experiment.checks import PreflightError
+from experiment.datafile import append_run_event, runs_path
 from experiment.session import SessionRequest, prepare_session
 
 from .conftest import REPO, app_env, run_app
@@ -139,10 +142,23 @@ def test_recorded_rows_that_disagree_with_the_plan(design, session_files):
     row[list(SESSION_COLUMNS)].to_csv(path, index=False)
     with pytest.raises(PreflightError, match="the plan file was replaced"):
         prepare_session(_request(design, session_files))
-    # and a row cut off mid-write
-    path.write_text(path.read_text().rstrip("\n"))
-    with pytest.raises(PreflightError, match="last row is incomplete"):
-        prepare_session(_request(design, session_files))
+
+
+def test_torn_last_row_is_announced_and_left_for_the_run(design, session_files):
+    """A row cut off mid-write (a crash, a full disk) is not a recorded trial: pre-flight says
+    so and resumes at that trial; the file is not changed before the run holds its lock."""
+    prep = prepare_session(_request(design, session_files))
+    rows = prep.plan.iloc[:2].drop(columns="seed").assign(
+        gloss_match=5, depth_match=5, rt_s=1, onset_s=0, dropped_frames=0,
+        timestamp_utc="x", app_version="x", calibration_id="test")
+    path = session_files["data"] / "sessions" / "P01_s1.csv"
+    path.parent.mkdir(parents=True)
+    text = rows[list(SESSION_COLUMNS)].to_csv(index=False)
+    path.write_text(text[:-9])  # the second row loses its last fields and its newline
+    prep = prepare_session(_request(design, session_files))
+    assert len(prep.done) == 1 and prep.todo["trial"].iloc[0] == 2
+    assert any("line 3 is torn" in w and "takes that record again" in w for w in prep.warnings)
+    assert path.read_text() == text[:-9]
 
 
 def _no_session_started(files):
@@ -226,3 +242,111 @@ def test_monitor_profile_must_match_the_calibration(design, session_files):
     profile.write_text(json.dumps({"other": entry}))
     with pytest.raises(PreflightError, match="has no calibration 'test'"):
         prepare_session(_request(design, session_files))
+
+
+def _rewrite_manifest_checksum(manifest, stimulus_id):
+    """Update a stimulus's checksum in the manifest, as an operator 'fixing' a changed PNG would."""
+    from stimuli import sha256_file
+
+    frame = pd.read_csv(manifest, dtype=str, keep_default_na=False)
+    row = frame["stimulus_id"] == stimulus_id
+    png = manifest.parent / frame.loc[row, "png_path"].iloc[0]
+    frame.loc[row, "png_sha256"] = sha256_file(png)
+    frame.to_csv(manifest, index=False)
+
+
+@pytest.mark.parametrize("image, match", [
+    (lambda p: Image.new("RGB", (32, 32), (40, 200, 60)).save(p), "decodes to 32x32 px"),
+    (lambda p: Image.new("RGBA", (64, 64)).save(p), "colour type 'RGBA'"),
+    (lambda p: Image.new("L", (64, 64), 128).save(p), "one colour type for all"),
+    (lambda p: p.write_bytes(p.read_bytes()[:-30]), "does not decode"),
+    (lambda p: p.write_bytes(b"not a png at all"), "does not decode"),
+])
+def test_every_stimulus_png_is_decoded_before_the_session(design, session_files, image, match):
+    """A PNG whose checksum was updated in the manifest but that decodes to another size or
+    colour type, or not at all, is refused before any window (it used to reach the window)."""
+    png, sid = _session_png(design, session_files)
+    image(Path(png))
+    _rewrite_manifest_checksum(session_files["manifest"], sid)
+    with pytest.raises(PreflightError, match=match) as info:
+        prepare_session(_request(design, session_files))
+    assert sid in str(info.value) and "re-render" in str(info.value).lower()
+
+
+def _record_first_run(design, files, n_rows=2):
+    """The state after a first run answered ``n_rows`` trials: rows and the run's start event."""
+    prep = prepare_session(_request(design, files))
+    rows = prep.plan.iloc[:n_rows].drop(columns="seed").assign(
+        gloss_match=5, depth_match=5, rt_s=1, onset_s=0, dropped_frames=0,
+        timestamp_utc="x", app_version="x", calibration_id=prep.calibration.calibration_id)
+    path = files["data"] / "sessions" / "P01_s1.csv"
+    path.parent.mkdir(parents=True)
+    rows[list(SESSION_COLUMNS)].to_csv(path, index=False)
+    append_run_event(runs_path(files["data"], "P01", 1), {"event": "start", **prep.inputs})
+    return prep
+
+
+def test_resume_keeps_the_calibration_and_stimuli_it_started_with(design, session_files,
+                                                                  tmp_path):
+    f = session_files
+    first = _record_first_run(design, f)
+    assert prepare_session(_request(design, f)).inputs == first.inputs  # the same: resumes
+    other_id = make_calibration(tmp_path / "other", design, calibration_id="other")
+    with pytest.raises(PreflightError, match=r"used calibration \['test'\].*--calibration"):
+        prepare_session(_request(design, f, calibration=str(other_id),
+                                 accept_calibration_mismatch=True))
+    same_id = make_calibration(tmp_path / "same-id", design, age_days=2)
+    with pytest.raises(PreflightError, match="differs although its id is the same") as info:
+        prepare_session(_request(design, f, calibration=str(same_id)))
+    assert first.inputs["calibration"] in str(info.value)
+    small = make_manifest(tmp_path / "small", design, size_px=32)
+    with pytest.raises(PreflightError, match="are not the same") as info:
+        prepare_session(_request(design, f, manifest=str(small)))
+    assert "--stimuli" in str(info.value) and first.inputs["manifest"] in str(info.value)
+
+
+def test_screenshot_into_a_missing_folder_is_refused(design, session_files, tmp_path):
+    with pytest.raises(PreflightError, match="does not exist; create it"):
+        prepare_session(_request(design, session_files,
+                                 screenshot=str(tmp_path / "no" / "shot.png")))
+
+
+def test_observer_params_that_are_not_toml(design, session_files, tmp_path):
+    bad = tmp_path / "observers.toml"
+    bad.write_text("this is = = not toml\n")
+    with pytest.raises(PreflightError, match="not valid TOML"):
+        prepare_session(_request(design, session_files, simulate="ideal",
+                                 observer_params=str(bad)))
+
+
+def test_read_only_data_folder_is_refused_before_anything(design, session_files, small_disk,
+                                                          capsys):
+    from experiment.__main__ import main
+
+    with small_disk("64k", read_only=True) as folder:
+        with pytest.raises(PreflightError, match="read-only file system"):
+            prepare_session(_request(design, session_files, data_dir=str(folder / "data")))
+        assert main(["plan", "--participant", "P01", "--data", str(folder)]) == 1
+        assert f"cannot write the plan in {folder}" in capsys.readouterr().err
+
+
+def test_full_disk_is_refused_at_start(design, session_files, small_disk):
+    with small_disk("64k") as folder:
+        with pytest.raises(PreflightError, match="MB free, less than"):
+            prepare_session(_request(design, session_files, data_dir=str(folder)))
+        assert not any(folder.iterdir())
+
+
+def test_data_folder_must_be_given(design, session_files, tmp_path, monkeypatch):
+    """Without --data or GLOSSDEPTH_DATA the app refuses (a ./data of the working directory
+    would start the session over from another directory)."""
+    from experiment.__main__ import main
+
+    monkeypatch.delenv("GLOSSDEPTH_DATA", raising=False)
+    monkeypatch.chdir(tmp_path)
+    assert main(["status", "--participant", "P01"]) == 2
+    assert main(["plan", "--participant", "P01"]) == 2
+    assert not (tmp_path / "data").exists()
+    monkeypatch.setenv("GLOSSDEPTH_DATA", str(session_files["data"]))
+    assert main(["plan", "--participant", "P01"]) == 0
+    assert (session_files["data"] / "plans" / "P01_plan.csv").is_file()

@@ -14,10 +14,12 @@ import sys
 import time
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from analysis.load import load_sessions
 from experiment import read_session
+from experiment.datafile import read_run_events
 
 from .conftest import REPO, app_env
 
@@ -42,8 +44,9 @@ def _rows(path) -> int:
     return max(0, len(path.read_text().splitlines()) - 1)
 
 
-def _kill_after(cmd, path, n_rows: int) -> int:
-    """Start the app, kill -9 it once ``path`` holds ``n_rows`` rows; returns rows then."""
+def _kill_after(cmd, path, n_rows: int, *, sig=signal.SIGKILL, on_rows=None) -> int:
+    """Start the app, send ``sig`` (kill -9) once ``path`` holds ``n_rows`` rows; returns rows
+    then. With ``on_rows``, call it instead of sending a signal and wait for the app's end."""
     proc = subprocess.Popen(cmd, cwd=REPO, env=app_env(), stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
     t_end = time.monotonic() + 120
@@ -54,11 +57,17 @@ def _kill_after(cmd, path, n_rows: int) -> int:
             if time.monotonic() > t_end:
                 pytest.fail("no progress in 120 s")
             time.sleep(0.005)
-        os.kill(proc.pid, signal.SIGKILL)
+        if on_rows is None:
+            os.kill(proc.pid, sig)
+        else:
+            on_rows()
     finally:
-        proc.wait(timeout=30)
+        proc.wait(timeout=60)
+        _kill_after.stderr = proc.stderr.read()
         proc.stderr.close()
-    assert proc.returncode == -signal.SIGKILL
+    _kill_after.returncode = proc.returncode
+    if sig == signal.SIGKILL and on_rows is None:
+        assert proc.returncode == -signal.SIGKILL
     return _rows(path)
 
 
@@ -121,3 +130,84 @@ def test_quit_from_pause_then_resume(small_design, small_design_path, session_fi
     assert again.returncode == 0
     assert "already complete" in again.stdout
     assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
+
+
+def test_ctrl_c_keeps_the_answers_and_a_torn_history_is_repaired_on_resume(
+        small_design, small_design_path, session_files, capsys):
+    """Ctrl-C ends the run cleanly (exit 130, what was kept, the run's log); a torn slider
+    history (a full disk during its write) and a torn run log are then named by `status`, moved
+    aside by the resume, and both files read as JSON lines again."""
+    f = session_files
+    n = small_design.sessions.trials_per_session
+    cmd = _cmd(small_design_path, f, "C1", 1)
+    path = f["data"] / "sessions" / "C1_s1.csv"
+    kept = _kill_after(cmd, path, 2, sig=signal.SIGINT)
+    assert _kill_after.returncode == 130, _kill_after.stderr
+    assert "Traceback" not in _kill_after.stderr
+    assert f"interrupted (Ctrl-C): {kept} of {n} trials are saved in {path}" in \
+        _kill_after.stderr
+    events = read_run_events(f["data"] / "logs" / "C1_s1_runs.jsonl")
+    assert [e["event"] for e in events] == ["start", "interrupted"]
+    log = json.loads((f["data"] / "logs" / "C1_s1_run1.json").read_text())
+    assert log["status"] == "interrupted" and log["trials_this_run"] == kept
+    hist = f["data"] / "sliders" / "C1_s1.jsonl"
+    with open(hist, "a") as fh:
+        fh.write('{"participant": "C1", "session": 1, "trial": 3, "gloss_hi')
+    runs = f["data"] / "logs" / "C1_s1_runs.jsonl"
+    with open(runs, "a") as fh:  # a run log torn too: `run` and `status` crashed on it
+        fh.write('{"event": "sta')
+    from experiment.__main__ import main
+
+    assert main(["--design", str(small_design_path), "status", "--participant", "C1",
+                 "--data", str(f["data"])]) == 0
+    assert f"WARNING: {hist}: line {kept + 1} is torn" in capsys.readouterr().out
+    res = _run(cmd)
+    assert res.returncode == 0, res.stderr
+    assert f"warning: {hist}: line {kept + 1} is torn" in res.stdout
+    assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
+    assert pd.read_json(hist, lines=True)["trial"].tolist() == list(range(1, n + 1))
+    assert len(list(hist.parent.glob("C1_s1.jsonl.torn-*"))) == 1
+    assert [e["event"] for e in read_run_events(runs)] == ["start", "interrupted", "start",
+                                                           "complete"]
+    assert len(list(runs.parent.glob("C1_s1_runs.jsonl.torn-*"))) == 1
+
+
+def test_full_disk_mid_session_is_named_and_the_resume_completes(
+        small_design, small_design_path, session_files, small_disk):
+    """The disk fills up after the first trial (a real small file system): the app ends with the
+    full disk named (not a later error, not a traceback), keeps every whole trial, and the same
+    command finishes the session once space is free."""
+    f = session_files
+    n = small_design.sessions.trials_per_session
+    with small_disk("24m") as disk:
+        files = {**f, "data": disk / "data"}
+        cmd = _cmd(small_design_path, files, "D1", 1)
+        path = files["data"] / "sessions" / "D1_s1.csv"
+        filler = disk / "filler"
+
+        def fill():
+            fd = os.open(filler, os.O_WRONLY | os.O_CREAT)
+            try:
+                while os.write(fd, b"x" * 65536) > 0:
+                    pass
+            except OSError:
+                pass
+            finally:
+                os.close(fd)
+
+        # Without --fast the observer takes its response times, so the run's frame log grows
+        # by new pages during the next trial (a record that fits a page already held would not
+        # meet the full disk).
+        slow = [a for a in cmd if a != "--fast"]
+        kept = _kill_after(slow, path, 1, on_rows=fill)
+        assert _kill_after.returncode == 1, (kept, _kill_after.stderr)
+        assert "disk is full" in _kill_after.stderr and "Traceback" not in _kill_after.stderr
+        assert "free space, then run the same command to continue" in _kill_after.stderr
+        assert read_session(path)["trial"].tolist() == list(range(1, kept + 1))
+        filler.unlink()
+        res = _run(cmd)
+        assert res.returncode == 0, res.stderr
+        assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
+        hist = pd.read_json(files["data"] / "sliders" / "D1_s1.jsonl", lines=True)
+        assert hist.drop_duplicates("trial", keep="last")["trial"].tolist() == \
+            list(range(1, n + 1))

@@ -152,3 +152,41 @@ def test_imagestats_light_fields_are_rotated_probes(tmp_path, capsys, mitsuba_va
     # 8 x 8 blocks average 16 pixels x 4 spp: the lighting pattern, not the sampling noise
     blocks = [im.reshape(4, 8, 4, 8).mean(axis=(1, 3)) for im in (a, b)]
     assert np.abs(blocks[0] - blocks[1]).mean() > 0.2 * blocks[0].mean()  # 0.39 when written
+
+
+def _stl_vertices_as_a_slicer_reads_them(path) -> np.ndarray:
+    """Binary STL per its specification: 80-byte header, uint32 triangle count, then per
+    triangle 12 little-endian float32 (normal, three vertices) and a uint16. No unit field:
+    Cura, PrusaSlicer and GrabCAD Print take the numbers as millimetres."""
+    import struct
+
+    data = path.read_bytes()
+    (n,) = struct.unpack_from("<I", data, 80)
+    assert len(data) == 84 + 50 * n
+    rec = np.frombuffer(data, dtype=[("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")],
+                        count=n, offset=84)
+    return rec["v"].reshape(-1, 3)
+
+
+@pytest.mark.parametrize("units, per_cm", [(None, 10.0), ("mm", 10.0), ("cm", 1.0)])
+def test_export_print_is_true_size_in_a_slicer(tmp_path, capsys, design, units, per_cm):
+    """STL was written in cm, so a slicer printed the arrays a tenth of their size (the design's
+    5 cm array square 5 mm wide); millimetres are the default now."""
+    from stimuli.geometry import draw_array, stimulus_seed
+
+    out = tmp_path / "d5.stl"
+    extra = [] if units is None else ["--units", units]
+    assert main(["export-print", "--depth-level", "5", "--spacing-cm", "0.1", *extra,
+                 str(out)]) == 0
+    info = json.loads(capsys.readouterr().out)
+    v = _stl_vertices_as_a_slicer_reads_them(out)
+    width, depth, height = v.max(axis=0) - v.min(axis=0)
+    geometry = draw_array(design, float(design.depth.cm(5)), stimulus_seed(5, 0))
+    want_cm = 2 * (geometry.half_extent_cm + 0.5)  # the array and its 0.5 cm margin
+    assert width == pytest.approx(want_cm * per_cm, abs=0.1 * per_cm)
+    assert depth == pytest.approx(want_cm * per_cm, abs=0.1 * per_cm)
+    if per_cm == 10.0:
+        assert width > 10 * design.array.extent_cm  # at least 50 mm, as the rendered array
+    assert info["units"] == (units or "mm")
+    assert info["size"] == f"{width:.1f} x {depth:.1f} x {height:.1f} {units or 'mm'}"
+    assert out.read_bytes()[:80].rstrip().endswith(f"units {units or 'mm'}".encode())

@@ -57,8 +57,8 @@ def test_print_mesh_is_watertight_and_has_the_depth(design, tmp_path):
     # a mesh with a hole is caught
     holed = Mesh(vertices=m.vertices, faces=m.faces[1:])
     assert not mesh_edges_ok(holed)[0]
-    write_mesh(m, tmp_path / "a.stl")
+    write_mesh(m, tmp_path / "a.stl", units="mm")
     data = (tmp_path / "a.stl").read_bytes()
     assert len(data) == 84 + 50 * len(m.faces)
-    write_mesh(m, tmp_path / "a.ply")
+    write_mesh(m, tmp_path / "a.ply", units="mm")
     assert (tmp_path / "a.ply").read_text().startswith("ply")

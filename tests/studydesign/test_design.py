@@ -79,6 +79,28 @@ def test_slider_to_physical_units(design, v, depth_cm, gloss_pct):
     assert design.slider.to_gloss_pct(v) == pytest.approx(gloss_pct)
 
 
+@pytest.mark.parametrize("slider_min", [1.0, 0.0, 2.5])
+def test_physical_to_slider_inverts_slider_to_physical_whatever_the_minimum(design, slider_min):
+    """One owner of both directions: a changed slider.min must not shift the inverse (a copy
+    that added slider.min instead of the gloss offset did)."""
+    import dataclasses
+
+    s = dataclasses.replace(design.slider, min=slider_min)
+    v = np.linspace(slider_min, s.max, 7)
+    assert s.from_gloss_pct(s.to_gloss_pct(v), clip=False) == pytest.approx(v)
+    assert s.from_depth_cm(s.to_depth_cm(v), clip=False) == pytest.approx(v)
+    assert s.from_gloss_pct([-50.0, 500.0], clip=True).tolist() == [slider_min, s.max]
+
+
+@pytest.mark.parametrize("rgb, y", [((1, 1, 1), 1.0), ((1, 0, 0), 0.2126), ((0, 0, 2), 0.1444)])
+def test_rec709_luminance_weights(rgb, y):
+    """ITU-R BT.709-6 item 3.2: Y = 0.2126 R + 0.7152 G + 0.0722 B."""
+    from studydesign import rec709_luminance
+
+    assert rec709_luminance(np.array(rgb, float)) == pytest.approx(y)
+    assert rec709_luminance(np.ones((2, 3, 3), np.float32)).dtype == np.float32
+
+
 @pytest.mark.parametrize("v", [0.99, 11.01, float("nan")])
 def test_slider_rejects_values_outside_scale(design, v):
     with pytest.raises(DesignError, match="outside"):

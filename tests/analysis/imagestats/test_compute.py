@@ -225,3 +225,61 @@ def test_statistics_of_real_mitsuba_renders(tmp_path, design, scheduler):
     g_lo, g_hi = sorted(frame["gloss_level"].unique())
     for d in frame["depth_level"].unique():
         assert by[(g_hi, d)] > by[(g_lo, d)]
+
+
+def test_a_truncated_part_is_named_moved_aside_and_measured_again(tmp_path, rng, design,
+                                                                   scheduler, capsys):
+    """A part cut short ("Parquet magic bytes not found") used to end the run with a traceback;
+    it is named, moved to <out>.damaged/ and its images are measured again."""
+    folder = tmp_path / "r"
+    params = write_render_set(folder, rng, n_images=4)
+    first = compute_stats(folder, tmp_path / "ref.parquet", design=design, scheduler=scheduler,
+                          progress=False, config=StatsConfig(ps=False))
+    table = load_stats(first.path)
+    out = tmp_path / "stats.parquet"
+    parts = tmp_path / "stats.parquet.partial"
+    parts.mkdir()
+    (parts / "meta.json").write_text(json.dumps(table.attrs["imagestats"], sort_keys=True))
+    table.iloc[:2].to_parquet(parts / "part-000000.parquet", index=False)
+    table.iloc[2:].to_parquet(parts / "part-000001.parquet", index=False)
+    damaged = parts / "part-000001.parquet"
+    damaged.write_bytes(damaged.read_bytes()[: damaged.stat().st_size // 2])
+    args = [str(folder), "--out", str(out), "--scheduler", scheduler, "--quiet", "--no-ps"]
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    assert f"warning: {damaged} does not read as Parquet" in err
+    kept = list((tmp_path / "stats.parquet.damaged").glob("part-000001-*.parquet"))
+    assert len(kept) == 1 and str(kept[0]) in err
+    frame = load_stats(out)
+    assert frame["stimulus_id"].is_unique
+    _check_known(frame, params)
+    assert not parts.exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_ends_the_run_cleanly_and_it_resumes(tmp_path, rng, scheduler, design):
+    folder = tmp_path / "r"
+    params = write_render_set(folder, rng, n_images=40)
+    out = tmp_path / "stats.parquet"
+    parts = tmp_path / "stats.parquet.partial"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
+         "--scheduler", scheduler, "--batch-size", "2", "--quiet"],
+        cwd=REPO, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not list(parts.glob("part-*.parquet")):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "no batch was written within 120 s"
+        time.sleep(0.005)
+    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
+    err = proc.communicate(timeout=60)[1]
+    assert not out.exists(), "the run finished before Ctrl-C; the test proves nothing"
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err
+    assert f"finished batch(es) are kept in {parts}; run the same command to resume" in err
+    run = compute_stats(folder, out, design=design, scheduler=scheduler, batch_size=8,
+                        progress=False)
+    assert run.ok and run.n_skipped >= 2
+    _check_known(load_stats(out), params)
