@@ -25,8 +25,8 @@ A two-stage hierarchical maximum-likelihood fit of the ``humanlike`` model of
 
 The exact one-stage likelihood of a mixed model with censored answers has no closed form (it
 integrates a multivariate normal CDF over the random effects); the two-stage fit is exact within a
-participant and uses the normal approximation of each participant's estimate, which at the study's
-162 trials per participant is close (see ``bench/experiment_observer_recovery.py`` for the measured
+participant and uses the normal approximation of each participant's estimate, which with the
+study's full set of trials per participant is close (see ``bench/experiment_observer_recovery.py`` for the measured
 recovery). Where nothing is censored it agrees with statsmodels' MixedLM (REML, independent
 random intercept and slope) to a small fraction of a standard error
 (``tests/experiment/test_observer_fit.py``). The ``ideal`` observer (truth + noise) is fitted too, by censored ML pooled over all
