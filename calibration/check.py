@@ -269,7 +269,7 @@ def check_deviation(readings: pd.DataFrame, cal: Calibration, *, tolerance_pct: 
     out = []
     for (x, y, level), grp in readings.groupby(["x_norm", "y_norm", "level"], sort=True):
         measured = float(grp["luminance_cd_m2"].astype(float).mean())
-        pred = float(predicted_luminance(cal, level, x, y))
+        pred = float(np.ravel(predicted_luminance(cal, level, x, y))[0])
         dev = measured - pred
         pct = 100 * dev / pred if pred > 0 else math.inf
         out.append({"x_norm": float(x), "y_norm": float(y), "level": float(level),

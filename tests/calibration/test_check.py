@@ -54,15 +54,17 @@ def _calibration(tmp_path, crt, name, resolution_px):
 def test_warmup_rule_finds_the_stable_time():
     """Exponential warm-up 8 % deficit, tau 300 s, readings every 10 s with 0.3 % noise.
 
-    Analytic: window means 120 s apart differ by d exp(-t / tau)(1 - exp(-120 / tau)) at the
-    window's end; <= 0.5 % when exp(-t / tau) <= 0.005 / (0.08 * 0.33), t >= 499 s.
+    Analytic (continuous readings): the means of the windows (t - w, t] and (t - 2w, t - w]
+    differ by d (tau / w) (exp(w / tau) - 1)^2 exp(-t / tau) of white, with w = 120 s; that is
+    <= 0.5 % when exp(-t / tau) <= 0.005 / (0.08 * 0.605), t >= 681 s. The noise moves the
+    verdict by a few readings (600-690 s over seeds 0-4).
     """
     rng = np.random.default_rng(4)
     t = np.arange(0, 3600, 10.0)
     lum = 90 * (1 - 0.08 * np.exp(-t / 300)) * (1 + 0.003 * rng.standard_normal(t.size))
     rule = WarmupRule()
     stable_after, change = warmup_stability(t, lum, rule)
-    assert 400 < stable_after < 600
+    assert 550 < stable_after < 760
     assert change <= 0.5
     # A display that never settles (a slow 20 %/hour drift) is never called stable.
     drifting = 90 * (1 + 0.2 * t / 3600)
@@ -83,7 +85,7 @@ def test_deviation_uses_the_uniformity_map(rng):
     crt = SimulatedCRT()
     cal = fit_calibration(_readings(crt, rng), calibration_id="lab", resolution_px=(1024, 768),
                           **META)
-    corner = float(predicted_luminance(cal, 1.0, -0.6, 0.6))
+    corner = float(np.ravel(predicted_luminance(cal, 1.0, -0.6, 0.6))[0])
     assert corner == pytest.approx(float(crt.luminance(1.0, -0.6, 0.6)), rel=0.01)
     # A display 5 % dimmer above black than calibrated fails at white, passes at black.
     frame = pd.DataFrame({"x_norm": 0.0, "y_norm": 0.0, "level": [0.0, 1.0],
@@ -108,7 +110,7 @@ def test_check_measures_warmup_then_the_deviation(fake_proc, tmp_path, design):
     wrong = _calibration(tmp_path, SimulatedCRT(gamma=2.2), "wrong", res_px)
     out = tmp_path / "check"
     patches = ["--fast", "--levels", "4", "--uniformity-levels", "2", "--repeats", "1",
-               "--windowed", "--warmup-interval-s", "0.1", "--warmup-window-s", "2"]
+               "--warmup-interval-s", "0.1", "--warmup-window-s", "2"]
     with fake_proc("pr655", display=display) as (port, aim, _):
         res = run_cli(["check", "--calibration", right, "--device", "pr655", "--port", port,
                        "--out", out, "--sim-aim", aim, *patches, "--warmup-max-s", "60"])
