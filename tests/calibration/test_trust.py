@@ -39,6 +39,7 @@ def _old_folder(tmp_path, days: float):
     crt, rng = SimulatedCRT(), np.random.default_rng(3)
     t0 = datetime.now(UTC) - timedelta(days=days)
     folder = tmp_path / "cal"
+    folder.mkdir()
     for i, lv in enumerate(np.repeat(np.linspace(0, 1, 9), 2)):
         stamp = (t0 + timedelta(seconds=i)).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
         append_row(folder / "readings.csv", {
