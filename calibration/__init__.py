@@ -12,8 +12,9 @@ gamma_drive_for_luminance
     Gamma models (PsychoPy eq. 1 and 4, extended power with offset).
 UniformityMap, fit_uniformity
     Spatial uniformity and correction gains.
-READINGS_COLUMNS
-    Columns of ``readings.csv``.
+READINGS_COLUMNS, REQUIRED_COLUMNS, load_readings, read_readings, ReadingsTable
+    Columns of ``readings.csv`` and of another tool's readings file; readers that report every
+    row they cannot use.
 CalibrationError, PhotometerError, PhotometerNotFound, PhotometerTimeout, BadReading
     Errors (all ``ValueError`` subclasses).
 available_ports
@@ -38,7 +39,13 @@ from calibration.gamma import (
     gamma_luminance,
 )
 from calibration.ports import available_ports
-from calibration.readings import READINGS_COLUMNS, load_readings
+from calibration.readings import (
+    READINGS_COLUMNS,
+    REQUIRED_COLUMNS,
+    ReadingsTable,
+    load_readings,
+    read_readings,
+)
 from calibration.record import (
     DEFAULT_CRT,
     Calibration,
@@ -52,6 +59,7 @@ __all__ = [
     "DEFAULT_CRT",
     "GAMMA_MODELS",
     "READINGS_COLUMNS",
+    "REQUIRED_COLUMNS",
     "BadReading",
     "Calibration",
     "CalibrationError",
@@ -59,6 +67,7 @@ __all__ = [
     "PhotometerError",
     "PhotometerNotFound",
     "PhotometerTimeout",
+    "ReadingsTable",
     "SimulatedCRT",
     "UniformityMap",
     "available_ports",
@@ -73,5 +82,6 @@ __all__ = [
     "load_calibration",
     "load_crt",
     "load_readings",
+    "read_readings",
     "save_calibration",
 ]

@@ -54,7 +54,7 @@ from calibration.readings import (
     read_readings,
 )
 from calibration.record import Calibration, load_calibration, utc_now_iso
-from labfiles import FolderLock, atomic_write_text
+from labfiles import FolderLock, atomic_write_text, write_new_file
 
 __all__ = [
     "CHECK_DEFAULTS",
@@ -187,7 +187,6 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
         return result | {"stable": True, "stable_after_s": stable_after,
                          "n_readings": len(done), "last_change_pct": change}
     display.aim(0.0, 0.0)
-    display.show(0.0, 0.0, 1.0)
     index = int(done["repeat"].max()) + 1 if len(done) else 0
     times = list(t_done)
     lums = list(done["luminance_cd_m2"].astype(float))
@@ -197,6 +196,8 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
              f"(<= {rule.tolerance_pct:g} % over {rule.window_s:g} s), at most "
              f"{rule.max_s:g} s")
     while True:
+        # Shown again before each reading: the window stays responsive and escape stops.
+        display.show(0.0, 0.0, 1.0)
         t_read = clock()
         try:
             reading = photometer.measure()
@@ -311,6 +312,21 @@ def check_report_text(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _same_checked_calibration(out_dir: Path, cal: Calibration, cal_path: Path) -> None:
+    """Record which calibration a check folder checks (once); refuse a resume against another."""
+    path = out_dir / "checked.json"
+    if path.is_file():
+        stored = json.loads(path.read_text(encoding="utf-8"))
+        if stored.get("checked_calibration_id") != cal.calibration_id:
+            raise CalibrationError(
+                f"{out_dir} checks calibration {stored.get('checked_calibration_id')!r} "
+                f"({stored.get('checked_calibration')}), not {cal.calibration_id!r}; resume with "
+                "that --calibration or use a new --out")
+        return
+    write_new_file(path, json.dumps({"checked_calibration_id": cal.calibration_id,
+                                     "checked_calibration": str(cal_path.resolve())}) + "\n")
+
+
 def run_check(calibration_path, *, device: str, port: str, out_dir,
               settings: ProcedureSettings, rule: WarmupRule, tolerance_pct: float = 3.0,
               tolerance_cd_m2: float = 0.05, timeout_s: float = 30.0, retries: int = 2,
@@ -347,6 +363,7 @@ def run_check(calibration_path, *, device: str, port: str, out_dir,
         cal_path = cal_path / "calibration.json"
     out_dir = Path(out_dir)
     with FolderLock(out_dir, what="check folder"):
+        _same_checked_calibration(out_dir, cal, cal_path)
         settings = load_or_create_settings(out_dir, settings, given=given, command="check")
         with open_photometer(device, port, timeout_s=timeout_s, retries=retries) as phot, \
                 calibration_window(fullscr=fullscr, size_px=cal.resolution_px) as win:

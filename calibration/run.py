@@ -129,6 +129,13 @@ def refit(out_dir, *, progress=print, lock: bool = True):
                                "warnings above)")
     notes = tuple(meta.get("source_notes", ())) + table.notes
     readings = select_calibration(table.frame, cal_id, source=path)
+    others = table.frame[table.frame["calibration_id"] != cal_id]
+    if len(others):
+        ids = sorted(set(others["calibration_id"].astype(str)))
+        note = (f"{path}: {len(others)} row(s) of other calibration(s) {ids} not used (this "
+                f"folder's calibration is {cal_id!r})")
+        progress(f"warning: {note}")
+        notes += (note,)
     measured, _ = newest_timestamp(readings)
     measured = measured or meta.get("measured_utc")
     if measured is None:
