@@ -190,7 +190,11 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
     index = int(done["repeat"].max()) + 1 if len(done) else 0
     times = list(t_done)
     lums = list(done["luminance_cd_m2"].astype(float))
-    offset = times[-1] + rule.interval_s if times else 0.0
+    # Times count from the first warm-up reading, across a resume (the pause included).
+    offset = 0.0
+    if len(done):
+        first = pd.to_datetime(done["timestamp_utc"], utc=True, format="ISO8601").min()
+        offset = (pd.Timestamp.now(tz="UTC") - first).total_seconds()
     start = clock()
     progress(f"warm-up: white at the centre every {rule.interval_s:g} s until stable "
              f"(<= {rule.tolerance_pct:g} % over {rule.window_s:g} s), at most "

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from calibration.gamma import fit_gamma
 from calibration.record import Calibration
 from labfiles import atomic_write_bytes
 
@@ -40,7 +41,12 @@ def gamma_grid(cal: Calibration) -> tuple[np.ndarray, int]:
                p["k"]]
         method = 4
     else:
-        q = fit["power"].params
+        power = fit.get("power")
+        if power is None:
+            # PsychoPy inverts eq. 1 and eq. 4 only: fit eq. 1 to the chosen curve itself.
+            x = np.linspace(0, 1, 256)
+            power = fit_gamma(x, cal.luminance_for_drive(x), model="power")
+        q = power.params
         row = [q["a"], q["a"] + q["b"] ** q["gamma"], q["gamma"], q["a"], q["b"], 1.0]
         method = 1
     return np.array([row] * 4, dtype=float), method
