@@ -279,6 +279,8 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
         except UnicodeDecodeError as exc:
             raise CalibrationError(f"{path} is not UTF-8 text ({exc}); export it as UTF-8 "
                                    "CSV") from exc
+    if not lines:  # a torn header line was moved aside: nothing was recorded
+        return ReadingsTable(path=path, frame=_empty_frame(), notes=tuple(notes), torn=torn)
     header, rows = _parse_csv_lines(lines, path)
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
