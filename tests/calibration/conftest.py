@@ -81,6 +81,23 @@ def run_cli(args, *, timeout=240, **kw):
 
 
 @pytest.fixture
+def cli(capsys):
+    """``python -m calibration ARGS`` run in this process: the command's own code (``main``),
+    without a new interpreter's start-up. Returns a CompletedProcess (returncode, stdout,
+    stderr). For commands that open no window."""
+    from calibration.__main__ import main
+
+    def run(args):
+        args = [str(a) for a in args]
+        capsys.readouterr()
+        rc = main(args)
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, rc, out, err)
+
+    return run
+
+
+@pytest.fixture
 def fake_proc(tmp_path):
     """Factory for :func:`fake_process` bound to the test's tmp_path."""
     return lambda device, faults=(), seed=7, display=None: fake_process(tmp_path, device, faults,

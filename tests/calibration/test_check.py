@@ -151,7 +151,7 @@ def test_check_measures_warmup_then_the_deviation(fake_proc, tmp_path, design):
     assert "FAIL" in (tmp_path / "check2" / "check_report.txt").read_text()
 
 
-def test_check_folder_refuses_another_calibration(tmp_path, rng):
+def test_check_folder_refuses_another_calibration(tmp_path, rng, cli):
     """A check folder records what it checks; resuming it against another calibration stops."""
     from calibration import save_calibration
 
@@ -160,10 +160,10 @@ def test_check_folder_refuses_another_calibration(tmp_path, rng):
         cal = fit_calibration(readings, calibration_id=name, resolution_px=(1024, 768), **META)
         save_calibration(cal, tmp_path / name / "calibration.json")
     out = tmp_path / "check"
-    res = run_cli(["check", "--calibration", tmp_path / "a", "--device", "pr655", "--port",
+    res = cli(["check", "--calibration", tmp_path / "a", "--device", "pr655", "--port",
                    tmp_path / "nope", "--out", out, "--fast"])
     assert res.returncode == 2 and "no pr655 answers" in res.stderr
-    res = run_cli(["check", "--calibration", tmp_path / "b", "--device", "pr655", "--port",
+    res = cli(["check", "--calibration", tmp_path / "b", "--device", "pr655", "--port",
                    tmp_path / "nope", "--out", out, "--fast"])
     assert res.returncode == 2
     assert "checks calibration 'a'" in res.stderr and "new --out" in res.stderr

@@ -14,7 +14,6 @@ import pytest
 
 from calibration import READINGS_COLUMNS, CalibrationError, SimulatedCRT, load_calibration
 from calibration.readings import parse_level_scale, read_readings
-from tests.calibration.conftest import run_cli
 
 T0 = "2026-08-01T10:00:00Z"
 
@@ -32,13 +31,13 @@ def _tool_file(path, *, rng, crt=None, scale=255, extra_rows=(), header="level,l
     return path
 
 
-def test_fit_of_another_tools_file_writes_every_output(tmp_path, rng):
+def test_fit_of_another_tools_file_writes_every_output(tmp_path, rng, cli):
     src = _tool_file(tmp_path / "lab.csv", rng=rng)
     out = tmp_path / "cal"
     display = tmp_path / "display.toml"
     display.write_text("[display]\nwidth_cm = 33.1\nresolution_px = [1024, 768]\n"
                        "distance_cm = 57.0\nrefresh_hz = 100.0\nmonitor_name = 'lab-crt'\n")
-    res = run_cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc", T0,
+    res = cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc", T0,
                    "--display", display])
     assert res.returncode == 0, res.stderr
     cal = load_calibration(out)
@@ -53,14 +52,14 @@ def test_fit_of_another_tools_file_writes_every_output(tmp_path, rng):
         assert (out / name).stat().st_size > 0, name
     # The folder holds the readings in the procedure's columns, so it refits on its own.
     assert tuple(pd.read_csv(out / "readings.csv").columns) == READINGS_COLUMNS
-    again = run_cli(["fit", "--out", out])
+    again = cli(["fit", "--out", out])
     assert again.returncode == 0, again.stderr
     assert load_calibration(out).gamma_params == cal.gamma_params
 
 
-def test_wrong_level_scale_names_the_option(tmp_path, rng):
+def test_wrong_level_scale_names_the_option(tmp_path, rng, cli):
     src = _tool_file(tmp_path / "lab.csv", rng=rng, scale=1023)
-    res = run_cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
+    res = cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
     assert res.returncode == 1
     assert "--level-scale 0-1023" in res.stderr and "Traceback" not in res.stderr
 
@@ -80,15 +79,15 @@ def test_bad_level_scale_is_refused(text):
         parse_level_scale(text)
 
 
-def test_file_without_times_needs_measured_utc(tmp_path, rng):
+def test_file_without_times_needs_measured_utc(tmp_path, rng, cli):
     src = _tool_file(tmp_path / "lab.csv", rng=rng)
-    res = run_cli(["fit", src, "--out", tmp_path / "cal", "--level-scale", "0-255"])
+    res = cli(["fit", src, "--out", tmp_path / "cal", "--level-scale", "0-255"])
     assert res.returncode == 1
     assert "--measured-utc" in res.stderr and "Traceback" not in res.stderr
     assert not (tmp_path / "cal" / "calibration.json").exists()
 
 
-def test_each_unusable_row_is_reported_and_duplicates_count_once(tmp_path, rng):
+def test_each_unusable_row_is_reported_and_duplicates_count_once(tmp_path, rng, cli):
     """NaN, a decimal comma, an out-of-range level, a short row: each named by its line."""
     crt = SimulatedCRT()
     rows = []
@@ -108,7 +107,7 @@ def test_each_unusable_row_is_reported_and_duplicates_count_once(tmp_path, rng):
         "calibration_id": "c1", "device": "pr655", "monitor_name": "m",
         "resolution_px": [1024, 768], "width_cm": 32.0, "distance_cm": 55.0, "refresh_hz": 85.0}}
     (folder / "run_meta.json").write_text(json.dumps(meta))
-    res = run_cli(["fit", "--out", folder])
+    res = cli(["fit", "--out", folder])
     assert res.returncode == 0, res.stderr
     out = res.stdout
     n = len(lines)
@@ -121,23 +120,23 @@ def test_each_unusable_row_is_reported_and_duplicates_count_once(tmp_path, rng):
     assert "readings: 18 accepted" in report and "decimal comma" in report
 
 
-def test_calibration_id_mismatch_lists_the_ids_found(tmp_path, rng):
+def test_calibration_id_mismatch_lists_the_ids_found(tmp_path, rng, cli):
     """A folder whose run_meta names another id: the message lists the file's ids."""
     src = _tool_file(tmp_path / "lab.csv", rng=rng)
     out = tmp_path / "cal"
-    assert run_cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc",
+    assert cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc",
                     T0]).returncode == 0
     meta = json.loads((out / "run_meta.json").read_text())
     meta["calibration_id"] = "other-id"
     (out / "run_meta.json").write_text(json.dumps(meta))
-    res = run_cli(["fit", "--out", out])
+    res = cli(["fit", "--out", out])
     assert res.returncode == 1
     assert "no reading of calibration 'other-id'" in res.stderr
     assert "'import-lab' (34 rows)" in res.stderr
     assert "screen centre" not in res.stderr
 
 
-def test_several_calibrations_in_one_file_need_an_id(tmp_path, rng):
+def test_several_calibrations_in_one_file_need_an_id(tmp_path, rng, cli):
     crt = SimulatedCRT()
     lines = ["calibration_id,timestamp_utc,level,luminance_cd_m2"]
     for cid, white in (("monday", 1.0), ("friday", 0.9)):
@@ -146,9 +145,9 @@ def test_several_calibrations_in_one_file_need_an_id(tmp_path, rng):
             lines.append(f"{cid},2026-08-0{1 if cid == 'monday' else 5}T10:00:00Z,{lv},{lum}")
     src = tmp_path / "two.csv"
     src.write_text("\n".join(lines))  # no line end after the last row: another tool's habit
-    res = run_cli(["fit", src, "--out", tmp_path / "a"])
+    res = cli(["fit", src, "--out", tmp_path / "a"])
     assert res.returncode == 1 and "'friday' (9 rows), 'monday' (9 rows)" in res.stderr
-    res = run_cli(["fit", src, "--out", tmp_path / "a", "--calibration-id", "friday"])
+    res = cli(["fit", src, "--out", tmp_path / "a", "--calibration-id", "friday"])
     assert res.returncode == 0, res.stderr
     cal = load_calibration(tmp_path / "a")
     assert cal.calibration_id == "friday" and cal.measured_utc.startswith("2026-08-05")
@@ -156,7 +155,7 @@ def test_several_calibrations_in_one_file_need_an_id(tmp_path, rng):
     assert src.read_text().endswith(f"{lum}")  # the source file is never changed
 
 
-def test_position_option_fits_one_position(tmp_path, rng):
+def test_position_option_fits_one_position(tmp_path, rng, cli):
     crt = SimulatedCRT()
     lines = ["x_norm,y_norm,level,luminance_cd_m2,timestamp_utc"]
     for x in (-0.6, 0.6):
@@ -164,11 +163,11 @@ def test_position_option_fits_one_position(tmp_path, rng):
             lines.append(f"{x},0.6,{lv},{float(crt.luminance(lv, x, 0.6, rng=rng))},{T0}")
     src = tmp_path / "corners.csv"
     src.write_text("\n".join(lines) + "\n")
-    res = run_cli(["fit", src, "--out", tmp_path / "a"])
+    res = cli(["fit", src, "--out", tmp_path / "a"])
     assert res.returncode == 1
     assert "no readings at the screen centre" in res.stderr and "--position" in res.stderr
     assert "-0.6,0.6, 0.6,0.6" in res.stderr
-    res = run_cli(["fit", src, "--out", tmp_path / "a", "--position", "0.6,0.6"])
+    res = cli(["fit", src, "--out", tmp_path / "a", "--position", "0.6,0.6"])
     assert res.returncode == 0, res.stderr
     cal = load_calibration(tmp_path / "a")
     white = float(crt.luminance(1.0, 0.6, 0.6))
@@ -181,32 +180,32 @@ def test_position_option_fits_one_position(tmp_path, rng):
     ("level,luminance_cd_m2\n", "holds no readings (a header only)"),
     ("drive,Y\n0,1\n", "needs at least the columns ['level', 'luminance_cd_m2']"),
 ])
-def test_empty_or_foreign_file_is_a_clear_error(tmp_path, content, message):
+def test_empty_or_foreign_file_is_a_clear_error(tmp_path, content, message, cli):
     src = tmp_path / "r.csv"
     src.write_text(content)
-    res = run_cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
+    res = cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
     assert res.returncode == 1
     assert message in res.stderr and "Traceback" not in res.stderr
 
 
-def test_empty_readings_in_a_folder_is_a_clear_error(tmp_path):
+def test_empty_readings_in_a_folder_is_a_clear_error(tmp_path, cli):
     folder = tmp_path / "cal"
     folder.mkdir()
     (folder / "readings.csv").write_text("")
     (folder / "run_meta.json").write_text(json.dumps({"calibration_id": "c", "fit": {}}))
-    res = run_cli(["fit", "--out", folder])
+    res = cli(["fit", "--out", folder])
     assert res.returncode == 1
     assert "holds no readings (empty)" in res.stderr and "Traceback" not in res.stderr
 
 
-def test_a_folder_with_other_readings_is_never_replaced(tmp_path, rng):
+def test_a_folder_with_other_readings_is_never_replaced(tmp_path, rng, cli):
     a = _tool_file(tmp_path / "a.csv", rng=rng)
     b = _tool_file(tmp_path / "b.csv", rng=rng)
     out = tmp_path / "cal"
     args = ["--out", out, "--level-scale", "0-255", "--measured-utc", T0]
-    assert run_cli(["fit", a, *args]).returncode == 0
+    assert cli(["fit", a, *args]).returncode == 0
     before = (out / "readings.csv").read_bytes()
-    res = run_cli(["fit", b, *args])
+    res = cli(["fit", b, *args])
     assert res.returncode == 1 and "holds other readings" in res.stderr
     assert (out / "readings.csv").read_bytes() == before
 

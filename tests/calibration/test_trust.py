@@ -51,12 +51,12 @@ def _old_folder(tmp_path, days: float):
     return folder, t0
 
 
-def test_refit_keeps_the_age_of_the_readings(tmp_path, design):
+def test_refit_keeps_the_age_of_the_readings(tmp_path, design, cli):
     """A 90-day-old calibration refitted today still fails the session's 30-day check."""
     from experiment.checks import PreflightError, check_calibration
 
     folder, t0 = _old_folder(tmp_path, days=90)
-    res = run_cli(["fit", "--out", folder])
+    res = cli(["fit", "--out", folder])
     assert res.returncode == 0, res.stderr
     cal = load_calibration(folder)
     assert cal.age_days() == pytest.approx(90, abs=0.01)
@@ -100,14 +100,14 @@ def test_raw_reply_with_line_breaks_stays_one_record(tmp_path):
     assert read_readings(path).frame["raw_reply"].iloc[0] == "00000,0,1.0\\r\\n101 lines\\\\"
 
 
-def test_torn_last_row_is_moved_aside_and_named(tmp_path):
+def test_torn_last_row_is_moved_aside_and_named(tmp_path, cli):
     """A row cut inside its quotes: the readers name the file and line, keep the bytes."""
     folder, _ = _old_folder(tmp_path, days=1)
     path = folder / "readings.csv"
     whole = path.read_bytes()
     torn = b'old,2026-11-01T00:00:00Z,pr655,0.0,0.0,0.5,1,12.5,"00000,0,12'
     path.write_bytes(whole + torn)
-    res = run_cli(["fit", "--out", folder])
+    res = cli(["fit", "--out", folder])
     assert res.returncode == 0, res.stderr
     assert "Traceback" not in res.stderr
     assert f"{path}: line 20 is torn" in res.stdout
@@ -130,10 +130,10 @@ def test_torn_row_cut_outside_quotes_is_not_merged_with_the_next(tmp_path):
     assert list(frame["level"]) == [0.5, 1.0] and list(frame["luminance_cd_m2"]) == [10, 20]
 
 
-def test_second_run_into_a_locked_folder_is_refused(tmp_path):
+def test_second_run_into_a_locked_folder_is_refused(tmp_path, cli):
     out = tmp_path / "cal"
     with FolderLock(out, what="calibration folder"):
-        res = run_cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out,
+        res = cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out,
                        *SMALL])
     assert res.returncode == 2
     assert "is in use by another run" in res.stderr and f"pid {os.getpid()}" in res.stderr
@@ -143,18 +143,18 @@ def test_second_run_into_a_locked_folder_is_refused(tmp_path):
     ("--levels", "17", "--levels 6"),
     ("--calibration-id", "t2", "--calibration-id t1"),
 ])
-def test_resume_with_other_settings_is_refused(tmp_path, option, value, stored):
+def test_resume_with_other_settings_is_refused(tmp_path, option, value, stored, cli):
     out = tmp_path / "cal"
     load_or_create_settings(out, ProcedureSettings(calibration_id="t1", device="pr655",
                                                    seed=20261122, n_levels=6, n_repeats=1,
                                                    grid=1, n_validation=0))
     args = list(SMALL)
     args[args.index(option) + 1] = value
-    res = run_cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out, *args])
+    res = cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out, *args])
     assert res.returncode == 2
     assert f"was started with {stored}" in res.stderr and "new --out" in res.stderr
     # Leaving the options out resumes with the stored ones (it gets as far as the port).
-    res = run_cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out,
+    res = cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out,
                    "--fast"])
     assert res.returncode == 2 and "no pr655 answers" in res.stderr
 
