@@ -199,9 +199,12 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
     progress(f"warm-up: white at the centre every {rule.interval_s:g} s until stable "
              f"(<= {rule.tolerance_pct:g} % over {rule.window_s:g} s), at most "
              f"{rule.max_s:g} s")
+    settled = False
     while True:
-        # Shown again before each reading: the window stays responsive and escape stops.
-        display.show(0.0, 0.0, 1.0)
+        # Shown again before each reading (settled once): the window stays responsive and
+        # escape stops.
+        display.show(0.0, 0.0, 1.0, settle=not settled)
+        settled = True
         t_read = clock()
         try:
             reading = photometer.measure()
@@ -220,6 +223,7 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
             times.append(offset + t_read - start)
             lums.append(reading.luminance_cd_m2)
             index += 1
+            _check_spacing(times[len(t_done):], rule)  # this session's readings only
             stable_after, change = warmup_stability(times, lums, rule)
             if stable_after is not None:
                 progress(f"warm-up: stable after {stable_after:.1f} s (change {change:.2f} %, "
@@ -233,6 +237,19 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
             return result | {"stable": False, "stable_after_s": None,
                              "n_readings": len(times), "last_change_pct": change}
         time.sleep(max(0.0, rule.interval_s - (clock() - t_read)))
+
+
+def _check_spacing(times: list, rule: WarmupRule) -> None:
+    """Stop if readings come too slowly for the rule's windows to hold two each."""
+    if len(times) < 4:
+        return
+    spacing = float(np.median(np.diff(times[-4:])))
+    if spacing > rule.window_s / 2:
+        raise CalibrationError(
+            f"warm-up readings come every {spacing:.2f} s (the instrument's measuring time), "
+            f"too slowly for {rule.window_s:g}-s windows of >= 2 readings; pass "
+            f"--warmup-window-s {math.ceil(4 * spacing):g} or more. The readings so far are "
+            "kept; rerun to resume")
 
 
 def predicted_luminance(cal: Calibration, level, x_norm, y_norm) -> np.ndarray:

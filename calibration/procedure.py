@@ -335,8 +335,9 @@ class PatchDisplay:
             if "space" in keys:
                 return
 
-    def show(self, x_norm: float, y_norm: float, level: float) -> None:
-        """Show one patch and wait for it to settle."""
+    def show(self, x_norm: float, y_norm: float, level: float, *, settle: bool = True) -> None:
+        """Show one patch and wait for it to settle (``settle=False``: the same patch again,
+        already settled)."""
         from psychopy import event
 
         self._background()
@@ -346,7 +347,8 @@ class PatchDisplay:
         self.win.flip()
         if event.getKeys(["escape"]):
             raise CalibrationError("stopped by the experimenter; rerun to resume")
-        time.sleep(self.settings.settle_s)
+        if settle:
+            time.sleep(self.settings.settle_s)
 
 
 def _measure_patch(photometer, display, settings, row, path, rejected_path, extra=None) -> dict:

@@ -41,11 +41,13 @@ def _readings(crt, rng, cal_id="lab") -> pd.DataFrame:
 
 
 def _calibration(tmp_path, crt, name, resolution_px):
-    """A calibration folder of ``crt`` (fitted from its readings, via `fit READINGS.csv`)."""
+    """A calibration folder of ``crt`` (fitted from its readings, as `fit READINGS.csv` does)."""
+    from calibration.run import fit_readings_file
+    from studydesign import load_design
+
     src = tmp_path / f"{name}.csv"
     _readings(crt, np.random.default_rng(2), cal_id=name).to_csv(src, index=False)
-    res = run_cli(["fit", src, "--out", tmp_path / name])
-    assert res.returncode == 0, res.stderr
+    fit_readings_file(src, tmp_path / name, load_design(), progress=lambda *_: None)
     cal = load_calibration(tmp_path / name)
     assert tuple(cal.resolution_px) == tuple(resolution_px)
     return tmp_path / name
@@ -71,6 +73,16 @@ def test_warmup_rule_finds_the_stable_time():
     assert warmup_stability(t, drifting, rule)[0] is None
     # Fewer readings than two windows: no verdict yet.
     assert warmup_stability(t[:20], lum[:20], rule) == (None, None)
+
+
+def test_warmup_readings_slower_than_the_windows_stop_with_the_fix():
+    """An instrument slower than planned would leave windows of one reading: never stable."""
+    from calibration.check import _check_spacing
+
+    rule = WarmupRule(interval_s=0.1, window_s=0.5)
+    _check_spacing([0.0, 0.2, 0.4, 0.6], rule)
+    with pytest.raises(CalibrationError, match="every 0.41 s.*--warmup-window-s 2"):
+        _check_spacing([0.0, 0.41, 0.82, 1.23], rule)
 
 
 @pytest.mark.parametrize("kw, message", [({"interval_s": 0}, "interval_s"),
@@ -167,3 +179,47 @@ def test_check_folder_refuses_another_calibration(tmp_path, rng, cli):
                    tmp_path / "nope", "--out", out, "--fast"])
     assert res.returncode == 2
     assert "checks calibration 'a'" in res.stderr and "new --out" in res.stderr
+
+
+@pytest.mark.xvfb
+@pytest.mark.slow
+def test_check_stopped_by_ctrl_c_resumes(fake_proc, tmp_path, design):
+    """Ctrl-C mid-check: exit 130 naming what was kept; the rerun keeps the stable warm-up and
+    measures only the missing patches."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from tests.calibration.conftest import REPO_ROOT
+
+    cal = _calibration(tmp_path, SimulatedCRT(), "lab", design.display.resolution_px)
+    out = tmp_path / "check"
+    with fake_proc("pr655") as (port, aim, _):
+        args = ["check", "--calibration", cal, "--device", "pr655", "--port", port, "--out", out,
+                "--sim-aim", aim, "--fast", "--settle-s", "0.2", "--repeats", "1",
+                "--warmup-interval-s", "0.1", "--warmup-window-s", "0.5"]
+        proc = subprocess.Popen([sys.executable, "-m", "calibration", *map(str, args)],
+                                cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True)
+        path = out / "readings.csv"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if path.exists() and len(path.read_text().splitlines()) >= 5:
+                break
+            assert proc.poll() is None, proc.stderr.read()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+        assert proc.returncode == 130, err
+        assert "Traceback" not in err and "check stopped (Ctrl-C)" in err
+        kept = len(pd.read_csv(path))
+        n_warm = len(pd.read_csv(out / "warmup.csv"))
+        res = run_cli(args)
+    assert res.returncode == 0, res.stdout + res.stderr
+    assert "warm-up: already stable" in res.stdout
+    assert f"{kept} of 29 readings already" in res.stdout
+    assert len(pd.read_csv(out / "warmup.csv")) == n_warm
+    final = pd.read_csv(path)
+    assert len(final) == 29 and not final.duplicated(["x_norm", "y_norm", "level"]).any()
+    assert json.loads((out / "check.json").read_text())["passed"] is True
