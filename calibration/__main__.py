@@ -116,6 +116,10 @@ def _cmd_run(args) -> int:
     except (CalibrationError, LabFileError) as exc:
         print(f"calibration stopped: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"calibration stopped: {exc}; check that --out is writable and the disk has "
+              "space (readings so far are kept)", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         return _interrupted(args.out, "calibration")
     for name, path in paths.items():
@@ -164,6 +168,10 @@ def _cmd_fit(args) -> int:
     except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
         return 1
+    except OSError as exc:
+        print(f"fit failed: {exc}; check that the files can be read and --out is writable",
+              file=sys.stderr)
+        return 1
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
@@ -190,6 +198,10 @@ def _cmd_check(args) -> int:
                            sim_aim=args.sim_aim, given=given)
     except (CalibrationError, LabFileError) as exc:
         print(f"check stopped: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"check stopped: {exc}; check that --out is writable and the disk has space "
+              "(readings so far are kept)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         return _interrupted(args.out, "check")
