@@ -17,8 +17,9 @@ NoiseModel, fit_noise
     and the meter's floor.
 UniformityMap, fit_uniformity
     Spatial uniformity and correction gains.
-READINGS_COLUMNS
-    Columns of ``readings.csv``.
+READINGS_COLUMNS, REQUIRED_COLUMNS, load_readings, read_readings, ReadingsTable
+    Columns of ``readings.csv`` and of another tool's readings file; readers that report every
+    row they cannot use.
 CalibrationError, PhotometerError, PhotometerNotFound, PhotometerTimeout, BadReading
     Errors (all ``ValueError`` subclasses).
 available_ports
@@ -44,7 +45,13 @@ from calibration.gamma import (
 )
 from calibration.noise import NoiseModel, fit_noise
 from calibration.ports import available_ports
-from calibration.readings import READINGS_COLUMNS, load_readings
+from calibration.readings import (
+    READINGS_COLUMNS,
+    REQUIRED_COLUMNS,
+    ReadingsTable,
+    load_readings,
+    read_readings,
+)
 from calibration.record import (
     DEFAULT_CRT,
     Calibration,
@@ -58,6 +65,7 @@ __all__ = [
     "DEFAULT_CRT",
     "GAMMA_MODELS",
     "READINGS_COLUMNS",
+    "REQUIRED_COLUMNS",
     "BadReading",
     "Calibration",
     "CalibrationError",
@@ -66,6 +74,7 @@ __all__ = [
     "PhotometerError",
     "PhotometerNotFound",
     "PhotometerTimeout",
+    "ReadingsTable",
     "SimulatedCRT",
     "UniformityMap",
     "available_ports",
@@ -81,5 +90,6 @@ __all__ = [
     "load_calibration",
     "load_crt",
     "load_readings",
+    "read_readings",
     "save_calibration",
 ]

@@ -52,50 +52,161 @@ def _cmd_fake(args) -> int:
     return 0
 
 
-def _settings(args):
-    from calibration.procedure import ProcedureSettings
+#: A new run's settings where no option is given (ProcedureSettings holds the others).
+RUN_DEFAULTS = {"n_levels": 17, "uniformity_levels": 5, "n_repeats": 2, "grid": 3,
+                "n_validation": 9, "seed": 20261122}
 
-    cal_id = args.calibration_id or datetime.now(UTC).strftime("cal-%Y%m%dT%H%M%SZ")
-    kw = {"calibration_id": cal_id, "device": args.device, "seed": args.seed,
-          "n_levels": args.levels, "uniformity_levels": args.uniformity_levels,
-          "n_repeats": args.repeats, "grid": args.grid, "n_validation": args.validation}
-    kw["settle_s"] = 0.05 if args.fast and args.settle_s is None else (args.settle_s or 0.5)
-    return ProcedureSettings(**kw)
+
+def _settings(args, *, out, defaults, default_id):
+    """Settings from the options given; a resumed folder supplies those not given."""
+    from calibration.procedure import settings_from_options
+
+    options = {"calibration_id": args.calibration_id, "device": args.device, "seed": args.seed,
+               "n_levels": args.levels, "uniformity_levels": args.uniformity_levels,
+               "n_repeats": args.repeats, "grid": args.grid,
+               "n_validation": getattr(args, "validation", None)}
+    if args.settle_s is not None:
+        settle_s = args.settle_s
+    else:
+        settle_s = 0.05 if args.fast else 0.5
+    base = defaults | {"calibration_id": default_id(), "settle_s": settle_s}
+    settings, given = settings_from_options(options, out, defaults=base)
+    # settle_s only changes the waiting, not what is measured: the one given now applies.
+    from dataclasses import replace
+
+    return replace(settings, settle_s=settle_s), given
+
+
+def _interrupted(out, what: str) -> int:
+    """The message for Ctrl-C: what was kept, how to resume."""
+    from pathlib import Path
+
+    from calibration.readings import read_readings
+
+    kept = []
+    for name in ("warmup.csv", "readings.csv", "validation.csv"):
+        path = Path(out) / name
+        try:
+            kept.append(f"{read_readings(path, own_file=False).n_rows} readings in {path}")
+        except (ValueError, OSError):
+            kept.append(str(path))
+    print(f"\n{what} stopped (Ctrl-C). Kept: {'; '.join(kept) or 'nothing measured yet'}. Run "
+          "the same command again to resume (only what is missing is measured).",
+          file=sys.stderr)
+    return 130
 
 
 def _cmd_run(args) -> int:
     from calibration.errors import CalibrationError
     from calibration.run import run_calibration
+    from labfiles import LabFileError
     from studydesign import load_design
 
-    design = load_design(args.design) if args.design else load_design()
     timeout_s = args.timeout_s or (2.0 if args.fast else 30.0)
     try:
+        design = load_design(args.design) if args.design else load_design()
+        settings, given = _settings(
+            args, out=args.out, defaults=RUN_DEFAULTS,
+            default_id=lambda: datetime.now(UTC).strftime("cal-%Y%m%dT%H%M%SZ"))
         _cal, paths = run_calibration(
             design, device=args.device, port=args.port, out_dir=args.out,
-            settings=_settings(args), width_cm=args.width_cm, monitor_name=args.monitor_name,
+            settings=settings, width_cm=args.width_cm, monitor_name=args.monitor_name,
             timeout_s=timeout_s, retries=args.retries, fullscr=not args.windowed,
-            refresh_hz=args.refresh_hz, sim_aim=args.sim_aim)
-    except CalibrationError as exc:
+            refresh_hz=args.refresh_hz, sim_aim=args.sim_aim, given=given)
+    except (CalibrationError, LabFileError) as exc:
         print(f"calibration stopped: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:
+        print(f"calibration stopped: {exc}; check that --out is writable and the disk has "
+              "space (readings so far are kept)", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return _interrupted(args.out, "calibration")
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
+
+
+def _parse_position(text):
+    from calibration.errors import CalibrationError
+
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise CalibrationError(f"--position {text!r}: write X,Y in norm units, e.g. 0,0 or "
+                               "-0.6,0.6") from None
+    return x, y
 
 
 def _cmd_fit(args) -> int:
     from calibration.errors import CalibrationError
-    from calibration.run import refit
+    from calibration.readings import parse_level_scale
+    from calibration.run import fit_readings_file, load_display_file, refit
+    from labfiles import LabFileError
+    from studydesign import load_design
 
     try:
-        _, paths = refit(args.out)
-    except CalibrationError as exc:
+        if args.readings is None:
+            extra = [o for o, v in (("--level-scale", args.level_scale),
+                                    ("--position", args.position),
+                                    ("--display", args.display),
+                                    ("--calibration-id", args.calibration_id),
+                                    ("--measured-utc", args.measured_utc)) if v is not None]
+            if extra:
+                raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
+                                       "`python -m calibration fit READINGS.csv --out DIR ...`")
+            _, paths = refit(args.out)
+        else:
+            design = load_design(args.design) if args.design else load_design()
+            _, paths = fit_readings_file(
+                args.readings, args.out, design,
+                level_scale=parse_level_scale(args.level_scale or "0-1"),
+                position=_parse_position(args.position) if args.position else None,
+                calibration_id=args.calibration_id,
+                display=load_display_file(args.display) if args.display else None,
+                measured_utc=args.measured_utc)
+    except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"fit failed: {exc}; check that the files can be read and --out is writable",
+              file=sys.stderr)
         return 1
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
+
+
+def _cmd_check(args) -> int:
+    from calibration.check import CHECK_DEFAULTS, WarmupRule, default_check_id, run_check
+    from calibration.errors import CalibrationError
+    from calibration.record import load_calibration
+    from labfiles import LabFileError
+
+    timeout_s = args.timeout_s or (2.0 if args.fast else 30.0)
+    try:
+        cal = load_calibration(args.calibration)
+        settings, given = _settings(args, out=args.out, defaults=CHECK_DEFAULTS,
+                                    default_id=lambda: default_check_id(cal.calibration_id))
+        rule = WarmupRule(interval_s=args.warmup_interval_s, window_s=args.warmup_window_s,
+                          tolerance_pct=args.warmup_tolerance_pct, max_s=args.warmup_max_s)
+        result = run_check(args.calibration, device=args.device, port=args.port,
+                           out_dir=args.out, settings=settings, rule=rule,
+                           tolerance_pct=args.tolerance_pct,
+                           tolerance_cd_m2=args.tolerance_cd_m2, timeout_s=timeout_s,
+                           retries=args.retries, fullscr=not args.windowed,
+                           sim_aim=args.sim_aim, given=given)
+    except (CalibrationError, LabFileError) as exc:
+        print(f"check stopped: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"check stopped: {exc}; check that --out is writable and the disk has space "
+              "(readings so far are kept)", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return _interrupted(args.out, "check")
+    print(f"check: {args.out}/check.json")
+    return 0 if result["passed"] else 1
 
 
 def _cmd_default(args) -> int:
@@ -107,7 +218,35 @@ def _cmd_default(args) -> int:
     return 0
 
 
+def _patch_options(p, defaults: dict, default_id: str) -> None:
+    """Options that set the patches (None when not given: a resumed folder keeps its own)."""
+    p.add_argument("--calibration-id", default=None,
+                   help=f"default {default_id}; a resumed run keeps its stored id")
+    p.add_argument("--levels", type=int, default=None,
+                   help=f"levels at the centre (default {defaults['n_levels']})")
+    p.add_argument("--uniformity-levels", type=int, default=None,
+                   help=f"levels at the other positions (default {defaults['uniformity_levels']})")
+    p.add_argument("--repeats", type=int, default=None,
+                   help=f"readings per patch (default {defaults['n_repeats']})")
+    p.add_argument("--grid", type=int, default=None,
+                   help=f"positions per side (1: centre only; default {defaults['grid']})")
+    p.add_argument("--seed", type=int, default=None,
+                   help=f"seed of the patch order (default {defaults['seed']})")
+    p.add_argument("--settle-s", type=float, default=None,
+                   help="wait after each patch appears (default 0.5 s; 0.05 s with --fast)")
+    p.add_argument("--timeout-s", type=float, default=None,
+                   help="reply timeout (default 30 s; 2 s with --fast)")
+    p.add_argument("--retries", type=int, default=2, help="retries after a timeout")
+    p.add_argument("--fast", action="store_true", help="short settling and timeouts (tests)")
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    print(f"warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> int:
+    from calibration.check import CHECK_DEFAULTS
+
     parser = argparse.ArgumentParser(prog="python -m calibration",
                                      description="Calibrate the display.")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -136,22 +275,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--port", required=True, help="serial port (python -m calibration ports)")
     p.add_argument("--out", required=True, help="calibration folder (a rerun resumes)")
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
-    p.add_argument("--calibration-id", default=None,
-                   help="default cal-<UTC time>; a resumed run keeps its stored id")
-    p.add_argument("--levels", type=int, default=17, help="levels at the centre")
-    p.add_argument("--uniformity-levels", type=int, default=5,
-                   help="levels at the other grid positions")
-    p.add_argument("--repeats", type=int, default=2)
-    p.add_argument("--grid", type=int, default=3, help="positions per side (1: centre only)")
-    p.add_argument("--validation", type=int, default=9,
-                   help="corrected patches measured after the fit (0: none)")
-    p.add_argument("--settle-s", type=float, default=None,
-                   help="wait after each patch appears (default 0.5 s; 0.05 s with --fast)")
-    p.add_argument("--timeout-s", type=float, default=None,
-                   help="reply timeout (default 30 s; 2 s with --fast)")
-    p.add_argument("--retries", type=int, default=2, help="retries after a timeout")
-    p.add_argument("--fast", action="store_true", help="short settling and timeouts (tests)")
-    p.add_argument("--seed", type=int, default=20261122, help="seed of the patch order")
+    _patch_options(p, RUN_DEFAULTS, "cal-<UTC time>")
+    p.add_argument("--validation", type=int, default=None,
+                   help="corrected patches measured after the fit (0: none; default 9)")
     p.add_argument("--width-cm", type=float, default=None,
                    help="visible picture width, measured with a ruler")
     p.add_argument("--monitor-name", default="glossdepth-crt",
@@ -166,9 +292,56 @@ def main(argv: list[str] | None = None) -> int:
                         "instrument instead of asking the experimenter")
     p.set_defaults(func=_cmd_run)
 
-    p = sub.add_parser("fit", help="fit again from a calibration folder's readings")
-    p.add_argument("--out", required=True)
+    p = sub.add_parser(
+        "fit", help="fit a readings file (any tool's) into --out, or refit a calibration folder",
+        description="`fit READINGS.csv --out DIR` fits a readings file alone: columns level and "
+                    "luminance_cd_m2, optional x_norm, y_norm, repeat, timestamp_utc, "
+                    "calibration_id, device, raw_reply (protocol.md section 3). `fit --out DIR` "
+                    "refits a calibration folder from its readings.")
+    p.add_argument("readings", nargs="?", default=None,
+                   help="readings CSV (omit to refit the folder --out)")
+    p.add_argument("--out", required=True, help="calibration folder written (or refitted)")
+    p.add_argument("--level-scale", default=None,
+                   help="drive value of full white in the file: 0-1 (default), 0-255, 0-1023 "
+                        "or any maximum")
+    p.add_argument("--position", default=None,
+                   help="X,Y: fit only the readings at this position (norm units)")
+    p.add_argument("--calibration-id", default=None,
+                   help="the file's calibration to fit (needed when it holds several); also the "
+                        "new calibration's id (default: the file's id, else import-<file name>)")
+    p.add_argument("--display", default=None,
+                   help="TOML file whose [display] table gives width_cm, resolution_px, "
+                        "distance_cm, refresh_hz, monitor_name, device (default: the design's "
+                        "values and a 32 cm width, with warnings)")
+    p.add_argument("--measured-utc", default=None,
+                   help="when the readings were taken (ISO 8601 UTC), for a file without "
+                        "timestamp_utc: the calibration's age counts from it")
+    p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
     p.set_defaults(func=_cmd_fit)
+
+    p = sub.add_parser(
+        "check", help="measure warm-up drift and a few patches against a calibration (no refit)")
+    p.add_argument("--calibration", required=True,
+                   help="calibration.json (or its folder) to check")
+    p.add_argument("--device", choices=["pr655", "pr650", "ls100"], required=True)
+    p.add_argument("--port", required=True, help="serial port (python -m calibration ports)")
+    p.add_argument("--out", required=True, help="check folder (a rerun resumes)")
+    _patch_options(p, CHECK_DEFAULTS, "<checked id>-check-<UTC time>")
+    p.add_argument("--tolerance-pct", type=float, default=3.0,
+                   help="a patch passes within this %% of the prediction (default 3)")
+    p.add_argument("--tolerance-cd-m2", type=float, default=0.05,
+                   help="... or within this many cd/m^2 (default 0.05; the darkest patches)")
+    p.add_argument("--warmup-interval-s", type=float, default=10.0,
+                   help="time between white readings during warm-up (default 10 s)")
+    p.add_argument("--warmup-window-s", type=float, default=120.0,
+                   help="stable when the mean of the last window differs from the window before "
+                        "by <= --warmup-tolerance-pct (default 120 s)")
+    p.add_argument("--warmup-tolerance-pct", type=float, default=0.5, help="default 0.5 %%")
+    p.add_argument("--warmup-max-s", type=float, default=3600.0,
+                   help="give up waiting after this long and measure anyway (default 3600 s)")
+    p.add_argument("--windowed", action="store_true", help="not full screen (debugging)")
+    p.add_argument("--sim-aim", default=None, help="simulation only (see `run --sim-aim`)")
+    p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("default", help="write the default (unmeasured) calibration JSON")
     p.add_argument("--out", required=True)
@@ -176,6 +349,9 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_default)
 
     args = parser.parse_args(argv)
+    import warnings
+
+    warnings.showwarning = _show_warning  # one line per warning, no source line
     return args.func(args)
 
 

@@ -10,17 +10,98 @@ import pandas as pd
 
 from calibration.errors import CalibrationError
 from calibration.gamma import choose_gamma_model, fit_gamma_models
+from calibration.readings import newest_timestamp
 from calibration.record import Calibration, utc_now_iso
 from calibration.uniformity import fit_uniformity
 
-__all__ = ["fit_calibration", "monotonicity_warnings", "validation_deviation_pct"]
+__all__ = [
+    "centre_readings",
+    "fit_calibration",
+    "monotonicity_warnings",
+    "select_calibration",
+    "select_position",
+    "validation_deviation_pct",
+]
 
 
-def _centre(readings: pd.DataFrame) -> pd.DataFrame:
+def _positions_text(readings: pd.DataFrame) -> str:
+    pos = readings[["x_norm", "y_norm"]].drop_duplicates().to_numpy(float)
+    shown = ", ".join(f"{x:g},{y:g}" for x, y in pos[:12])
+    return shown + (f" and {len(pos) - 12} more" if len(pos) > 12 else "")
+
+
+def centre_readings(readings: pd.DataFrame) -> pd.DataFrame:
+    """The readings at the screen centre (x_norm = y_norm = 0), the ones the gamma fit uses.
+
+    Raises
+    ------
+    CalibrationError
+        If there are none (the message lists the positions there are and the fix).
+    """
+    if readings.empty:
+        raise CalibrationError("no readings to fit")
     c = readings[(readings["x_norm"].abs() < 1e-9) & (readings["y_norm"].abs() < 1e-9)]
     if c.empty:
-        raise CalibrationError("no readings at the screen centre (x_norm = y_norm = 0)")
+        raise CalibrationError(
+            "no readings at the screen centre (x_norm = y_norm = 0); the readings are at "
+            f"{_positions_text(readings)}: pass --position X,Y to fit one of those positions")
     return c
+
+
+def select_calibration(readings: pd.DataFrame, calibration_id: str | None, *,
+                       source="the readings") -> pd.DataFrame:
+    """The rows of one calibration.
+
+    Parameters
+    ----------
+    readings : DataFrame
+        Column ``calibration_id``.
+    calibration_id : str or None
+        None: the file must hold a single calibration (or none named).
+    source : str
+        The file, for messages.
+
+    Raises
+    ------
+    CalibrationError
+        If no row has ``calibration_id`` (the message lists the ids found and how many rows
+        each has), or None was given and several calibrations are present.
+    """
+    counts = readings["calibration_id"].astype(str).value_counts().sort_index()
+    found = ", ".join(f"{k!r} ({v} rows)" for k, v in counts.items()) or "none"
+    if calibration_id is None:
+        if len(counts) > 1:
+            raise CalibrationError(f"{source} holds several calibrations: {found}; pass "
+                                   "--calibration-id with the one to fit")
+        return readings
+    picked = readings[readings["calibration_id"].astype(str) == str(calibration_id)]
+    if picked.empty:
+        raise CalibrationError(
+            f"{source} has no reading of calibration {calibration_id!r}; its calibration ids "
+            f"are {found}. Pass --calibration-id with one of them (a folder's id is in its "
+            "run_meta.json)")
+    return picked
+
+
+def select_position(readings: pd.DataFrame, position) -> pd.DataFrame:
+    """The readings at one screen position, moved to the centre (for a single-position fit).
+
+    Parameters
+    ----------
+    position : (float, float)
+        x_norm, y_norm; matched within 0.001.
+
+    Raises
+    ------
+    CalibrationError
+        If no reading lies there (the message lists the positions found).
+    """
+    x, y = (float(v) for v in position)
+    at = readings[((readings["x_norm"] - x).abs() < 1e-3) & ((readings["y_norm"] - y).abs() < 1e-3)]
+    if at.empty:
+        raise CalibrationError(f"no readings at position {x:g},{y:g}; the readings are at "
+                               f"{_positions_text(readings)}")
+    return at.assign(x_norm=0.0, y_norm=0.0)
 
 
 def monotonicity_warnings(levels, luminance_cd_m2, *, tolerance: float = 0.005) -> list[str]:
@@ -74,7 +155,8 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
                     monitor_name: str, resolution_px, width_cm: float, distance_cm: float,
                     refresh_hz: float, instrument: dict | None = None,
                     warnings=(), n_rejected: int = 0, validation: pd.DataFrame | None = None,
-                    created_utc: str | None = None) -> Calibration:
+                    created_utc: str | None = None,
+                    measured_utc: str | None = None) -> Calibration:
     """Fit every gamma model to the centre's readings, choose one, add uniformity and validation.
 
     Parameters
@@ -91,17 +173,26 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
         Rejected replies during the run (reported as a warning when > 0).
     validation : DataFrame or None
         ``validation.csv`` rows; sets ``validation_max_deviation_pct``.
+    created_utc : str or None
+        When the record is written (default: now).
+    measured_utc : str or None
+        When the newest reading was taken (the calibration's age counts from it); default the
+        newest ``timestamp_utc`` of ``readings``. Without either, ``measured_utc`` is None and
+        the age counts from ``created_utc`` (the command line refuses that: it asks for
+        ``--measured-utc``).
 
     Returns
     -------
     Calibration
     """
-    centre = _centre(readings)
+    centre = centre_readings(readings)
     levels = centre["level"].to_numpy(float)
     lum = centre["luminance_cd_m2"].to_numpy(float)
     fits = fit_gamma_models(levels, lum)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
+    if measured_utc is None:
+        measured_utc, _ = newest_timestamp(readings)
     if n_rejected:
         warn.append(f"{n_rejected} photometer repl{'y' if n_rejected == 1 else 'ies'} rejected "
                     "(garbled, out of range or saturated; see rejected.csv) and remeasured")
@@ -110,6 +201,7 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     cal = Calibration(
         calibration_id=calibration_id,
         created_utc=created_utc or utc_now_iso(),
+        measured_utc=measured_utc,
         device=device,
         monitor_name=monitor_name,
         resolution_px=tuple(int(v) for v in resolution_px),

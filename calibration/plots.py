@@ -8,12 +8,17 @@ import numpy as np
 import pandas as pd
 
 from calibration.record import Calibration
+from labfiles import atomic_path
 
 __all__ = ["plot_gamma", "plot_uniformity"]
 
-_COLOURS = {"power": "tab:blue", "inner_power": "tab:cyan", "offset_power": "tab:orange",
-            "extended_power": "tab:green", "ptb_sigmoid": "tab:purple", "ptb_weibull": "tab:brown",
-            "ptb_crt_poly_linear": "tab:pink", "monotone_spline": "tab:olive"}
+
+def _save(fig, path) -> Path:
+    """Save a figure atomically, with the umask's permissions."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110)
+    return path
 
 
 def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
@@ -29,21 +34,21 @@ def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
     fig, axes = plt.subplots(n, 1, figsize=(6.5, 3.2 * n), constrained_layout=True,
                              gridspec_kw={"height_ratios": [2, 1, 1.4][:n]})
     x = np.linspace(0, 1, 256)
+    colours = {f.model: f"C{i % 10}" for i, f in enumerate(cal.fits)}
+    shift = {f.model: 0.004 * (i - (len(cal.fits) - 1) / 2) for i, f in enumerate(cal.fits)}
     ax = axes[0]
     ax.plot(centre["level"], centre["luminance_cd_m2"], "k.", ms=5, label="readings")
     for f in cal.fits:
         chosen = " (chosen)" if f.model == cal.gamma_model else ""
-        ax.plot(x, f.luminance(x), color=_COLOURS.get(f.model, "tab:gray"), lw=2 if chosen else 1,
+        ax.plot(x, f.luminance(x), color=colours[f.model], lw=2 if chosen else 1,
                 label=f"{f.model}{chosen}: held-out RMSE {f.heldout_rmse_cd_m2:.3f} cd/m²")
     ax.set(xlabel="drive level", ylabel="luminance (cd/m²)",
            title=f"{cal.calibration_id}: {cal.device}, screen centre")
     ax.legend(fontsize=8)
     ax = axes[1]
-    for i, f in enumerate(cal.fits):
-        # Models side by side at each level, 0.002 apart, so their residuals do not overlap.
-        shift = 0.002 * (i - (len(cal.fits) - 1) / 2)
-        ax.plot(np.array(f.levels) + shift, f.residuals_cd_m2, ".",
-                color=_COLOURS.get(f.model, "tab:gray"), ms=4, label=f.model)
+    for f in cal.fits:
+        ax.plot(np.array(f.levels) + shift[f.model], f.residuals_cd_m2, ".",
+                color=colours[f.model], ms=4, label=f.model)
     ax.axhline(0, color="k", lw=0.5)
     ax.set(xlabel="drive level", ylabel="residual (cd/m²)")
     if n == 3:
@@ -56,8 +61,7 @@ def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
         ax.set(xlabel="requested fraction of luminance range",
                ylabel="measured fraction", title="validation after gamma correction")
         ax.legend(fontsize=8)
-    path = Path(path)
-    fig.savefig(path, dpi=110)
+    path = _save(fig, path)
     plt.close(fig)
     return path
 
@@ -87,7 +91,6 @@ def plot_uniformity(cal: Calibration, path) -> Path | None:
                         color="w" if data[j, i] < np.median(data) else "k")
         ax.set(xlabel="x (norm units)", ylabel="y (norm units)", title=title)
         fig.colorbar(im, ax=ax, shrink=0.8)
-    path = Path(path)
-    fig.savefig(path, dpi=110)
+    path = _save(fig, path)
     plt.close(fig)
     return path

@@ -20,10 +20,9 @@ other positions get ``uniformity_levels`` evenly spaced levels (black and white 
 from __future__ import annotations
 
 import json
-import os
 import time
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 import numpy as np
@@ -34,11 +33,14 @@ from calibration.readings import (
     READINGS_COLUMNS,
     REJECTED_COLUMNS,
     append_row,
-    load_readings,
+    read_readings,
+    read_record_csv,
 )
 from calibration.record import utc_now_iso
+from labfiles import atomic_write_text, write_new_file
 
 __all__ = [
+    "PATCH_LIST_FIELDS",
     "VALIDATION_COLUMNS",
     "PatchDisplay",
     "ProcedureSettings",
@@ -46,9 +48,28 @@ __all__ = [
     "load_or_create_settings",
     "make_schedule",
     "measure_schedule",
+    "measure_validation",
+    "read_validation",
+    "settings_from_options",
 ]
 
 VALIDATION_COLUMNS = READINGS_COLUMNS + ("target_fraction",)
+
+#: Settings that change what is measured (the patch list, its order, or the light on the
+#: screen), with the command-line option that sets each. A run resumed in a folder must keep them.
+PATCH_LIST_FIELDS = {
+    "calibration_id": "--calibration-id",
+    "device": "--device",
+    "seed": "--seed",
+    "n_levels": "--levels",
+    "uniformity_levels": "--uniformity-levels",
+    "n_repeats": "--repeats",
+    "grid": "--grid",
+    "n_validation": "--validation",
+    "grid_extent_norm": None,
+    "patch_frac": None,
+    "background_level": None,
+}
 
 
 @dataclass(frozen=True)
@@ -150,38 +171,84 @@ def make_schedule(settings: ProcedureSettings) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["x_norm", "y_norm", "level", "repeat"])
 
 
-def load_or_create_settings(out_dir: Path, settings: ProcedureSettings) -> ProcedureSettings:
+def load_or_create_settings(out_dir: Path, settings: ProcedureSettings, *,
+                            given=None, file_name: str = "procedure.json",
+                            command: str = "run") -> ProcedureSettings:
     """The run's settings: those in ``out_dir/procedure.json`` if it exists, else ``settings``.
 
     The file is written once (never replaced), so a rerun resumes the same schedule.
 
+    Parameters
+    ----------
+    out_dir : path
+    settings : ProcedureSettings
+        The settings asked for.
+    given : iterable of str or None
+        Names of the settings the user gave explicitly (the others are taken from the stored
+        file on a resume); None: every setting of :data:`PATCH_LIST_FIELDS`.
+    file_name : str
+        The settings file in ``out_dir``.
+    command : str
+        The command, for messages.
+
     Raises
     ------
     CalibrationError
-        If the stored settings are for another device.
+        If the stored settings differ from ``settings`` in a field of :data:`PATCH_LIST_FIELDS`
+        that was given: the message says what the folder was started with and the fix.
     """
-    path = Path(out_dir) / "procedure.json"
+    path = Path(out_dir) / file_name
     if path.is_file():
         try:
             stored = ProcedureSettings(**json.loads(path.read_text()))
         except (ValueError, TypeError) as exc:
             raise CalibrationError(f"{path} is malformed ({exc}); use a new --out") from exc
-        if stored.device != settings.device:
-            raise CalibrationError(
-                f"{out_dir} holds a {stored.device} run; calibrate with {settings.device} "
-                "into a new --out folder"
-            )
+        names = PATCH_LIST_FIELDS if given is None else [n for n in given
+                                                         if n in PATCH_LIST_FIELDS]
+        for name in names:
+            want, have = getattr(settings, name), getattr(stored, name)
+            if want != have:
+                flag = PATCH_LIST_FIELDS[name]
+                if flag is None:
+                    raise CalibrationError(
+                        f"{out_dir} was started with {name} = {have!r}, not {want!r} (see "
+                        f"{path}); resume with the same settings or use a new --out")
+                raise CalibrationError(
+                    f"{out_dir} was started with {flag} {have} (not {want}; see {path}): "
+                    f"run `{command}` again with {flag} {have}, or leave it out, to resume; or "
+                    "use a new --out for the new settings")
         return stored
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(asdict(settings), indent=2) + "\n")
-    with open(tmp) as fh:
-        os.fsync(fh.fileno())
-    try:
-        os.link(tmp, path)  # never replaces an existing file
-    finally:
-        tmp.unlink()
+    write_new_file(path, json.dumps(asdict(settings), indent=2) + "\n")
     return settings
+
+
+def settings_from_options(options: dict, out_dir, *, file_name: str = "procedure.json",
+                          defaults: dict) -> tuple[ProcedureSettings, list[str]]:
+    """Settings from command-line options, filled from a stored run to resume, else defaults.
+
+    Parameters
+    ----------
+    options : dict
+        Field name -> value; None for an option not given.
+    defaults : dict
+        Field name -> value for a new run.
+
+    Returns
+    -------
+    (ProcedureSettings, list of the names given)
+    """
+    given = [k for k, v in options.items() if v is not None]
+    path = Path(out_dir) / file_name
+    base = dict(defaults)
+    if path.is_file():
+        try:
+            base |= {k: v for k, v in json.loads(path.read_text()).items()
+                     if k in {f.name for f in fields(ProcedureSettings)}}
+        except ValueError as exc:
+            raise CalibrationError(f"{path} is malformed ({exc}); use a new --out") from exc
+    kw = base | {k: v for k, v in options.items() if v is not None}
+    return ProcedureSettings(**kw), given
 
 
 @contextmanager
@@ -253,9 +320,7 @@ class PatchDisplay:
         if self.sim_aim is not None:
             x_px = round((x_norm + 1) / 2 * self.width_px)
             y_px = round((1 - y_norm) / 2 * self.height_px)
-            tmp = self.sim_aim.with_suffix(".tmp")
-            tmp.write_text(json.dumps({"x_px": x_px, "y_px": y_px}))
-            os.replace(tmp, self.sim_aim)
+            atomic_write_text(self.sim_aim, json.dumps({"x_px": x_px, "y_px": y_px}))
             return
         self._text.text = ("Aim the photometer at the red cross and focus it, then press space "
                            "(escape stops; readings so far are kept)")
@@ -270,8 +335,9 @@ class PatchDisplay:
             if "space" in keys:
                 return
 
-    def show(self, x_norm: float, y_norm: float, level: float) -> None:
-        """Show one patch and wait for it to settle."""
+    def show(self, x_norm: float, y_norm: float, level: float, *, settle: bool = True) -> None:
+        """Show one patch and wait for it to settle (``settle=False``: the same patch again,
+        already settled)."""
         from psychopy import event
 
         self._background()
@@ -281,7 +347,8 @@ class PatchDisplay:
         self.win.flip()
         if event.getKeys(["escape"]):
             raise CalibrationError("stopped by the experimenter; rerun to resume")
-        time.sleep(self.settings.settle_s)
+        if settle:
+            time.sleep(self.settings.settle_s)
 
 
 def _measure_patch(photometer, display, settings, row, path, rejected_path, extra=None) -> dict:
@@ -324,8 +391,10 @@ def measure_schedule(photometer, display: PatchDisplay, settings: ProcedureSetti
     out_dir = Path(out_dir)
     path, rejected = out_dir / "readings.csv", out_dir / "rejected.csv"
     schedule = make_schedule(settings)
-    done = load_readings(path)
-    done = done[done["calibration_id"] == settings.calibration_id]
+    table = read_readings(path, own_file=True)
+    for message in table.torn:
+        progress(f"warning: {message}")
+    done = table.frame[table.frame["calibration_id"] == settings.calibration_id]
     key = ["x_norm", "y_norm", "level", "repeat"]
     have = {tuple(np.round(r, 6)) for r in done[key].to_numpy(float)}
     todo = schedule[[tuple(np.round(r, 6)) not in have for r in schedule[key].to_numpy(float)]]
@@ -340,7 +409,7 @@ def measure_schedule(photometer, display: PatchDisplay, settings: ProcedureSetti
         if i % 10 == 0 or i == len(todo):
             progress(f"  {i}/{len(todo)}: level {r['level']:.3f} at ({r['x_norm']:+.2f}, "
                      f"{r['y_norm']:+.2f}) -> {r['luminance_cd_m2']:.3f} cd/m^2")
-    return load_readings(path)
+    return read_readings(path, own_file=True).frame
 
 
 def measure_validation(photometer, display: PatchDisplay, settings: ProcedureSettings,
@@ -353,7 +422,7 @@ def measure_validation(photometer, display: PatchDisplay, settings: ProcedureSet
     out_dir = Path(out_dir)
     path = out_dir / "validation.csv"
     fractions = np.linspace(0, 1, settings.n_validation)
-    done = pd.read_csv(path) if path.is_file() else pd.DataFrame(columns=VALIDATION_COLUMNS)
+    done = read_validation(path)
     have = set(np.round(done["target_fraction"].astype(float), 6)) if len(done) else set()
     display.aim(0.0, 0.0)
     for f in fractions:
@@ -364,5 +433,14 @@ def measure_validation(photometer, display: PatchDisplay, settings: ProcedureSet
         _measure_patch(photometer, display, settings, row, path, out_dir / "rejected.csv",
                        extra={"target_fraction": float(f)})
     progress(f"validation: {len(fractions)} corrected patches in {path}")
-    frame = pd.read_csv(path, on_bad_lines="skip")
+    frame = read_validation(path)
     return frame[frame["calibration_id"] == settings.calibration_id]
+
+
+def read_validation(path) -> pd.DataFrame:
+    """``validation.csv`` (torn-tail rule applied) with numeric columns; unusable rows dropped."""
+    frame = read_record_csv(path, VALIDATION_COLUMNS)
+    for c in ("x_norm", "y_norm", "level", "luminance_cd_m2", "target_fraction"):
+        frame[c] = pd.to_numeric(frame[c], errors="coerce")
+    return frame.dropna(subset=["level", "luminance_cd_m2", "target_fraction"]
+                        ).reset_index(drop=True)

@@ -14,13 +14,17 @@ The readings themselves are stored as ``levelsPre``/``lumsPre`` for PsychoPy's i
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from datetime import datetime
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from calibration.gamma import fit_gamma
 from calibration.record import Calibration
+from labfiles import atomic_write_bytes
 
 __all__ = ["gamma_grid", "write_monitor_profile"]
 
@@ -37,7 +41,12 @@ def gamma_grid(cal: Calibration) -> tuple[np.ndarray, int]:
                p["k"]]
         method = 4
     else:
-        q = fit["power"].params
+        power = fit.get("power")
+        if power is None:
+            # PsychoPy inverts eq. 1 and eq. 4 only: fit eq. 1 to the chosen curve itself.
+            x = np.linspace(0, 1, 256)
+            power = fit_gamma(x, cal.luminance_for_drive(x), model="power")
+        q = power.params
         row = [q["a"], q["a"] + q["b"] ** q["gamma"], q["gamma"], q["a"], q["b"], 1.0]
         method = 1
     return np.array([row] * 4, dtype=float), method
@@ -56,12 +65,18 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    target = folder / f"{cal.monitor_name}.json"
+    # PsychoPy writes the profile in place; it writes into a scratch folder here, and the file is
+    # then moved onto the target atomically (with the umask's permissions).
+    scratch = Path(tempfile.mkdtemp(dir=folder, prefix=".profile-"))
     saved, level = calibTools.monitorFolder, logging.console.level
-    calibTools.monitorFolder = str(folder)
+    calibTools.monitorFolder = str(scratch)
     # A new profile makes Monitor() warn "specification not found"; that is expected here.
     logging.console.setLevel(logging.ERROR)
     try:
-        existed = (folder / f"{cal.monitor_name}.json").is_file()
+        existed = target.is_file()
+        if existed:
+            shutil.copyfile(target, scratch / target.name)
         mon = monitors.Monitor(cal.monitor_name, verbose=False, autoLog=False)
         # Monitor() makes a temporary calibration for a new profile; a refit replaces its own.
         stale = [n for n in mon.calibNames if not existed or n == cal.calibration_id]
@@ -78,7 +93,9 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
             means = centre.groupby("level")["luminance_cd_m2"].mean()
             mon.setLevelsPre(list(np.round(means.index.to_numpy() * 255, 3)))
             mon.setLumsPre(np.tile(means.to_numpy(), (4, 1)))
-        date = datetime.fromisoformat(cal.created_utc).timestamp()
+        # The profile's date is that of the readings, as the calibration's age (a refit of old
+        # readings is not a new calibration).
+        date = datetime.fromisoformat(cal.age_from_utc).timestamp()
         mon.setCalibDate(date)
         mon.setNotes(
             f"glossdepth calibration {cal.calibration_id} ({cal.device}); chosen model "
@@ -86,7 +103,9 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
             "calibration.json beside this folder"
         )
         mon.save()
+        atomic_write_bytes(target, (scratch / target.name).read_bytes())
     finally:
         calibTools.monitorFolder = saved
         logging.console.setLevel(level)
-    return folder / f"{cal.monitor_name}.json"
+        shutil.rmtree(scratch, ignore_errors=True)
+    return target

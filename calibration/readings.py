@@ -1,36 +1,68 @@
-"""The readings file: one row per accepted photometer reading, appended and fsynced at once.
+"""Photometer readings on disk: the procedure's append-only ``readings.csv`` and any tool's file.
 
-``readings.csv`` columns (exactly, in this order):
+The procedure appends one CSV row per reading the moment it exists (:func:`append_row`, through
+:class:`labfiles.RecordFile`: one line per record, fsynced; a torn last row from a crash is moved
+to a side file ``readings.csv.torn-<UTC>`` on the next open and that patch is measured again).
 
-===============  ====================================================================
-column           meaning
-===============  ====================================================================
-calibration_id   the calibration the reading belongs to
-timestamp_utc    when the reading was returned, ISO 8601 UTC
-device           photometer: pr655, pr650 or ls100
-x_norm, y_norm   patch centre in PsychoPy norm units ([-1, 1], centre 0, y up)
-level            drive value in [0, 1] (PsychoPy rgb = 2 level - 1 on every gun)
-repeat           repeat index, 0-based
-luminance_cd_m2  the luminance read, cd/m^2
-raw_reply        the instrument's reply, as received (for audit)
-===============  ====================================================================
+:func:`read_readings` reads such a file, or a file written by any other tool, and says what it
+did with every row it could not use.
 
-Rejected replies (garbled, out of range, saturated) never enter ``readings.csv``; they go to
-``rejected.csv`` with the same columns plus ``flag`` and an empty luminance, so they are kept for
-audit and the procedure measures that patch again.
+Columns of a readings file
+--------------------------
+=================  ========  ==================================================================
+column             needed    meaning
+=================  ========  ==================================================================
+level              yes       drive value; in [0, 1] (``level_scale`` converts 0-255, 0-1023..)
+luminance_cd_m2    yes       the reading, cd/m^2 (a decimal point, not a comma)
+x_norm, y_norm     no        patch centre in norm units ([-1, 1], y up); default 0, 0 (centre)
+repeat             no        index of the repeat of one patch; default: order in the file
+timestamp_utc      no        ISO 8601 time of the reading (sets the calibration's age)
+calibration_id     no        which calibration the row belongs to (one file may hold several)
+device             no        photometer
+raw_reply          no        the instrument's reply, one line (CR/LF written as ``\\r``/``\\n``)
+=================  ========  ==================================================================
+
+Other columns are ignored (and named in the notes). The procedure's own files have exactly
+:data:`READINGS_COLUMNS`.
 """
 
 from __future__ import annotations
 
 import csv
-import os
+import io
+import math
+import re
+import warnings
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from calibration.errors import CalibrationError
+from labfiles import (
+    LabFileError,
+    RecordFile,
+    TornTailWarning,
+    csv_fields_check,
+    csv_record,
+    read_records,
+)
 
-__all__ = ["READINGS_COLUMNS", "REJECTED_COLUMNS", "append_row", "load_readings"]
+__all__ = [
+    "READINGS_COLUMNS",
+    "REJECTED_COLUMNS",
+    "REQUIRED_COLUMNS",
+    "ReadingsTable",
+    "append_row",
+    "escape_reply",
+    "load_readings",
+    "newest_timestamp",
+    "parse_level_scale",
+    "read_readings",
+    "read_record_csv",
+]
 
 READINGS_COLUMNS = (
     "calibration_id",
@@ -44,37 +76,312 @@ READINGS_COLUMNS = (
     "raw_reply",
 )
 REJECTED_COLUMNS = READINGS_COLUMNS + ("flag",)
+#: The columns a readings file from another tool must have.
+REQUIRED_COLUMNS = ("level", "luminance_cd_m2")
+
+_DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+\s*$")
+
+
+def escape_reply(text) -> str:
+    """An instrument's reply as one line: backslash, CR and LF written as ``\\\\``, ``\\r``,
+    ``\\n`` (so a readings record never holds a line break)."""
+    text = "" if text is None else str(text)
+    return text.replace("\\", "\\\\").replace("\r", "\\r").replace("\n", "\\n")
 
 
 def append_row(path, row: dict, columns=READINGS_COLUMNS) -> None:
-    """Append one row to a CSV, writing the header first if the file is new; flush and fsync.
+    """Append one row to an append-only CSV (header first if the file is new), fsynced.
+
+    A torn last row left by a crash is moved to a side file first (:class:`labfiles.RecordFile`
+    warns with :class:`labfiles.TornTailWarning`, naming the file and the line).
 
     Raises
     ------
     CalibrationError
         If the file exists with a different header (it is never rewritten).
     """
+    values = [escape_reply(row.get(c, "")) if c == "raw_reply" else row.get(c, "")
+              for c in columns]
+    try:
+        with RecordFile(path, header=csv_record(columns),
+                        check=csv_fields_check(len(columns))) as rec:
+            rec.append(csv_record(values))
+    except LabFileError as exc:
+        raise CalibrationError(f"{exc} (expected the columns {list(columns)})") from exc
+
+
+def _parse_csv_lines(lines: list[str], path: Path) -> tuple[list[str], list[tuple[int, list]]]:
+    """Header and (line number, fields) of each row; a row that does not parse keeps its text."""
+    header = next(csv.reader([lines[0]]))
+    rows = []
+    for i, line in enumerate(lines[1:], start=2):
+        if not line.strip():
+            continue
+        try:
+            fields = next(csv.reader(io.StringIO(line), strict=True))
+        except (csv.Error, StopIteration):
+            fields = None
+        rows.append((i, fields if fields is not None else line))
+    return [h.strip() for h in header], rows
+
+
+def read_record_csv(path, columns) -> pd.DataFrame:
+    """Read one of the procedure's own append-only CSVs (``rejected.csv``, ``validation.csv``).
+
+    The torn-tail rule is applied first. Returns all columns as text; an absent or empty file
+    gives an empty frame with ``columns``.
+
+    Raises
+    ------
+    CalibrationError
+        If the header differs from ``columns``.
+    """
     path = Path(path)
-    new = not path.exists() or path.stat().st_size == 0
-    if not new:
-        with open(path, newline="", encoding="utf-8") as fh:
-            header = next(csv.reader(fh), [])
-        if tuple(header) != tuple(columns):
-            raise CalibrationError(
-                f"{path} has columns {header}, expected {list(columns)}; "
-                "write to a new --out folder"
-            )
-    with open(path, "a", newline="", encoding="utf-8") as fh:
-        w = csv.writer(fh)
-        if new:
-            w.writerow(columns)
-        w.writerow([row.get(c, "") for c in columns])
-        fh.flush()
-        os.fsync(fh.fileno())
+    lines = read_records(path, check=csv_fields_check(len(columns)))
+    if not lines:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in columns})
+    header, rows = _parse_csv_lines(lines, path)
+    if tuple(header) != tuple(columns):
+        raise CalibrationError(f"{path} has columns {header}, expected {list(columns)}; "
+                               "it was written by something else: move it aside")
+    good = [r for _, r in rows if isinstance(r, list) and len(r) == len(columns)]
+    return pd.DataFrame(good, columns=list(columns))
+
+
+def parse_level_scale(text) -> float:
+    """The drive value that means full white: ``"0-1"`` -> 1, ``"0-255"`` -> 255, ``"1023"``...
+
+    Raises
+    ------
+    CalibrationError
+        If ``text`` is not ``0-MAX`` or ``MAX`` with MAX > 0.
+    """
+    if isinstance(text, (int, float)):
+        value = float(text)
+    else:
+        s = str(text).strip()
+        s = s.removeprefix("0-")
+        try:
+            value = float(s)
+        except ValueError:
+            value = math.nan
+    if not (math.isfinite(value) and value > 0):
+        raise CalibrationError(f"--level-scale {text!r}: write 0-1, 0-255, 0-1023 or the drive "
+                               "value of full white (e.g. 4095)")
+    return value
+
+
+@dataclass(frozen=True)
+class ReadingsTable:
+    """A readings file as read: the usable rows and what happened to the others.
+
+    Attributes
+    ----------
+    path : Path
+    frame : DataFrame
+        Columns :data:`READINGS_COLUMNS`, one row per usable reading (levels in [0, 1]).
+    notes : tuple[str, ...]
+        One line per dropped row (file and line, the value and the fix), per duplicated row,
+        per ignored column, and for a torn tail.
+    n_rows : int
+        Data rows in the file.
+    n_dropped, n_duplicates : int
+        Rows not used because a value is unusable, and rows counted once as exact duplicates.
+    columns : tuple[str, ...]
+        The file's header.
+    torn : tuple[str, ...]
+        The torn-tail message, when the last row was torn and moved to a side file.
+    """
+
+    path: Path
+    frame: pd.DataFrame
+    notes: tuple = ()
+    n_rows: int = 0
+    n_dropped: int = 0
+    n_duplicates: int = 0
+    columns: tuple = ()
+    torn: tuple = ()
+
+    def calibration_ids(self) -> list[str]:
+        return sorted(set(self.frame["calibration_id"].astype(str)))
+
+
+def _empty_frame() -> pd.DataFrame:
+    return pd.DataFrame({c: pd.Series(dtype=float if c in ("x_norm", "y_norm", "level",
+                                                            "luminance_cd_m2") else object)
+                         for c in READINGS_COLUMNS})
+
+
+def _number(text: str, name: str) -> tuple[float | None, str | None]:
+    """(value, None) or (None, why the text is not a usable number)."""
+    t = text.strip()
+    if t == "":
+        return None, f"{name} is empty"
+    try:
+        v = float(t)
+    except ValueError:
+        if _DECIMAL_COMMA.match(t):
+            return None, (f"{name} {t!r} has a decimal comma; write {t.replace(',', '.')} "
+                          "(export the file with a decimal point)")
+        return None, f"{name} {t!r} is not a number"
+    if not math.isfinite(v):
+        return None, f"{name} {t!r} is not a finite number"
+    return v, None
+
+
+def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = None
+                  ) -> ReadingsTable:
+    """Read a readings file (the procedure's or any tool's) and account for every row.
+
+    Parameters
+    ----------
+    path : str or Path
+        CSV with at least the columns :data:`REQUIRED_COLUMNS` (see the module docstring).
+    level_scale : float
+        Drive value of full white in the file (1 for levels in [0, 1], 255 for 8-bit values);
+        levels are divided by it.
+    own_file : bool or None
+        True for the procedure's append-only file: the torn-tail rule of :mod:`labfiles` is
+        applied (a torn last row is moved to a side file, with a warning). None: decided by the
+        header (exactly :data:`READINGS_COLUMNS`). Another tool's file is never changed; a last
+        row without a line end is read as it is.
+
+    Returns
+    -------
+    ReadingsTable
+        An absent or empty (0 bytes) file gives an empty table.
+
+    Raises
+    ------
+    CalibrationError
+        If a required column is missing, or most levels exceed the scale (the message names
+        the ``--level-scale`` to use).
+    """
+    path = Path(path)
+    if not path.is_file() or path.stat().st_size == 0:
+        return ReadingsTable(path=path, frame=_empty_frame())
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        first = fh.readline()
+    header = [h.strip() for h in next(csv.reader([first]), [])]
+    if own_file is None:
+        own_file = tuple(header) == READINGS_COLUMNS
+    notes: list[str] = []
+    torn: tuple = ()
+    if own_file:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", TornTailWarning)
+            lines = read_records(path, check=csv_fields_check(len(header)))
+        torn = tuple(str(w.message) for w in caught)
+        notes += torn
+    else:
+        try:
+            lines = path.read_text(encoding="utf-8-sig").splitlines()
+        except UnicodeDecodeError as exc:
+            raise CalibrationError(f"{path} is not UTF-8 text ({exc}); export it as UTF-8 "
+                                   "CSV") from exc
+    if not lines:  # a torn header line was moved aside: nothing was recorded
+        return ReadingsTable(path=path, frame=_empty_frame(), notes=tuple(notes), torn=torn)
+    header, rows = _parse_csv_lines(lines, path)
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        raise CalibrationError(
+            f"{path} has no column {missing}; a readings file needs at least the columns "
+            f"{list(REQUIRED_COLUMNS)} (optional: x_norm, y_norm, repeat, timestamp_utc, "
+            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200]))
+    dupes = [c for c in set(header) if header.count(c) > 1]
+    if dupes:
+        raise CalibrationError(f"{path}: column(s) {sorted(dupes)} appear twice in the header")
+    ignored = [c for c in header if c not in READINGS_COLUMNS]
+    if ignored:
+        notes.append(f"{path}: column(s) {ignored} ignored")
+    col = {c: header.index(c) for c in header}
+    n = len(header)
+
+    good, seen, dropped, n_dup = [], {}, 0, 0
+    check_dupes = "repeat" in col or "timestamp_utc" in col
+    raw_levels = []
+    for line_no, fields in rows:
+        where = f"{path} line {line_no}"
+        if not isinstance(fields, list):
+            notes.append(f"{where} dropped: not a CSV row ({fields[:80]!r})")
+            dropped += 1
+            continue
+        if len(fields) != n:
+            notes.append(f"{where} dropped: {len(fields)} fields, the header has {n}")
+            dropped += 1
+            continue
+        if check_dupes:
+            key = tuple(fields)
+            if key in seen:
+                notes.append(f"{where} repeats line {seen[key]} exactly; counted once")
+                n_dup += 1
+                continue
+            seen[key] = line_no
+        why = None
+        rec = {}
+        for name in ("level", "luminance_cd_m2", "x_norm", "y_norm"):
+            if name not in col:
+                rec[name] = 0.0
+                continue
+            rec[name], why = _number(fields[col[name]], name)
+            if why:
+                break
+        if why is None and "repeat" in col:
+            r, why = _number(fields[col["repeat"]], "repeat")
+            if why is None and (r < 0 or r != int(r)):
+                why = f"repeat {fields[col['repeat']]!r} is not a whole number >= 0"
+            rec["repeat"] = None if why else int(r)
+        if why is None and rec["luminance_cd_m2"] < 0:
+            why = f"luminance_cd_m2 {rec['luminance_cd_m2']:g} is negative"
+        if why is not None:
+            notes.append(f"{where} dropped: {why}")
+            dropped += 1
+            continue
+        raw_levels.append(rec["level"])
+        rec["line"] = line_no
+        for name in ("calibration_id", "timestamp_utc", "device", "raw_reply"):
+            rec[name] = fields[col[name]].strip() if name in col else ""
+        good.append(rec)
+
+    raw = np.asarray(raw_levels, float)
+    if raw.size and level_scale == 1.0 and np.mean(raw > 1) > 0.5:
+        guess = "0-255" if raw.max() <= 255 else ("0-1023" if raw.max() <= 1023 else
+                                                  f"0-{raw.max():g}")
+        raise CalibrationError(
+            f"{path}: levels run up to {raw.max():g}, but levels are read as 0-1; pass "
+            f"--level-scale {guess} (the drive value of full white)")
+    kept = []
+    for rec in good:
+        level = rec["level"] / level_scale
+        if not 0 <= level <= 1:
+            notes.append(f"{path} line {rec['line']} dropped: level {rec['level']:g} lies "
+                         f"outside [0, {level_scale:g}]")
+            dropped += 1
+            continue
+        rec["level"] = level
+        kept.append(rec)
+    frame = pd.DataFrame(kept, columns=[*READINGS_COLUMNS, "line"]) if kept else _empty_frame()
+    if kept and "repeat" not in col:
+        frame["repeat"] = frame.groupby(["calibration_id", "x_norm", "y_norm", "level"]
+                                        ).cumcount()
+    if len(frame):
+        frame["repeat"] = frame["repeat"].astype(int)
+        key = ["calibration_id", "x_norm", "y_norm", "level", "repeat"]
+        twice = frame[frame.duplicated(key, keep=False)]
+        for _, grp in twice.groupby(key, sort=False):
+            lines = ", ".join(str(v) for v in grp["line"])
+            notes.append(f"{path} lines {lines}: the same patch and repeat (level "
+                         f"{grp['level'].iloc[0]:.4f} at ({grp['x_norm'].iloc[0]:g}, "
+                         f"{grp['y_norm'].iloc[0]:g}), repeat {grp['repeat'].iloc[0]}) was "
+                         "measured more than once; every reading is used")
+        frame = frame.drop(columns="line")
+    return ReadingsTable(path=path, frame=frame.reset_index(drop=True), notes=tuple(notes),
+                         n_rows=len(rows), n_dropped=dropped, n_duplicates=n_dup,
+                         columns=tuple(header), torn=torn)
 
 
 def load_readings(path) -> pd.DataFrame:
-    """Read ``readings.csv`` and check its columns and values.
+    """The usable readings of a ``readings.csv`` (see :func:`read_readings`).
 
     Returns
     -------
@@ -84,26 +391,27 @@ def load_readings(path) -> pd.DataFrame:
     Raises
     ------
     CalibrationError
-        If the columns differ, or a level lies outside [0, 1], or a luminance is not a number.
+        If a required column is missing.
     """
-    path = Path(path)
-    if not path.exists():
-        return pd.DataFrame({c: pd.Series(dtype=object) for c in READINGS_COLUMNS})
-    # A row cut short by a crash mid-write has fewer fields; it is dropped (never rewritten).
-    df = pd.read_csv(path, dtype={"raw_reply": str, "calibration_id": str}, keep_default_na=False,
-                     on_bad_lines="skip")
-    if tuple(df.columns) != READINGS_COLUMNS:
-        raise CalibrationError(
-            f"{path} has columns {list(df.columns)}, expected {list(READINGS_COLUMNS)}"
-        )
-    for c in ("x_norm", "y_norm", "level", "luminance_cd_m2"):
-        df[c] = pd.to_numeric(df[c], errors="coerce")
-    df["repeat"] = pd.to_numeric(df["repeat"], errors="coerce")
-    df = df.dropna(subset=["x_norm", "y_norm", "level", "repeat", "luminance_cd_m2"])
-    df["repeat"] = df["repeat"].astype(int)
-    bad = df[(df["level"] < 0) | (df["level"] > 1)]
-    if not bad.empty:
-        raise CalibrationError(
-            f"{path}: level outside [0, 1] in row(s) {list(bad.index[:5] + 2)}"
-        )
-    return df.reset_index(drop=True)
+    table = read_readings(path)
+    for message in table.torn:
+        warnings.warn(message, TornTailWarning, stacklevel=2)
+    return table.frame
+
+
+def _parse_utc(text: str) -> datetime | None:
+    try:
+        t = datetime.fromisoformat(str(text).strip())
+    except ValueError:
+        return None
+    return t.astimezone(UTC) if t.tzinfo is not None else None
+
+
+def newest_timestamp(readings: pd.DataFrame) -> tuple[str | None, int]:
+    """The newest ``timestamp_utc`` of the readings (ISO 8601, ``Z``) and how many rows had
+    none that parses (a time without a zone is not used)."""
+    times = [_parse_utc(t) for t in readings["timestamp_utc"]] if len(readings) else []
+    ok = [t for t in times if t is not None]
+    if not ok:
+        return None, len(times)
+    return max(ok).strftime("%Y-%m-%dT%H:%M:%S.%fZ"), len(times) - len(ok)

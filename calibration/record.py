@@ -9,8 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from dataclasses import asdict, dataclass, field, fields
 from datetime import UTC, datetime
 from pathlib import Path
@@ -25,6 +23,7 @@ from calibration.gamma import (
     gamma_luminance,
 )
 from calibration.uniformity import UniformityMap
+from labfiles import atomic_write_text
 
 __all__ = [
     "DEFAULT_CRT",
@@ -54,15 +53,15 @@ def utc_now_iso() -> str:
     return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
-def _parse_utc(text: str) -> datetime:
+def _parse_utc(text: str, name: str = "created_utc") -> datetime:
     try:
         t = datetime.fromisoformat(text)
-    except ValueError as exc:
+    except (TypeError, ValueError) as exc:
         raise CalibrationError(
-            f"created_utc {text!r} is not an ISO 8601 time; write e.g. 2026-11-22T13:00:00Z"
+            f"{name} {text!r} is not an ISO 8601 time; write e.g. 2026-11-22T13:00:00Z"
         ) from exc
     if t.tzinfo is None:
-        raise CalibrationError(f"created_utc {text!r} has no time zone; end it with 'Z' (UTC)")
+        raise CalibrationError(f"{name} {text!r} has no time zone; end it with 'Z' (UTC)")
     return t.astimezone(UTC)
 
 
@@ -75,7 +74,12 @@ class Calibration:
     calibration_id : str
         Identifier (also written in every readings row); ``"default"`` for the default curve.
     created_utc : str
-        When the fit was made, ISO 8601 UTC.
+        When this record was written (the fit was made), ISO 8601 UTC. A refit of old readings
+        gets a new ``created_utc`` but keeps ``measured_utc``.
+    measured_utc : str or None
+        When the newest reading the fit used was taken, ISO 8601 UTC: the calibration's age
+        (:meth:`age_days`) counts from here. None in records written before it existed and
+        for readings without times; the age then counts from ``created_utc``.
     device : str
         Photometer (``"pr655"``, ``"pr650"``, ``"ls100"``) or ``"none"`` for the default.
     monitor_name : str
@@ -129,6 +133,7 @@ class Calibration:
     warnings: tuple = ()
     instrument: dict = field(default_factory=dict)
     readings_file: str = ""
+    measured_utc: str | None = None
     schema_version: int = SCHEMA_VERSION
 
     def __post_init__(self) -> None:
@@ -153,6 +158,8 @@ class Calibration:
                 f"min_luminance_cd_m2 ({self.min_luminance_cd_m2}); the fit is unusable"
             )
         _parse_utc(self.created_utc)
+        if self.measured_utc is not None:
+            _parse_utc(self.measured_utc, "measured_utc")
 
     # --- the display model -------------------------------------------------------------------
     def luminance_for_drive(self, drive) -> np.ndarray:
@@ -178,12 +185,21 @@ class Calibration:
         drive = gamma_drive_for_luminance(lum, model=self.gamma_model, params=self.gamma_params)
         return np.where(f >= 1.0, 1.0, np.where(f <= 0.0, 0.0, drive))
 
+    @property
+    def age_from_utc(self) -> str:
+        """The time the age counts from: ``measured_utc``, or ``created_utc`` without it."""
+        return self.measured_utc if self.measured_utc is not None else self.created_utc
+
     def age_days(self, now: datetime | None = None) -> float:
-        """Days since ``created_utc`` (``now`` defaults to the current UTC time)."""
+        """Days since the newest reading was taken (``measured_utc``; ``created_utc`` in
+        records without it). ``now`` defaults to the current UTC time.
+
+        A refit never makes a calibration younger: only a new measurement does.
+        """
         now = now or datetime.now(UTC)
         if now.tzinfo is None:
             raise CalibrationError("now must carry a time zone (use datetime.now(timezone.utc))")
-        return (now - _parse_utc(self.created_utc)).total_seconds() / 86400.0
+        return (now - _parse_utc(self.age_from_utc)).total_seconds() / 86400.0
 
     @property
     def chosen_fit(self) -> GammaFit | None:
@@ -255,25 +271,13 @@ def load_calibration(path) -> Calibration:
 
 
 def save_calibration(cal: Calibration, path) -> Path:
-    """Write ``cal`` as JSON atomically (temporary file in the same folder, then rename).
+    """Write ``cal`` as JSON atomically, with the umask's permissions (:mod:`labfiles`).
 
     Returns the path written.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    text = cal.to_json()
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            fh.write(text + "\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
-    return path
+    return atomic_write_text(path, cal.to_json() + "\n")
 
 
 def default_calibration(design) -> Calibration:

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -12,14 +10,19 @@ from calibration.gamma import GAMMA_MODELS
 from calibration.plots import plot_gamma, plot_uniformity
 from calibration.profile import write_monitor_profile
 from calibration.record import Calibration, save_calibration
+from labfiles import atomic_write_text
 
 __all__ = ["report_text", "write_outputs"]
 
 
-def report_text(cal: Calibration, readings: pd.DataFrame) -> str:
-    """A plain-text summary: the models, the choice, uniformity, validation, warnings."""
+def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
+    """A plain-text summary: the models, the choice, uniformity, validation, warnings.
+
+    ``notes`` (what reading the file did with rows it could not use) are listed at the end.
+    """
+    measured = cal.measured_utc or "unknown (the age counts from the fit)"
     lines = [
-        f"Calibration {cal.calibration_id}  ({cal.created_utc})",
+        f"Calibration {cal.calibration_id}  (readings up to {measured}; fitted {cal.created_utc})",
         (f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
         f"{cal.instrument.get('port', '?')}"),
         (f"display: {cal.monitor_name}, {cal.resolution_px[0]} x {cal.resolution_px[1]} px, "
@@ -51,20 +54,14 @@ def report_text(cal: Calibration, readings: pd.DataFrame) -> str:
                       f"{cal.validation_max_deviation_pct:.2f} % of the range")]
     lines += ["", "warnings:" if cal.warnings else "warnings: none"]
     lines += [f"  - {w}" for w in cal.warnings]
+    if notes:
+        lines += ["", "rows of the readings file not used as they are:"]
+        lines += [f"  - {n}" for n in notes]
     return "\n".join(lines) + "\n"
 
 
-def _write_text(path: Path, text: str) -> None:
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(fd, "w", encoding="utf-8") as fh:
-        fh.write(text)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)
-
-
 def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
-                  validation: pd.DataFrame | None = None) -> dict:
+                  validation: pd.DataFrame | None = None, notes=()) -> dict:
     """Write calibration.json, monitors/<name>.json, gamma.png, uniformity.png, report.txt.
 
     Returns
@@ -79,7 +76,7 @@ def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
     uni = plot_uniformity(cal, out_dir / "uniformity.png")
     if uni is not None:
         paths["uniformity_plot"] = uni
-    text = report_text(cal, readings)
-    _write_text(out_dir / "report.txt", text)
+    text = report_text(cal, readings, notes)
+    atomic_write_text(out_dir / "report.txt", text)
     paths["report"] = out_dir / "report.txt"
     return paths

@@ -8,14 +8,19 @@ logic between them lives in :mod:`calibration.procedure`, :mod:`calibration.fit`
 from __future__ import annotations
 
 import json
-import os
+import re
 from dataclasses import asdict
 from pathlib import Path
 
 import pandas as pd
 
 from calibration.errors import CalibrationError
-from calibration.fit import fit_calibration
+from calibration.fit import (
+    centre_readings,
+    fit_calibration,
+    select_calibration,
+    select_position,
+)
 from calibration.photometers import open_photometer
 from calibration.procedure import (
     PatchDisplay,
@@ -24,12 +29,28 @@ from calibration.procedure import (
     load_or_create_settings,
     measure_schedule,
     measure_validation,
+    read_validation,
 )
-from calibration.readings import load_readings
+from calibration.readings import (
+    READINGS_COLUMNS,
+    REJECTED_COLUMNS,
+    REQUIRED_COLUMNS,
+    newest_timestamp,
+    read_readings,
+    read_record_csv,
+)
 from calibration.record import DEFAULT_CRT
 from calibration.report import report_text, write_outputs
+from labfiles import FolderLock, atomic_write_text, csv_record, write_new_file
 
-__all__ = ["display_warnings", "refit", "run_calibration"]
+__all__ = [
+    "DISPLAY_KEYS",
+    "display_warnings",
+    "fit_readings_file",
+    "load_display_file",
+    "refit",
+    "run_calibration",
+]
 
 
 def display_warnings(design, resolution_px, refresh_hz: float | None) -> tuple[list, float]:
@@ -51,46 +72,275 @@ def display_warnings(design, resolution_px, refresh_hz: float | None) -> tuple[l
 
 
 def _write_meta(out_dir: Path, meta: dict) -> None:
+    atomic_write_text(out_dir / "run_meta.json", json.dumps(meta, indent=2) + "\n")
+
+
+def _read_meta(out_dir: Path) -> dict:
     path = out_dir / "run_meta.json"
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(meta, indent=2) + "\n")
-    os.replace(tmp, path)
+    if not path.is_file():
+        raise CalibrationError(
+            f"{path} not found: {out_dir} is not a calibration folder. Measure with `python -m "
+            "calibration run`, or fit a readings file with `python -m calibration fit "
+            "READINGS.csv --out DIR`")
+    try:
+        meta = json.loads(path.read_text(encoding="utf-8"))
+        if not isinstance(meta.get("fit"), dict) or "calibration_id" not in meta:
+            raise KeyError("calibration_id or fit")
+    except (ValueError, KeyError, TypeError) as exc:
+        raise CalibrationError(f"{path} is malformed ({exc}); rerun `python -m calibration "
+                               "run` into a new --out") from exc
+    return meta
 
 
-def refit(out_dir, *, progress=print):
+def refit(out_dir, *, progress=print, lock: bool = True):
     """Fit again from ``out_dir``'s readings (no window, no photometer) and rewrite the outputs.
+
+    The calibration's age stays that of its newest reading (``measured_utc``): a refit never
+    makes an old calibration look new. Each row of ``readings.csv`` that cannot be used is
+    reported (``progress`` and ``report.txt``).
+
+    Parameters
+    ----------
+    lock : bool
+        Hold the folder's lock while fitting (False when the caller holds it).
 
     Raises
     ------
     CalibrationError
-        If ``run_meta.json`` or ``readings.csv`` is missing.
+        If ``run_meta.json`` or the readings are missing or unusable, or no reading belongs to
+        the folder's calibration (the message lists the ids found).
     """
     out_dir = Path(out_dir)
-    meta_path = out_dir / "run_meta.json"
-    if not meta_path.is_file():
-        raise CalibrationError(f"{meta_path} not found; run `python -m calibration run` first")
-    meta = json.loads(meta_path.read_text())
-    readings = load_readings(out_dir / "readings.csv")
-    if readings.empty:
-        raise CalibrationError(f"{out_dir / 'readings.csv'} holds no readings")
-    readings = readings[readings["calibration_id"] == meta["calibration_id"]]
-    validation = None
-    vpath = out_dir / "validation.csv"
-    if vpath.is_file():
-        validation = pd.read_csv(vpath, on_bad_lines="skip").dropna(subset=["luminance_cd_m2"])
-    rejected = out_dir / "rejected.csv"
-    n_rej = len(pd.read_csv(rejected, on_bad_lines="skip")) if rejected.is_file() else 0
-    cal = fit_calibration(readings, n_rejected=n_rej, validation=validation, **meta["fit"])
-    paths = write_outputs(cal, readings, out_dir, validation)
-    progress(report_text(cal, readings))
+    if lock:
+        with _lock(out_dir):
+            return refit(out_dir, progress=progress, lock=False)
+    meta = _read_meta(out_dir)
+    cal_id = meta["calibration_id"]
+    path = out_dir / "readings.csv"
+    table = read_readings(path, own_file=True)
+    if table.n_rows == 0:
+        raise CalibrationError(
+            f"{path} holds no readings ({'empty' if path.is_file() else 'missing'}); run "
+            "`python -m calibration run` with the same --out to measure them")
+    for note in table.notes:
+        progress(f"warning: {note}")
+    if table.frame.empty:
+        raise CalibrationError(f"{path}: none of its {table.n_rows} rows is usable (see the "
+                               "warnings above)")
+    notes = tuple(meta.get("source_notes", ())) + table.notes
+    readings = select_calibration(table.frame, cal_id, source=path)
+    others = table.frame[table.frame["calibration_id"] != cal_id]
+    if len(others):
+        ids = sorted(set(others["calibration_id"].astype(str)))
+        note = (f"{path}: {len(others)} row(s) of other calibration(s) {ids} not used (this "
+                f"folder's calibration is {cal_id!r})")
+        progress(f"warning: {note}")
+        notes += (note,)
+    measured, _ = newest_timestamp(readings)
+    measured = measured or meta.get("measured_utc")
+    if measured is None:
+        raise CalibrationError(
+            f"{path}: no reading has a timestamp_utc, so the calibration's age is unknown; fit "
+            "the file with `python -m calibration fit READINGS.csv --measured-utc TIME`")
+    validation = read_validation(out_dir / "validation.csv")
+    validation = validation[validation["calibration_id"] == cal_id]
+    rejected = read_record_csv(out_dir / "rejected.csv", REJECTED_COLUMNS)
+    n_rej = int((rejected["calibration_id"] == cal_id).sum())
+    cal = fit_calibration(readings, n_rejected=n_rej, validation=validation,
+                          measured_utc=measured, **meta["fit"])
+    paths = write_outputs(cal, readings, out_dir, validation, notes=notes)
+    progress(report_text(cal, readings, notes))
     return cal, paths
+
+
+def _lock(out_dir: Path) -> FolderLock:
+    return FolderLock(out_dir, what="calibration folder")
+
+
+#: Keys of the ``[display]`` table of a ``--display`` file for ``calibration fit READINGS.csv``.
+DISPLAY_KEYS = ("monitor_name", "resolution_px", "width_cm", "distance_cm", "refresh_hz",
+                "device")
+
+
+def load_display_file(path) -> dict:
+    """The ``[display]`` table of a TOML file (other tables, e.g. ``[crt]``, are ignored).
+
+    Keys (all optional): monitor_name, resolution_px ([w, h]), width_cm (visible picture),
+    distance_cm (viewing), refresh_hz, device (photometer).
+
+    Raises
+    ------
+    CalibrationError
+        If the file is missing or not TOML, has no ``[display]`` table, or an unknown key.
+    """
+    import tomllib
+
+    path = Path(path)
+    if not path.is_file():
+        raise CalibrationError(f"display file {path} not found")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise CalibrationError(f"display file {path} is not valid TOML ({exc})") from exc
+    table = data.get("display")
+    if not isinstance(table, dict):
+        raise CalibrationError(
+            f"display file {path} has no [display] table; write e.g. [display] width_cm = 32.4, "
+            "resolution_px = [1024, 768], distance_cm = 55, refresh_hz = 85")
+    unknown = sorted(set(table) - set(DISPLAY_KEYS))
+    if unknown:
+        raise CalibrationError(f"display file {path}: unknown key(s) {unknown} in [display]; "
+                               f"known: {list(DISPLAY_KEYS)}")
+    return dict(table)
+
+
+def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.0,
+                      position=None, calibration_id: str | None = None,
+                      display: dict | None = None, measured_utc: str | None = None,
+                      progress=print):
+    """Fit a calibration from a readings file alone (any tool's; no window, no photometer).
+
+    The usable readings are copied into ``out_dir/readings.csv`` (the procedure's columns, the
+    source untouched), with ``run_meta.json``, so ``python -m calibration fit --out DIR`` refits
+    the folder later. Then the outputs of :func:`refit` are written.
+
+    Parameters
+    ----------
+    readings_path : path
+        CSV with at least ``level`` and ``luminance_cd_m2`` (:mod:`calibration.readings`).
+    out_dir : path
+        The calibration folder written (locked while writing).
+    design : studydesign.StudyDesign
+        Resolution, viewing distance and nominal refresh rate where ``display`` gives none.
+    level_scale : float
+        Drive value of full white in the file (255 for 8-bit values).
+    position : (float, float) or None
+        Fit the readings at this position (norm units) only, as if at the centre.
+    calibration_id : str or None
+        Which calibration of the file to fit (needed when it holds several); also the new
+        folder's id. Default: the file's single id, else ``import-<file stem>``.
+    display : dict or None
+        :data:`DISPLAY_KEYS` (from :func:`load_display_file`).
+    measured_utc : str or None
+        When the readings were taken, for a file without ``timestamp_utc`` (ISO 8601, UTC).
+
+    Raises
+    ------
+    CalibrationError
+        Empty file, missing columns, a wrong level scale, an unknown calibration id or
+        position, no time for the readings, or an ``out_dir`` that holds other readings.
+    """
+    readings_path, out_dir = Path(readings_path), Path(out_dir)
+    display = dict(display or {})
+    unknown = sorted(set(display) - set(DISPLAY_KEYS))
+    if unknown:
+        raise CalibrationError(f"unknown display key(s) {unknown}; known: {list(DISPLAY_KEYS)}")
+    if not readings_path.is_file():
+        raise CalibrationError(f"readings file {readings_path} not found")
+    with _lock(out_dir):
+        table = read_readings(readings_path, level_scale=level_scale)
+        if table.n_rows == 0:
+            raise CalibrationError(
+                f"{readings_path} holds no readings "
+                f"({'a header only' if table.columns else 'it is empty'}); "
+                f"a readings file needs the columns {list(REQUIRED_COLUMNS)} and one row per "
+                "reading")
+        for note in table.notes:
+            progress(f"warning: {note}")
+        if table.frame.empty:
+            raise CalibrationError(f"{readings_path}: none of its {table.n_rows} rows is "
+                                   "usable (see the warnings above)")
+        frame = select_calibration(table.frame, calibration_id, source=readings_path)
+        if position is not None:
+            frame = select_position(frame, position)
+        centre_readings(frame)  # before anything is written
+        file_ids = sorted(set(frame["calibration_id"]) - {""})
+        cal_id = calibration_id or (file_ids[0] if file_ids else
+                                    "import-" + re.sub(r"[^A-Za-z0-9_-]+", "-",
+                                                       readings_path.stem).strip("-"))
+        if not cal_id.replace("-", "").replace("_", "").isalnum():
+            raise CalibrationError(f"calibration id {cal_id!r} may hold letters, digits, '-' "
+                                   "and '_' only; pass --calibration-id")
+        frame = frame.assign(calibration_id=cal_id)
+        newest, _ = newest_timestamp(frame)
+        if newest is not None and measured_utc is not None:
+            raise CalibrationError(
+                f"{readings_path} has timestamp_utc values (newest {newest}); --measured-utc is "
+                "for files without them: leave it out")
+        measured = newest or measured_utc
+        if measured is None:
+            raise CalibrationError(
+                f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
+                "calibration's age is unknown; pass --measured-utc with the time the readings "
+                "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
+        _check_utc(measured)
+        devices = sorted(set(frame["device"]) - {""})
+        device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
+        warn, fit_meta = _display_meta(display, design, cal_id, device)
+        fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
+        fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
+                                        "READINGS.csv`), not measured by the procedure")]
+        out_dir.mkdir(parents=True, exist_ok=True)
+        _write_imported_readings(out_dir / "readings.csv", frame, readings_path)
+        _write_meta(out_dir, {"calibration_id": cal_id, "source": str(readings_path.resolve()),
+                              "level_scale": level_scale,
+                              "position": None if position is None else list(position),
+                              "measured_utc": measured, "source_notes": list(table.notes),
+                              "fit": fit_meta})
+        return refit(out_dir, progress=progress, lock=False)
+
+
+def _check_utc(text: str) -> None:
+    from datetime import datetime
+
+    try:
+        t = datetime.fromisoformat(text)
+    except ValueError as exc:
+        raise CalibrationError(f"--measured-utc {text!r} is not an ISO 8601 time; write e.g. "
+                               "2026-08-01T10:00:00Z") from exc
+    if t.tzinfo is None:
+        raise CalibrationError(f"--measured-utc {text!r} has no time zone; end it with Z (UTC)")
+
+
+def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:
+    warn = []
+    dd = design.display
+    values = {"resolution_px": list(dd.resolution_px), "distance_cm": dd.viewing_distance_cm,
+              "refresh_hz": dd.nominal_refresh_hz, "width_cm": DEFAULT_CRT["width_cm"]}
+    for name, value in values.items():
+        if name not in display:
+            what = "the default" if name == "width_cm" else "the design's"
+            warn.append(f"{name} not given; recorded {what} {value} (pass --display FILE with "
+                        f"{name} in its [display] table)")
+    values |= {k: v for k, v in display.items() if k in values}
+    return warn, {"calibration_id": cal_id, "device": device,
+                  "monitor_name": str(display.get("monitor_name", "glossdepth-crt")),
+                  **values}
+
+
+def _write_imported_readings(path: Path, frame: pd.DataFrame, source: Path) -> None:
+    """The imported readings as the procedure's ``readings.csv``; never replaces other data."""
+    text = "\n".join([csv_record(READINGS_COLUMNS)] + [
+        csv_record([row[c] for c in READINGS_COLUMNS])
+        for row in frame[list(READINGS_COLUMNS)].to_dict("records")]) + "\n"
+    if path.exists():
+        if path.read_text(encoding="utf-8") == text:
+            return
+        raise CalibrationError(
+            f"{path} exists and holds other readings than {source}; fit into a new --out (what "
+            "a folder has recorded is never replaced)")
+    write_new_file(path, text)
 
 
 def run_calibration(design, *, device: str, port: str, out_dir, settings: ProcedureSettings,
                     width_cm: float | None = None, monitor_name: str = "glossdepth-crt",
                     timeout_s: float = 30.0, retries: int = 2, fullscr: bool = True,
-                    refresh_hz: float | None = None, sim_aim=None, progress=print):
+                    refresh_hz: float | None = None, sim_aim=None, progress=print,
+                    given=None):
     """Measure (resuming), fit, validate, and write the outputs into ``out_dir``.
+
+    The folder is locked for the run (a second run into it stops with a message naming this
+    one).
 
     Parameters
     ----------
@@ -111,6 +361,9 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
         Hz). The record carries a warning that it was given, not measured.
     sim_aim : path or None
         Simulation only (see :mod:`calibration.fake_instrument`).
+    given : iterable of str or None
+        Settings given explicitly; on a resume they must equal the stored ones
+        (:func:`calibration.procedure.load_or_create_settings`). None: all of them.
 
     Returns
     -------
@@ -119,8 +372,17 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
     if refresh_hz is not None and not refresh_hz > 0:
         raise CalibrationError(f"--refresh-hz {refresh_hz}: give the CRT's rate in Hz (> 0)")
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    settings = load_or_create_settings(out_dir, settings)
+    with _lock(out_dir):
+        return _run_locked(design, device=device, port=port, out_dir=out_dir,
+                           settings=settings, width_cm=width_cm, monitor_name=monitor_name,
+                           timeout_s=timeout_s, retries=retries, fullscr=fullscr,
+                           refresh_hz=refresh_hz, sim_aim=sim_aim, progress=progress,
+                           given=given)
+
+
+def _run_locked(design, *, device, port, out_dir: Path, settings, width_cm, monitor_name,
+                timeout_s, retries, fullscr, refresh_hz, sim_aim, progress, given):
+    settings = load_or_create_settings(out_dir, settings, given=given)
     warn = []
     if width_cm is None:
         width_cm = DEFAULT_CRT["width_cm"]
@@ -146,6 +408,6 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
         display = PatchDisplay(win, settings, sim_aim=sim_aim)
         measure_schedule(phot, display, settings, out_dir, progress=progress)
         if settings.n_validation:
-            cal, _ = refit(out_dir, progress=lambda *_: None)
+            cal, _ = refit(out_dir, progress=lambda *_: None, lock=False)
             measure_validation(phot, display, settings, cal, out_dir, progress=progress)
-    return refit(out_dir, progress=progress)
+    return refit(out_dir, progress=progress, lock=False)

@@ -41,8 +41,11 @@ def _need_display():
 
 
 @contextmanager
-def fake_process(tmp_path: Path, device: str, faults=(), seed: int = 7):
-    """``python -m calibration fake-photometer`` as a process; yields (port, aim_file, proc)."""
+def fake_process(tmp_path: Path, device: str, faults=(), seed: int = 7, display=None):
+    """``python -m calibration fake-photometer`` as a process; yields (port, aim_file, proc).
+
+    ``display``: a TOML file with the simulated CRT's ``[crt]`` table (default: the shipped one).
+    """
     _need_display()
     port_file = tmp_path / f"port-{time.monotonic_ns()}"
     aim = tmp_path / "aim.json"
@@ -51,6 +54,8 @@ def fake_process(tmp_path: Path, device: str, faults=(), seed: int = 7):
            "--measure-s", "0.0"]
     for f in faults:
         cmd += ["--fault", f]
+    if display is not None:
+        cmd += ["--display", str(display)]
     proc = subprocess.Popen(cmd, cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)
     try:
@@ -76,6 +81,24 @@ def run_cli(args, *, timeout=240, **kw):
 
 
 @pytest.fixture
+def cli(capsys):
+    """``python -m calibration ARGS`` run in this process: the command's own code (``main``),
+    without a new interpreter's start-up. Returns a CompletedProcess (returncode, stdout,
+    stderr). For commands that open no window."""
+    from calibration.__main__ import main
+
+    def run(args):
+        args = [str(a) for a in args]
+        capsys.readouterr()
+        rc = main(args)
+        out, err = capsys.readouterr()
+        return subprocess.CompletedProcess(args, rc, out, err)
+
+    return run
+
+
+@pytest.fixture
 def fake_proc(tmp_path):
     """Factory for :func:`fake_process` bound to the test's tmp_path."""
-    return lambda device, faults=(), seed=7: fake_process(tmp_path, device, faults, seed)
+    return lambda device, faults=(), seed=7, display=None: fake_process(tmp_path, device, faults,
+                                                                        seed, display)
