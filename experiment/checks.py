@@ -272,8 +272,8 @@ def check_calibration(path, design: StudyDesign, *, max_age_days: float) -> Cali
     age = cal.age_days()
     if age > max_age_days:
         raise PreflightError(
-            f"calibration {path} ({cal.calibration_id}, measured {cal.measured_utc or cal.created_utc}) is {age:.1f} days "
-            f"old, more than the allowed {max_age_days:g}; recalibrate the CRT "
+            f"calibration {path} ({cal.calibration_id}, measured "
+            f"{cal.measured_utc or cal.created_utc}) is {age:.1f} days old, more than the allowed {max_age_days:g}; recalibrate the CRT "
             "(`python -m calibration run`) or raise --max-calibration-age-days if you are sure"
         )
     disp = design.display
