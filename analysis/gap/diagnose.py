@@ -36,6 +36,7 @@ from analysis.gap.render import (
     RENDER_MIN_SHARE,
     load_render,
     localise_render,
+    render_ceiling,
     render_floor,
     render_loss,
     render_unit_ids,
@@ -95,7 +96,7 @@ def diagnose_render(data, *, rng: np.random.Generator, seed: int,
     train, test = split_render(data, rng)
     diag = diagnose_losses("render", RENDER_CANDIDATES, train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
-                           min_share=RENDER_MIN_SHARE,
+                           min_share=RENDER_MIN_SHARE, ceiling=render_ceiling,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
     local = localise_render(data, rng, n_boot=min(n_boot, 500))

@@ -161,23 +161,30 @@ def display_schedule(rng: np.random.Generator, *, grid: int = 3, extent: float =
 
 
 def display_crt(effect: str = "none", strength: float = 0.0):
-    """The benchmark's display: the shipped simulated CRT with one effect changed."""
-    from dataclasses import replace
-
+    """The benchmark's display: the shipped simulated CRT with one effect changed (a catalogue
+    effect by its candidate's own injector, an out-of-catalogue one by
+    :data:`_DISPLAY_OUT_INJECTORS`)."""
+    import analysis.gap.display  # noqa: F401  (registers the display candidates)
+    from analysis.gap.engine import candidate
     from calibration import load_crt
 
     crt = load_crt()
-    if effect == "black_offset":
-        return replace(crt, ambient_cd_m2=crt.ambient_cd_m2 + strength)
-    if effect == "nonuniformity":
-        return replace(crt, falloff=crt.falloff + strength, tilt_x=crt.tilt_x + strength / 2)
-    if effect == "warmup_drift":
-        return replace(crt, warmup_drift=strength)
-    if effect == "quantisation":
-        return replace(crt, bits=round(crt.bits - strength))
-    if effect == "gamma_change":
-        return replace(crt, gamma=crt.gamma * (1 + strength))
-    return crt
+    if effect == "none":
+        return crt
+    if effect in _DISPLAY_OUT_INJECTORS:
+        return _DISPLAY_OUT_INJECTORS[effect](crt, strength)
+    return candidate("display", effect).inject(crt, strength)
+
+
+def _scaled_gamma(crt, strength):
+    from dataclasses import replace
+
+    return replace(crt, gamma=crt.gamma * (1 + strength))
+
+
+#: Out-of-catalogue display effects as changes of the simulated CRT (the blemish is applied
+#: to the luminance in :func:`display_truth`, so it leaves the CRT as it is).
+_DISPLAY_OUT_INJECTORS = {"gamma_change": _scaled_gamma, "local_blemish": lambda crt, s: crt}
 
 
 def display_truth(effect: str, strength: float, schedule: pd.DataFrame,
