@@ -225,14 +225,14 @@ def _write_csv(frame: pd.DataFrame, path: Path) -> Path:
 def write_calibration_folder(folder, display: GOGDisplay, rng: np.random.Generator, *,
                              calibration_id: str = "lab-cal", repeats: int = 3,
                              fit: str = "truth", order: str = "shuffled",
-                             start_s: float = 3600.0, n_validation: int = 9) -> Path:
+                             start_s: float = 3600.0, n_validation: int = 17) -> Path:
     """A lab's calibration folder measured on ``display`` (warm: ``start_s`` after power-on).
 
     ``fit``: "truth" writes the display's own transfer function (a calibration whose gamma fit
     is right, so no case depends on the gamma fit's accuracy); "fitted" fits the extended
     power model to the centre's readings with ``calibration.fit_gamma_models``. The
-    uniformity map is fitted to the readings either way; validation readings at nine
-    gamma-corrected fractions follow the readings. Returns the folder.
+    uniformity map is fitted to the readings either way; validation readings at
+    ``n_validation`` gamma-corrected fractions follow the readings. Returns the folder.
     """
     from calibration import Calibration, fit_gamma_models, fit_uniformity, save_calibration
 
