@@ -45,3 +45,36 @@ def test_render_ceiling_is_no_better_than_a_right_render():
         rest, _ = _remaining(0.0, seed)
         # Nothing to find: the smooth can only add its own estimation noise.
         assert rest.mean() < 0.02
+
+
+def test_render_candidates_are_registered_objects_applied_in_order():
+    from analysis.gap.engine import GapError, candidate, catalogue
+
+    names = [c.name for c in catalogue("render")]
+    assert names == ["fresnel", "long_tail", "clearcoat", "veiling_glare", "vignetting",
+                     "misregistration"]
+    for c in catalogue("render"):
+        assert c.apply and c.inject and c.truth and c.default_strength > 0 and c.units
+    assert candidate("render", "vignetting").truth(0.5) == {"c": 0.5}  # 2 s^2
+    import pytest
+
+    with pytest.raises(GapError, match="no render candidate 'blur'"):
+        candidate("render", "blur")
+
+
+def test_render_vignetting_term_darkens_every_component():
+    """The vignetting candidate's term on a flat image: 1 - c rho^2 (rho^2 = 1 at the
+    corners of the half-diagonal), applied to diffuse, specular and background alike."""
+    import pytest
+
+    from analysis.gap.engine import candidate
+
+    flat = np.ones((8, 8))
+    rho2 = np.zeros((8, 8))
+    rho2[0, 0] = 1.0
+    out = candidate("render", "vignetting").apply({"rho2": rho2},
+                                                  {"D": flat, "S": 2 * flat, "B": 3 * flat},
+                                                  {"c": 0.2})
+    corner = [out[k][0, 0] for k in ("D", "S", "B")]
+    assert corner == pytest.approx([0.8, 1.6, 2.4])
+    assert out["D"][1, 1] == 1.0
