@@ -532,3 +532,27 @@ def format_display_scores(s: dict) -> str:
         "display: right verdicts per case: " + ", ".join(
             f"{c} {k[0]}/{k[1]}" for c, k in sorted(s["per_case"].items())),
     ])
+
+
+def main(argv=None) -> int:
+    """``python -m analysis.gap.bench_display --trials N --seed S``: run and print the scores."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m analysis.gap.bench_display",
+                                 description="display cases of the harder blind benchmark")
+    ap.add_argument("--trials", type=int, default=21, help="cases (each kind equally often)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seeds", type=int, default=3, help="diagnosis seeds per case")
+    ap.add_argument("--quiet", action="store_true", help="print only the scores")
+    args = ap.parse_args(argv)
+    if args.trials < 1 or args.seeds < 1:
+        ap.error("--trials and --seeds must be >= 1")
+    records = run_display_cases(None, trials=args.trials, seed=args.seed, seeds=args.seeds,
+                                log=None if args.quiet else print)
+    print(format_display_scores(score_display_cases(records)))
+    print(f"seed {args.seed}, {args.trials} cases, {args.seeds} diagnosis seeds each")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
