@@ -39,6 +39,12 @@ camera; the render's Monte-Carlo noise grows with the signal too), measured from
 differences of photo - render (:func:`noise_model`; a smooth misfit drops out), so the floor is
 ``0.5 log(2 pi sd^2) + 0.5`` per pixel. A constant SD would count a highlight's shot noise as a
 gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) in every level.
+
+Each candidate is one object registered with the engine (``register("render", ...)``): its fit,
+its term (``apply``, in the registration order), its injector (the effect built into a Mitsuba
+material or the camera, drawn with the benchmark's renderer), its default strength and the
+parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is a local smooth of the
+residual; a chosen model that stays significantly above it leaves a gap outside the catalogue.
 """
 
 from __future__ import annotations
