@@ -227,9 +227,9 @@ def load_display(real_path, sim_path):
         same = fitted_rows[fitted_rows["device"].astype(str).isin(devices)]
         if len(same):
             noise_frames.append(same)
-    if not _has_pairs(readings):
+    if not _has_pairs(readings) and len(noise_frames) > 1:
         notes.append("the readings have no repeats: the photometer's noise is measured from "
-                     "the calibration's repeated readings")
+                     "the repeated readings of the same photometer beside them")
     source["notes"] = notes
     for note in notes:
         warnings.warn(note, stacklevel=2)
