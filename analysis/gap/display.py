@@ -50,7 +50,14 @@ import pandas as pd
 from scipy import optimize
 from scipy.interpolate import BSpline
 
-from analysis.gap.engine import Candidate, GapError, catalogue, register, split_held_out
+from analysis.gap.engine import (
+    Candidate,
+    GapError,
+    candidate,
+    catalogue,
+    register,
+    split_held_out,
+)
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
 
 __all__ = [
@@ -452,7 +459,7 @@ def _mean(data: pd.DataFrame, fitted: list) -> np.ndarray:
     terms = {"drive": data["level"].to_numpy(float), "gain": np.ones(len(data)),
              "offset": np.zeros(len(data))}
     for name, params in fitted:
-        terms = _CATALOGUE[name].apply(data, terms, params)
+        terms = candidate("display", name).apply(data, terms, params)
     lmin = data["lmin"].to_numpy(float)
     above = (cal.luminance_for_drive(terms["drive"]) - lmin) * data["rel"].to_numpy(float)
     return lmin + above * terms["gain"] + terms["offset"]
@@ -615,7 +622,6 @@ register("display", Candidate(
     default_strength=2.0, units="DAC bits lost", truth=lambda s: {"bits": 8 - round(s)}))
 
 DISPLAY_CANDIDATES = catalogue("display")
-_CATALOGUE = {c.name: c for c in DISPLAY_CANDIDATES}
 
 
 # --- the ceiling: a penalised smooth of level, position and time ------------------------------

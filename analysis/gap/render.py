@@ -299,8 +299,12 @@ def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     diffuse and specular scales): each registered candidate's ``apply``, in the catalogue's
     order (material terms, then the camera's, then the shift)."""
     p = dict(fitted)
+    unknown = set(p) - {c.name for c in catalogue("render")}
+    if unknown:
+        raise GapError(f"no render candidate(s) {sorted(unknown)}; known: "
+                       f"{[c.name for c in catalogue('render')]}")
     images = {"D": lv["D"], "S": lv["S"], "B": lv["B"]}
-    for cand in _catalogue():
+    for cand in catalogue("render"):
         if cand.name in p:
             images = cand.apply(lv, images, p[cand.name])
     return images["D"], images["S"], images["B"]
@@ -656,10 +660,6 @@ register("render", Candidate(
     units="px", truth=lambda s: {"shift_norm_px": float(s)}))
 
 RENDER_CANDIDATES = catalogue("render")
-
-
-def _catalogue():
-    return RENDER_CANDIDATES
 
 
 def localise_render(data: RenderData, rng: np.random.Generator,
