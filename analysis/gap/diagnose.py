@@ -9,9 +9,11 @@ import numpy as np
 from analysis.gap.display import (
     DISPLAY_CANDIDATES,
     DISPLAY_MIN_SHARE,
+    display_ceiling,
     display_floor,
     display_frame,
     display_loss,
+    display_loss_info,
     display_unit_ids,
     load_display,
     localise_display,
@@ -34,6 +36,7 @@ from analysis.gap.render import (
     RENDER_MIN_SHARE,
     load_render,
     localise_render,
+    render_ceiling,
     render_floor,
     render_loss,
     render_unit_ids,
@@ -75,8 +78,7 @@ def diagnose_display(readings, cal, *, rng: np.random.Generator, seed: int,
     diag = diagnose_losses("display", DISPLAY_CANDIDATES, train, test, display_loss,
                            display_floor, rng=rng, seed=seed, n_boot=n_boot,
                            unit_ids=display_unit_ids, min_share=DISPLAY_MIN_SHARE,
-                           loss_info={"noise_abs_cd_m2": data.attrs["noise"]["abs"],
-                                      "noise_rel": data.attrs["noise"]["rel"]})
+                           loss_info=display_loss_info(data), ceiling=display_ceiling)
     return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
 
 
@@ -94,7 +96,7 @@ def diagnose_render(data, *, rng: np.random.Generator, seed: int,
     train, test = split_render(data, rng)
     diag = diagnose_losses("render", RENDER_CANDIDATES, train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
-                           min_share=RENDER_MIN_SHARE,
+                           min_share=RENDER_MIN_SHARE, ceiling=render_ceiling,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
     local = localise_render(data, rng, n_boot=min(n_boot, 500))

@@ -13,8 +13,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "diagnose_losses", "holm",
-           "split_held_out"]
+__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "candidate", "catalogue",
+           "diagnose_losses", "holm", "register", "split_held_out"]
 
 
 class GapError(ValueError):
@@ -38,11 +38,43 @@ class Candidate:
 
     ``loss`` returns the per-unit loss of the simulation extended by every fitted candidate in
     the list (``[]`` is the plain simulation), shape (n_units,).
+
+    ``apply``: the candidate's term in the layer's mean or likelihood; ``inject``: its
+    injector for the benchmark; ``default_strength`` (in ``units``): the benchmark's moderate
+    strength; ``truth(strength) -> params``: the fitted parameters a right fit should recover.
     """
 
     name: str
     fit: Callable
     description: str = ""
+    apply: Callable | None = None
+    inject: Callable | None = None
+    default_strength: float | None = None
+    units: str = ""
+    truth: Callable | None = None
+
+
+_REGISTRY: dict[str, dict[str, Candidate]] = {}
+
+
+def register(layer: str, cand: Candidate) -> Candidate:
+    """Add ``cand`` to ``layer``'s catalogue (a second candidate of the same name replaces it)."""
+    _REGISTRY.setdefault(layer, {})[cand.name] = cand
+    return cand
+
+
+def catalogue(layer: str) -> list[Candidate]:
+    """The registered candidates of ``layer``, in registration order."""
+    return list(_REGISTRY.get(layer, {}).values())
+
+
+def candidate(layer: str, name: str) -> Candidate:
+    """One registered candidate; GapError naming the known ones for an unknown name."""
+    try:
+        return _REGISTRY[layer][name]
+    except KeyError:
+        known = sorted(_REGISTRY.get(layer, {}))
+        raise GapError(f"no {layer} candidate {name!r}; known: {known}") from None
 
 
 @dataclass(frozen=True)
@@ -80,6 +112,7 @@ class Diagnosis:
     loss_info: dict | None = None
     gap_before_ci: tuple = ()
     gap_after_ci: tuple = ()
+    remaining: dict | None = None
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -122,6 +155,7 @@ def diagnose_losses(
     min_share: float = 0.0,
     min_gain: float = 0.0,
     loss_info: dict | None = None,
+    ceiling: Callable | None = None,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, and measure the held-out gap before and after.
 
@@ -150,6 +184,10 @@ def diagnose_losses(
         trial, which a large data set makes significant) is no cause of a gap. 0: none.
     loss_info : dict, optional
         Parameters of the loss itself (e.g. the noise model), recorded as given.
+    ceiling : callable ``ceiling(train, test) -> ndarray (n_units,)``, optional
+        Per-held-out-unit loss of a flexible data-driven model fitted on ``train``; the chosen
+        model's loss minus it is the gap that remains (``Diagnosis.remaining``: mean, 95 % CI
+        and one-sided bootstrap p that it is > 0).
     """
     if not candidates:
         raise GapError(f"layer {layer!r}: empty candidate catalogue; pass at least one candidate")
@@ -208,6 +246,13 @@ def diagnose_losses(
     pct_b = 100 * shrink_b / np.maximum(gap_b[idx].mean(axis=1), 1e-12)
     gb, ga = float(gap_b.mean()), float(gap_a.mean())
     share = (gb - ga) / gb if gb > 0 else 0.0
+    remaining = None
+    if ceiling is not None:
+        rest = current - np.asarray(ceiling(train, test), float)
+        b = _boot(rest, rng, n_boot)
+        remaining = {"gap": float(rest.mean()),
+                     "ci": [float(x) for x in np.percentile(b, [2.5, 97.5])],
+                     "p": float((np.sum(b <= 0) + 1) / (n_boot + 1))}
     explained = bool(steps) and share >= min_share
     verdict = " + ".join(s["added"] for s in steps) if explained else "unexplained"
     return Diagnosis(
@@ -233,6 +278,7 @@ def diagnose_losses(
                                                               [2.5, 97.5])),
         gap_after_ci=tuple(float(x) for x in np.percentile(gap_a[idx].mean(axis=1),
                                                              [2.5, 97.5])),
+        remaining=remaining,
     )
 
 

@@ -161,23 +161,30 @@ def display_schedule(rng: np.random.Generator, *, grid: int = 3, extent: float =
 
 
 def display_crt(effect: str = "none", strength: float = 0.0):
-    """The benchmark's display: the shipped simulated CRT with one effect changed."""
-    from dataclasses import replace
-
+    """The benchmark's display: the shipped simulated CRT with one effect changed (a catalogue
+    effect by its candidate's own injector, an out-of-catalogue one by
+    :data:`_DISPLAY_OUT_INJECTORS`)."""
+    import analysis.gap.display  # noqa: F401  (registers the display candidates)
+    from analysis.gap.engine import candidate
     from calibration import load_crt
 
     crt = load_crt()
-    if effect == "black_offset":
-        return replace(crt, ambient_cd_m2=crt.ambient_cd_m2 + strength)
-    if effect == "nonuniformity":
-        return replace(crt, falloff=crt.falloff + strength, tilt_x=crt.tilt_x + strength / 2)
-    if effect == "warmup_drift":
-        return replace(crt, warmup_drift=strength)
-    if effect == "quantisation":
-        return replace(crt, bits=round(crt.bits - strength))
-    if effect == "gamma_change":
-        return replace(crt, gamma=crt.gamma * (1 + strength))
-    return crt
+    if effect == "none":
+        return crt
+    if effect in _DISPLAY_OUT_INJECTORS:
+        return _DISPLAY_OUT_INJECTORS[effect](crt, strength)
+    return candidate("display", effect).inject(crt, strength)
+
+
+def _scaled_gamma(crt, strength):
+    from dataclasses import replace
+
+    return replace(crt, gamma=crt.gamma * (1 + strength))
+
+
+#: Out-of-catalogue display effects as changes of the simulated CRT (the blemish is applied
+#: to the luminance in :func:`display_truth`, so it leaves the CRT as it is).
+_DISPLAY_OUT_INJECTORS = {"gamma_change": _scaled_gamma, "local_blemish": lambda crt, s: crt}
 
 
 def display_truth(effect: str, strength: float, schedule: pd.DataFrame,
@@ -402,80 +409,81 @@ def _mean_ratio(a, b, where):
     return float(a[where].sum() / max(b[where].sum(), 1e-12))
 
 
-def _effect_components(level: int, effect: str, strength: float, spp: int):
-    """Diffuse and specular luminance of the photographed sphere with the effect."""
-    rho_d, rho_s, alpha = _LEVELS[level]
-    d0, s0 = _base(level, spp)
-    sph = _sphere_r() < 1
-    s = float(strength)
-    if effect == "fresnel":
-        # The same sampler seed as the plain lobe: the Fresnel term does not change sampling.
-        return d0, _render(_ward(0.0, rho_s, alpha, fresnel_f0=1 / (1 + s)), spp, 21 + level)
-    if effect == "clearcoat":
-        coat = _render({"type": "plastic", "diffuse_reflectance": _rgb(rho_d),
-                        "specular_reflectance": _rgb(0.0), "int_ior": 1.5, "nonlinear": False},
-                       spp, 31 + level)
-        # The coat's light loss at normal view is absorbed by the fit's rho_d: match the centre.
-        coat *= _mean_ratio(d0, coat, _sphere_r() < 0.3)
-        return (1 - s) * d0 + s * coat, s0
-    if effect == "long_tail":
-        ggx = _render({"type": "roughconductor", "distribution": "ggx", "alpha": 2.5 * alpha,
-                       "material": "none", "specular_reflectance": _rgb(rho_s)}, spp, 41 + level)
-        ggx *= _mean_ratio(s0, ggx, sph)
-        return d0, (1 - s) * s0 + s * ggx
-    if effect == "albedo_texture":
-        import mitsuba as mi
+class _Studio:
+    """The renderer the render candidates' injectors draw with (see analysis.gap.render):
+    Mitsuba scenes of the gloss fit's sphere at ``spp`` samples per pixel."""
 
-        u = (np.arange(256) + 0.5) / 256
-        v = (np.arange(128) + 0.5)[:, None] / 128
-        half = 0.5 * (1 + np.sin(6 * np.pi * u)[None, :] * np.sin(4 * np.pi * v))
-        tex = np.repeat((rho_d * half)[..., None], 3, axis=-1).astype(np.float32)
-        # Rendered linearly: albedo rho_d (1 + s p) = (1 - s) rho_d + 2 s rho_d (1 + p) / 2.
-        textured = _render({"type": "diffuse", "reflectance": {
-            "type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True,
-            "filter_type": "bilinear"}}, spp, 51 + level)
-        return (1 - s) * d0 + 2 * s * textured, s0
-    if effect == "anisotropy":
-        def beckmann(au, av):
-            return _render({"type": "roughconductor", "distribution": "beckmann",
-                            "alpha_u": au, "alpha_v": av, "material": "none",
-                            "specular_reflectance": _rgb(rho_s)}, spp, 61 + level)
-        change = beckmann(alpha * (1 + s), alpha / (1 + s)) - beckmann(alpha, alpha)
-        return d0, s0 + change
-    return d0, s0
+    def __init__(self, spp: int):
+        self.spp = spp
+
+    def level(self, k: int):
+        return _LEVELS[k]
+
+    def base(self, k: int):
+        return _base(k, self.spp)
+
+    def background(self, shift=(0.0, 0.0)):
+        return _background(self.spp, shift)
+
+    def render(self, material: dict, seed: int, shift=(0.0, 0.0)):
+        return _render(material, self.spp, seed, shift=shift)
+
+    def plain(self, k: int):
+        d0, s0 = self.base(k)
+        return self.background() + d0 + s0
+
+    ward = staticmethod(_ward)
+    rgb = staticmethod(_rgb)
+    sphere_r = staticmethod(_sphere_r)
+    mean_ratio = staticmethod(_mean_ratio)
+
+
+def _inject_albedo_texture(studio, level, s, rng):
+    """(Out of catalogue.) The diffuse albedo times 1 + s sin(6 pi u) sin(4 pi v)."""
+    import mitsuba as mi
+
+    rho_d, _, _ = studio.level(level)
+    d0, s0 = studio.base(level)
+    u = (np.arange(256) + 0.5) / 256
+    v = (np.arange(128) + 0.5)[:, None] / 128
+    half = 0.5 * (1 + np.sin(6 * np.pi * u)[None, :] * np.sin(4 * np.pi * v))
+    tex = np.repeat((rho_d * half)[..., None], 3, axis=-1).astype(np.float32)
+    # Rendered linearly: albedo rho_d (1 + s p) = (1 - s) rho_d + 2 s rho_d (1 + p) / 2.
+    textured = studio.render({"type": "diffuse", "reflectance": {
+        "type": "bitmap", "bitmap": mi.Bitmap(tex), "raw": True,
+        "filter_type": "bilinear"}}, 51 + level)
+    return studio.background() + ((1 - s) * d0 + 2 * s * textured) + s0
+
+
+def _inject_anisotropy(studio, level, s, rng):
+    """(Out of catalogue.) The lobe made anisotropic, alpha (1 + s) and alpha / (1 + s)."""
+    _, rho_s, alpha = studio.level(level)
+    d0, s0 = studio.base(level)
+
+    def beckmann(au, av):
+        return studio.render({"type": "roughconductor", "distribution": "beckmann",
+                              "alpha_u": au, "alpha_v": av, "material": "none",
+                              "specular_reflectance": studio.rgb(rho_s)}, 61 + level)
+    change = beckmann(alpha * (1 + s), alpha / (1 + s)) - beckmann(alpha, alpha)
+    return studio.background() + d0 + (s0 + change)
+
+
+_RENDER_OUT_INJECTORS = {"albedo_texture": _inject_albedo_texture,
+                         "anisotropy": _inject_anisotropy}
 
 
 def _clean_photo(level: int, effect: str, strength: float, spp: int,
                  rng: np.random.Generator) -> np.ndarray:
-    """The noiseless photo of one level with the effect: background + diffuse + specular."""
-    if effect == "misregistration":
-        # Rendered with the camera moved (a random direction), background included.
-        rho_d, rho_s, alpha = _LEVELS[level]
-        ang = rng.uniform(0, 2 * np.pi)
-        shift = (strength * np.cos(ang), strength * np.sin(ang))
-        return (_background(spp, shift)
-                + _render(_ward(rho_d, 0.0, alpha), spp, 11 + level, shift=shift)
-                + _render(_ward(0.0, rho_s, alpha), spp, 21 + level, shift=shift))
-    d1, s1 = _effect_components(level, effect, strength, spp)
-    return _camera(_background(spp) + d1 + s1, effect, strength)
+    """The noiseless photo of one level with the effect (a catalogue effect by its
+    candidate's own injector, an out-of-catalogue one by :data:`_RENDER_OUT_INJECTORS`)."""
+    import analysis.gap.render  # noqa: F401  (registers the render candidates)
+    from analysis.gap.engine import candidate
 
-
-def _camera(img, effect, strength):
-    """The lens's effects on the photo: veiling glare, vignetting."""
-    h, w = img.shape
-    if effect == "veiling_glare":
-        k = 2 * max(h, w) + 1
-        yy, xx = np.mgrid[0:k, 0:k] - k // 2
-        psf = 1 / (1 + (np.hypot(yy, xx) / (0.03 * w)) ** 2) ** 1.5
-        psf /= psf.sum()
-        from scipy.signal import fftconvolve
-
-        img = img + strength * fftconvolve(img, psf, mode="same")
-    if effect == "vignetting":
-        yy, xx = np.mgrid[0:h, 0:w].astype(float)
-        rho = np.hypot(yy - (h - 1) / 2, xx - (w - 1) / 2) / np.hypot(h / 2, w / 2)
-        img = img / (1 + (strength * rho) ** 2) ** 2
-    return img
+    studio = _Studio(spp)
+    if effect == "none":
+        return studio.plain(level)
+    inject = _RENDER_OUT_INJECTORS.get(effect) or candidate("render", effect).inject
+    return inject(studio, level, float(strength), rng)
 
 
 def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",

@@ -39,6 +39,12 @@ camera; the render's Monte-Carlo noise grows with the signal too), measured from
 differences of photo - render (:func:`noise_model`; a smooth misfit drops out), so the floor is
 ``0.5 log(2 pi sd^2) + 0.5`` per pixel. A constant SD would count a highlight's shot noise as a
 gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) in every level.
+
+Each candidate is one object registered with the engine (``register("render", ...)``): its fit,
+its term (``apply``, in the registration order), its injector (the effect built into a Mitsuba
+material or the camera, drawn with the benchmark's renderer), its default strength and the
+parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is a local smooth of the
+residual; a chosen model that stays significantly above it leaves a gap outside the catalogue.
 """
 
 from __future__ import annotations
@@ -50,7 +56,7 @@ import numpy as np
 import pandas as pd
 from scipy import ndimage, optimize
 
-from analysis.gap.engine import Candidate, GapError
+from analysis.gap.engine import Candidate, GapError, catalogue, register
 
 __all__ = [
     "NPZ_ARRAYS",
@@ -62,6 +68,7 @@ __all__ = [
     "localise_render",
     "noise_model",
     "noise_sd",
+    "render_ceiling",
     "render_floor",
     "render_loss",
     "render_unit_ids",
@@ -289,32 +296,47 @@ def _coat_t(cos_t, paths: float = 1.0):
 
 def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Diffuse, specular and background images after every fitted extension (before the
-    diffuse and specular scales)."""
+    diffuse and specular scales): each registered candidate's ``apply``, in the catalogue's
+    order (material terms, then the camera's, then the shift)."""
     p = dict(fitted)
-    D, S = lv["D"], lv["S"]
-    if "fresnel" in p:
-        q = p["fresnel"]
-        S = S * (1 + q["c"] * lv["fres5"][q["kappa"]])
-    if "long_tail" in p:
-        q = p["long_tail"]
-        c, width = q["c"].get(lv["name"], 0.0), q["width"].get(lv["name"], 1.0)
-        S = S + c * (_wings(S, width, lv["cover"]) - S)
-    if "clearcoat" in p:
-        q = p["clearcoat"]
-        D = D * (1 + q["c"] * (lv["coat"][q["paths"]] - 1))
-    out = []
-    for img in (D, S, lv["B"]):  # the image-space effects are linear: apply them to each
-        if "veiling_glare" in p:
-            q = p["veiling_glare"]
-            img = img + q["c"] * ndimage.gaussian_filter(img, q["sigma_frac"] * lv["width"],
-                                                         mode="constant")
-        if "vignetting" in p:
-            img = img * (1 - p["vignetting"]["c"] * lv["rho2"])
-        out.append(img)
-    if "misregistration" in p:
-        dy, dx = p["misregistration"]["shift_px"].get(lv["name"], (0.0, 0.0))
-        out = _shift_scene(lv, out, dy, dx)
-    return out[0], out[1], out[2]
+    unknown = set(p) - {c.name for c in catalogue("render")}
+    if unknown:
+        raise GapError(f"no render candidate(s) {sorted(unknown)}; known: "
+                       f"{[c.name for c in catalogue('render')]}")
+    images = {"D": lv["D"], "S": lv["S"], "B": lv["B"]}
+    for cand in catalogue("render"):
+        if cand.name in p:
+            images = cand.apply(lv, images, p[cand.name])
+    return images["D"], images["S"], images["B"]
+
+
+def _apply_fresnel(lv, im, q):
+    return im | {"S": im["S"] * (1 + q["c"] * lv["fres5"][q["kappa"]])}
+
+
+def _apply_long_tail(lv, im, q):
+    c, width = q["c"].get(lv["name"], 0.0), q["width"].get(lv["name"], 1.0)
+    return im | {"S": im["S"] + c * (_wings(im["S"], width, lv["cover"]) - im["S"])}
+
+
+def _apply_clearcoat(lv, im, q):
+    return im | {"D": im["D"] * (1 + q["c"] * (lv["coat"][q["paths"]] - 1))}
+
+
+def _apply_glare(lv, im, q):
+    # The image-space effects are linear: apply them to each component.
+    return {k: v + q["c"] * ndimage.gaussian_filter(v, q["sigma_frac"] * lv["width"],
+                                                    mode="constant") for k, v in im.items()}
+
+
+def _apply_vignetting(lv, im, q):
+    return {k: v * (1 - q["c"] * lv["rho2"]) for k, v in im.items()}
+
+
+def _apply_misregistration(lv, im, q):
+    dy, dx = q["shift_px"].get(lv["name"], (0.0, 0.0))
+    d, s, b = _shift_scene(lv, [im["D"], im["S"], im["B"]], dy, dx)
+    return {"D": d, "S": s, "B": b}
 
 
 def _coverage(shape, cy: float, cx: float, radius: float, n: int = 8) -> np.ndarray:
@@ -380,6 +402,57 @@ def render_loss(data: RenderData, fitted: list) -> np.ndarray:
 def render_floor(data: RenderData) -> np.ndarray:
     return np.concatenate([0.5 * np.log(2 * np.pi * lv["sd"][lv["use"]] ** 2) + 0.5
                            for lv in data.levels])
+
+
+#: Widths (px) of the ceiling's local smooth, chosen by cross-validation per level.
+_CEIL_SIGMAS_PX = (0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)
+
+
+def _local_mean(res: np.ndarray, w: np.ndarray, sigma: float) -> np.ndarray:
+    """Normalised convolution: the ``w``-weighted Gaussian local mean of ``res`` (0 where no
+    weight reaches)."""
+    num = ndimage.gaussian_filter(res * w, sigma, mode="constant")
+    den = ndimage.gaussian_filter(w, sigma, mode="constant")
+    return np.where(den > 1e-12 * max(float(w.max()), 1e-30), num / np.maximum(den, 1e-300), 0.0)
+
+
+def render_ceiling(train: RenderData, test: RenderData) -> np.ndarray:
+    """Held-out loss of a flexible data-driven model of the photos: the ceiling.
+
+    Per gloss level, the residual of the plain render, photo - (B + D + S), is smoothed
+    locally over the training pixels (a Gaussian local mean weighted by 1 / sd^2, i.e.
+    normalised convolution) and added to the render at the held-out pixels. Any systematic
+    structure larger than the smooth's width (a texture, an anisotropic highlight, an effect
+    outside the catalogue) is fitted by it. The width is chosen per level from
+    ``_CEIL_SIGMAS_PX`` by two-fold cross-validation within the training pixels (rows of 4 px
+    blocks alternating between the folds).
+
+    Returns
+    -------
+    ndarray
+        Gaussian NLL (nats) per held-out pixel, in :func:`render_loss`'s order.
+    """
+    out = []
+    for lt, le in zip(train.levels, test.levels):
+        r0 = lt["B"] + lt["D"] + lt["S"]
+        res = lt["P"] - r0
+        w = np.where(lt["use"], 1 / lt["sd"] ** 2, 0.0)
+        yy = np.mgrid[0:res.shape[0], 0:res.shape[1]][0]
+        fold = (yy // _BLOCK) % 2 == 0
+        best = None
+        for sigma in _CEIL_SIGMAS_PX:
+            err = 0.0
+            for f in (fold, ~fold):
+                pred = _local_mean(res, np.where(f, w, 0.0), sigma)
+                err += float(np.sum(np.where(~f, w, 0.0) * (res - pred) ** 2))
+            if best is None or err < best[0]:
+                best = (err, sigma)
+        pred = r0 + _local_mean(res, w, best[1])
+        m = le["use"]
+        sd = le["sd"][m]
+        z = (le["P"] - pred)[m] / sd
+        out.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * z**2)
+    return np.concatenate(out)
 
 
 def render_unit_ids(data: RenderData) -> list[str]:
@@ -478,20 +551,115 @@ def _fit_long_tail(train, chosen):
     return params
 
 
-RENDER_CANDIDATES = [
-    Candidate("fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
-              "specular reflectance rising towards grazing angles (Schlick)"),
-    Candidate("clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "paths", _COAT_PATHS),
-              "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)"),
-    Candidate("vignetting", _fit_amp("vignetting", -1.0, 1.0),
-              "the camera darkens towards the image corners"),
-    Candidate("veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
-              "lens glare: a blurred copy of the image added"),
-    Candidate("misregistration", _fit_misregistration,
-              "photo and render still offset after registration"),
-    Candidate("long_tail", _fit_long_tail,
-              "highlight lobe with longer tails than Ward's"),
-]
+# --- the catalogue: each effect's fit, term, injector, default strength and truth -----------
+# An injector makes the photo's noiseless luminance of one gloss level with the effect:
+# ``inject(studio, level, strength, rng)``. ``studio`` is the benchmark's renderer (Mitsuba
+# scenes of the gloss fit's sphere, analysis.gap.inject): ``level(k)`` -> (rho_d, rho_s,
+# alpha), ``base(k)`` -> the plain diffuse and specular renders, ``background(shift)``,
+# ``render(material, seed, shift)``, ``ward(...)``, ``rgb(v)``, ``sphere_r()``,
+# ``mean_ratio(a, b, where)``, ``plain(k)`` (background + diffuse + specular). The effect is
+# built into the material or the camera with Mitsuba's own plugins, never with the forms
+# above.
+
+def _inject_fresnel(studio, level, s, rng):
+    """The Ward lobe with Schlick's term on the half vector, F0 = 1 / (1 + s)."""
+    _, rho_s, alpha = studio.level(level)
+    d0, _ = studio.base(level)
+    # The same sampler seed as the plain lobe: the Fresnel term does not change sampling.
+    return studio.background() + d0 + studio.render(
+        studio.ward(0.0, rho_s, alpha, fresnel_f0=1 / (1 + s)), 21 + level)
+
+
+def _inject_clearcoat(studio, level, s, rng):
+    """A share ``s`` of the diffuse light through a clear coat (``plastic``, IOR 1.5)."""
+    rho_d, _, _ = studio.level(level)
+    d0, s0 = studio.base(level)
+    coat = studio.render({"type": "plastic", "diffuse_reflectance": studio.rgb(rho_d),
+                          "specular_reflectance": studio.rgb(0.0), "int_ior": 1.5,
+                          "nonlinear": False}, 31 + level)
+    # The coat's light loss at normal view is absorbed by the fit's rho_d: match the centre.
+    coat *= studio.mean_ratio(d0, coat, studio.sphere_r() < 0.3)
+    return studio.background() + ((1 - s) * d0 + s * coat) + s0
+
+
+def _inject_long_tail(studio, level, s, rng):
+    """A share ``s`` of the lobe's energy in a GGX haze of 2.5 times the Ward alpha."""
+    _, rho_s, alpha = studio.level(level)
+    d0, s0 = studio.base(level)
+    ggx = studio.render({"type": "roughconductor", "distribution": "ggx", "alpha": 2.5 * alpha,
+                         "material": "none", "specular_reflectance": studio.rgb(rho_s)},
+                        41 + level)
+    ggx *= studio.mean_ratio(s0, ggx, studio.sphere_r() < 1)
+    return studio.background() + d0 + ((1 - s) * s0 + s * ggx)
+
+
+def _inject_vignetting(studio, level, s, rng):
+    """cos^4-like natural vignetting of the photo, 1 / (1 + (s rho)^2)^2."""
+    img = studio.plain(level)
+    h, w = img.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    rho = np.hypot(yy - (h - 1) / 2, xx - (w - 1) / 2) / np.hypot(h / 2, w / 2)
+    return img / (1 + (s * rho) ** 2) ** 2
+
+
+def _inject_glare(studio, level, s, rng):
+    """A long-tailed (Cauchy-like) lens PSF carrying a share ``s`` of the light."""
+    from scipy.signal import fftconvolve
+
+    img = studio.plain(level)
+    h, w = img.shape
+    k = 2 * max(h, w) + 1
+    yy, xx = np.mgrid[0:k, 0:k] - k // 2
+    psf = 1 / (1 + (np.hypot(yy, xx) / (0.03 * w)) ** 2) ** 1.5
+    psf /= psf.sum()
+    return img + s * fftconvolve(img, psf, mode="same")
+
+
+def _inject_misregistration(studio, level, s, rng):
+    """The camera moved by ``s`` px in a random direction, the scene rendered there."""
+    rho_d, rho_s, alpha = studio.level(level)
+    ang = rng.uniform(0, 2 * np.pi)
+    shift = (s * np.cos(ang), s * np.sin(ang))
+    return (studio.background(shift)
+            + studio.render(studio.ward(rho_d, 0.0, alpha), 11 + level, shift=shift)
+            + studio.render(studio.ward(0.0, rho_s, alpha), 21 + level, shift=shift))
+
+
+# Registered in the order their terms apply (_basis): the material's terms on the specular
+# and diffuse components, then the camera's glare and vignetting, then the shift.
+register("render", Candidate(
+    "fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
+    "specular reflectance rising towards grazing angles (Schlick)", apply=_apply_fresnel,
+    inject=_inject_fresnel, default_strength=6.0, units="Schlick gain (1 - F0) / F0",
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "long_tail", _fit_long_tail, "highlight lobe with longer tails than Ward's",
+    apply=_apply_long_tail, inject=_inject_long_tail, default_strength=0.6,
+    units="share of the lobe's energy in the haze",
+    # The amount per level; the form (blur or power) has no counterpart in the injector.
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "paths", _COAT_PATHS),
+    "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
+    apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
+    units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
+    "lens glare: a blurred copy of the image added", apply=_apply_glare,
+    inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "vignetting", _fit_amp("vignetting", -1.0, 1.0), "the camera darkens towards the image corners",
+    apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
+    units="vignetting coefficient",
+    # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
+    truth=lambda s: {"c": 2 * float(s) ** 2}))
+register("render", Candidate(
+    "misregistration", _fit_misregistration, "photo and render still offset after registration",
+    apply=_apply_misregistration, inject=_inject_misregistration, default_strength=0.6,
+    units="px", truth=lambda s: {"shift_norm_px": float(s)}))
+
+RENDER_CANDIDATES = catalogue("render")
 
 
 def localise_render(data: RenderData, rng: np.random.Generator,
