@@ -6,17 +6,18 @@ matches_to_physical
     Slider matches to % and cm through the design.
 load_sessions, SessionData, SessionDataError, SESSION_COLUMNS
     Read and validate a data folder's session CSVs.
-fit_lmm, LmmFit, LmmError, bc_power, standardise_predictors
-    Linear mixed models by lme4's profiled deviance (ML); car's Box-Cox.
+fit, LmmFit, LmmError, FormulaError, bc_power, standardise_predictors
+    Linear mixed models by lme4 formula, fitted as lme4 (ML or REML); car's Box-Cox.
 type2_wald, WaldTest
     Type II Wald chi-square tests as car::Anova(type = 2).
 parametric_bootstrap, BootstrapResult
-    Parametric bootstrap (as lme4's bootMer) with percentile CIs and p-values.
-fit_seed_models, ModelResult
-    The seed's gloss and depth models.
+    Parametric bootstrap (as lme4's bootMer) of any fitted model, with percentile CIs and
+    p-values.
+fit_source_study_models, fit_design_models, ModelResult
+    The source study's gloss and depth models, and the design's extra models.
 find_metamers, Metamer, plot_depth_matches, plot_gloss_matches, plot_gloss_contours,
 plot_observers, save_figure
-    The seed's figures.
+    The source study's figures.
 build_report, ReportExistsError
     The HTML report (``python -m analysis report``).
 """
@@ -31,9 +32,10 @@ from analysis.figures import (
     plot_observers,
     save_figure,
 )
-from analysis.lmm import LmmError, LmmFit, bc_power, fit_lmm, standardise_predictors
+from analysis.formula import FormulaError, LmmError
+from analysis.lmm import LmmFit, bc_power, fit, standardise_predictors
 from analysis.load import SESSION_COLUMNS, SessionData, SessionDataError, load_sessions
-from analysis.models import ModelResult, fit_seed_models
+from analysis.models import ModelResult, fit_design_models, fit_source_study_models
 from analysis.report import ReportExistsError, build_report
 from analysis.typeii import WaldTest, type2_wald
 from analysis.units import matches_to_physical
@@ -41,6 +43,7 @@ from analysis.units import matches_to_physical
 __all__ = [
     "SESSION_COLUMNS",
     "BootstrapResult",
+    "FormulaError",
     "LmmError",
     "LmmFit",
     "Metamer",
@@ -52,8 +55,9 @@ __all__ = [
     "bc_power",
     "build_report",
     "find_metamers",
-    "fit_lmm",
-    "fit_seed_models",
+    "fit",
+    "fit_design_models",
+    "fit_source_study_models",
     "load_sessions",
     "matches_to_physical",
     "parametric_bootstrap",

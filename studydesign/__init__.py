@@ -10,7 +10,9 @@ frozen :class:`StudyDesign` loaded from ``design.toml``.
 """
 
 from studydesign.design import (
+    MODEL_RESPONSES,
     STIMULUS_COLUMNS,
+    AnalysisModel,
     AnalysisSpec,
     ArraySpec,
     DepthSpec,
@@ -27,7 +29,9 @@ from studydesign.design import (
 )
 
 __all__ = [
+    "MODEL_RESPONSES",
     "STIMULUS_COLUMNS",
+    "AnalysisModel",
     "AnalysisSpec",
     "ArraySpec",
     "DepthSpec",
