@@ -41,7 +41,7 @@ from analysis.models import fit_design_models, fit_source_study_models, model_fr
 from studydesign import StudyDesign
 
 __all__ = ["ReportExistsError", "build_report", "chi2_sentence", "format_p",
-           "source_study_pattern"]
+           "source_study_pattern", "write_text_atomic"]
 
 ALPHA = 0.05
 
@@ -266,7 +266,7 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             for which, pattern in patterns.items()},
         "versions": _versions(),
     }
-    _write_atomic(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
+    write_text_atomic(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
     page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
     _write_new(index, page)
     return index
@@ -359,7 +359,8 @@ def _temp_beside(path: Path):
     return fd, tmp
 
 
-def _write_atomic(path: Path, text: str) -> None:
+def write_text_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` with ``text`` atomically (temp file beside it, fsync, rename)."""
     fd, tmp = _temp_beside(path)
     try:
         with os.fdopen(fd, "w", encoding="utf-8") as fh:
