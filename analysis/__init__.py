@@ -10,6 +10,8 @@ fit, LmmFit, LmmError, FormulaError, bc_power, standardise_predictors
     Linear mixed models by lme4 formula, fitted as lme4 (ML or REML); car's Box-Cox.
 type2_wald, WaldTest
     Type II Wald chi-square tests as car::Anova(type = 2).
+coefficient_tests, satterthwaite_terms
+    t tests per coefficient and F tests per term with Satterthwaite's df, as lmerTest.
 parametric_bootstrap, BootstrapResult
     Parametric bootstrap (as lme4's bootMer) of any fitted model, with percentile CIs and
     p-values.
@@ -37,6 +39,7 @@ from analysis.lmm import LmmFit, bc_power, fit, standardise_predictors
 from analysis.load import SESSION_COLUMNS, SessionData, SessionDataError, load_sessions
 from analysis.models import ModelResult, fit_design_models, fit_source_study_models
 from analysis.report import ReportExistsError, build_report
+from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
 from analysis.typeii import WaldTest, type2_wald
 from analysis.units import matches_to_physical
 
@@ -54,6 +57,7 @@ __all__ = [
     "WaldTest",
     "bc_power",
     "build_report",
+    "coefficient_tests",
     "find_metamers",
     "fit",
     "fit_design_models",
@@ -65,6 +69,7 @@ __all__ = [
     "plot_gloss_contours",
     "plot_gloss_matches",
     "plot_observers",
+    "satterthwaite_terms",
     "save_figure",
     "standardise_predictors",
     "type2_wald",

@@ -44,6 +44,7 @@ def _cmd_fit(args) -> int:
     from analysis.lmm import fit
     from analysis.load import SessionDataError
     from analysis.report import write_text_atomic
+    from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
     from analysis.summary import format_summary, read_model_data
     from analysis.typeii import type2_wald
 
@@ -63,13 +64,18 @@ def _cmd_fit(args) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 1
     tests = type2_wald(result)
-    record = {"data": str(args.data), "fit": asdict(result), "type2_wald": [asdict(t) for t in tests]}
+    satt = coefficient_tests(result, data)
+    record = {"data": str(args.data), "fit": asdict(result),
+              "type2_wald": [asdict(t) for t in tests],
+              "satterthwaite_t": {k: dict(zip(("df", "t", "p"), v)) for k, v in satt.items()},
+              "satterthwaite_f": {k: dict(zip(("F", "num_df", "den_df", "p"), v))
+                                  for k, v in satterthwaite_terms(result, data).items()}}
     if args.bootstrap:
         boot = parametric_bootstrap(data, result, observed_chi2={t.term: t.chi2 for t in tests},
                                     n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
                                     progress=not args.quiet)
         record["bootstrap"] = asdict(boot)
-    text = format_summary(result, tests)
+    text = format_summary(result, tests, satt)
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.txt", text)
     write_text_atomic(out / "fit.json", json.dumps(record, indent=1))

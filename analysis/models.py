@@ -9,11 +9,12 @@ general fit, `analysis.lmm.fit`.
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import pandas as pd
 
 from analysis.lmm import LmmFit, bc_power, fit, standardise_predictors
+from analysis.satterthwaite import satterthwaite_terms
 from analysis.typeii import WaldTest, type2_wald
 from studydesign import StudyDesign
 
@@ -52,6 +53,9 @@ class ModelResult:
         The exponent applied to the response (Box-Cox depth only).
     source_model : str
         For a design model, the source-study model it re-specifies ("gloss", "depth" or "").
+    f_tests : dict of str to [F, numerator df, denominator df, p]
+        Each term's Type II hypothesis as an F test with Satterthwaite's denominator df
+        (`analysis.satterthwaite`, as lmerTest).
     """
 
     name: str
@@ -60,6 +64,7 @@ class ModelResult:
     tests: tuple
     boxcox_lambda: float | None
     source_model: str = ""
+    f_tests: dict = field(default_factory=dict)
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1)
@@ -85,11 +90,12 @@ def model_frame(frame: pd.DataFrame, design: StudyDesign) -> pd.DataFrame:
 
 def fit_model(name: str, label: str, formula: str, mf: pd.DataFrame, design: StudyDesign, *,
               source_model: str = "") -> ModelResult:
-    """Fit one model (ML) to a model frame and test its terms (Type II Wald)."""
+    """Fit one model (ML) to a model frame and test its terms (Type II Wald; Satterthwaite F)."""
     result = fit(formula, mf)
     lam = (design.analysis.depth_boxcox_lambda if result.response == "depth_match_bc" else None)
+    f_tests = {t: list(v) for t, v in satterthwaite_terms(result, mf).items()}
     return ModelResult(name=name, label=label, fit=result, tests=type2_wald(result),
-                       boxcox_lambda=lam, source_model=source_model)
+                       boxcox_lambda=lam, source_model=source_model, f_tests=f_tests)
 
 
 def fit_source_study_models(frame: pd.DataFrame, design: StudyDesign) -> dict:

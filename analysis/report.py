@@ -154,8 +154,11 @@ def _model_section(res, boot) -> str:
     rows = []
     for t in res.tests:
         bp = "" if boot is None else format_p(boot.chi2_p[t.term], floor=1 / (boot.n_ok + 1))
-        rows.append([t.term, f"{t.chi2:.2f}", t.df, format_p(t.p), bp])
-    parts.append(_table(["term", "χ²", "df", "p (χ²)", "p (bootstrap)"], rows))
+        F, q, ddf, fp = res.f_tests.get(t.term, [float("nan")] * 4)
+        rows.append([t.term, f"{t.chi2:.2f}", t.df, format_p(t.p), bp,
+                     f"F({q:g}, {ddf:.1f}) = {F:.2f}", format_p(fp)])
+    parts.append(_table(["term", "χ²", "df", "p (χ²)", "p (bootstrap)", "F (Satterthwaite df)",
+                         "p (F)"], rows))
     rows = [[t, f"{fit.fixef[t]:.3f}", f"{fit.se[t]:.3f}", _ci(boot, "fixef_ci", t)]
             for t in fit.fixef]
     parts.append("<p>Fixed effects (gloss and depth per SD of the design's levels):</p>")
@@ -341,7 +344,9 @@ from {len(data.files)} session files in <code>{esc(results['data_dir'])}</code>;
 and the design's extra models ([analysis.models] in the design), each fitted by maximum
 likelihood with lme4's profiled deviance (Bates et al. 2015) and BOBYQA. True gloss and depth
 are centred and scaled by the mean and SD of the design's rendered levels (Type II χ² do not
-depend on the scale). Type II Wald χ² as car::Anova(type = 2). {esc(boot_note)}</p>
+depend on the scale). Type II Wald χ² as car::Anova(type = 2); the same hypotheses as F tests
+with Satterthwaite's denominator degrees of freedom, as lmerTest (Kuznetsova et al. 2017).
+{esc(boot_note)}</p>
 {''.join(_model_section(models[k], boots.get(k)) for k in models)}
 <h2>Software</h2><p>{esc(', '.join(f'{k} {v}' for k, v in results['versions'].items()))}.
 All numbers: <a href="results.json">results.json</a>.</p>

@@ -52,6 +52,8 @@ def test_session_folder_gets_the_reports_model_frame(tmp_path, design):
     assert LmmFit(**record["fit"]) == fit(CROSSED, mf, reml=True)
     assert record["bootstrap"]["n_boot"] == 20
     assert "stimulus_id" in out.stdout and "REML" in out.stdout
+    assert set(record["satterthwaite_t"]) == set(record["fit"]["fixef"])
+    assert "Pr(>|t|)" in out.stdout
 
 
 @pytest.mark.parametrize("formula, message", [

@@ -12,6 +12,7 @@ with a two-level and a three-level factor, in treatment and sum contrasts.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from analysis.formula import build_model
@@ -19,7 +20,8 @@ from analysis.lmm import fit
 from analysis.load import load_sessions
 from analysis.models import model_frame
 from analysis.pls import deviance, make_problem, theta_start
-from analysis.typeii import type2_wald
+from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
+from analysis.typeii import hypothesis_matrices, type2_wald
 
 from .lmmref import export_dataset, r_reference
 from .sessions import write_sessions
@@ -84,8 +86,11 @@ def results(datasets, tmp_path_factory):
         rng = np.random.default_rng(len(out))
         thetas = np.vstack([theta_start(pr), 0.5 * np.asarray(ours.theta),
                             np.abs(rng.normal(0.5, 0.3, len(ours.theta)))])
+        rows = [dict(zip(ours.fixef, row), term=term)
+                for term, L in hypothesis_matrices(ours).items() for row in L]
         ref = r_reference(folder / case, data, formula, reml=reml,
-                          factors=[f for f in factors if f in data.columns], thetas=thetas)
+                          factors=[f for f in factors if f in data.columns], thetas=thetas,
+                          contrasts=pd.DataFrame(rows) if rows else None)
         out[case] = (ours, ref, [deviance(t, pr) for t in thetas])
     return out
 
@@ -160,3 +165,38 @@ def test_singular_fits_are_flagged_as_lme4_does(results):
     assert not results["sleepstudy_ml"][0].singular
     assert results["source_gloss_demo_2"][0].singular
     assert results["source_gloss_demo_2"][1]["singular"][""] == 1.0
+
+
+SATTERTHWAITE = [c for c in CASES if c not in FLAT and c != "source_gloss_demo_2"]
+
+
+def _satterthwaite_rel(fit) -> float:
+    """1e-6; 1e-5 for a singular fit, where the numerical derivatives straddle a theta of 0 that
+    the two optimisers place 1e-8 apart."""
+    return 1e-5 if fit.singular else 1e-6
+
+
+@pytest.mark.parametrize("case", SATTERTHWAITE)
+def test_satterthwaite_t_tests_equal_lmertest(results, datasets, case):
+    """Per coefficient: df and t as ``summary(lmerTest::lmer(...))$coefficients``."""
+    ours, ref, _ = results[case]
+    tests = coefficient_tests(ours, datasets[CASES[case][0]])
+    rel = _satterthwaite_rel(ours)
+    for name, (df, t, _) in tests.items():
+        assert df == pytest.approx(ref["satt_df"][name], rel=rel), name
+        assert t == pytest.approx(ref["satt_t"][name], rel=1e-6), name
+
+
+@pytest.mark.parametrize("case", SATTERTHWAITE)
+def test_satterthwaite_f_tests_equal_lmertest_contest(results, datasets, case):
+    """Per term: F, numerator and denominator df of car's Type II hypothesis, as
+    ``lmerTest::contest(fit, L, ddf = "Satterthwaite", joint = TRUE)``."""
+    ours, ref, _ = results[case]
+    if not ours.terms:
+        assert "contest_F" not in ref
+        return
+    rel = _satterthwaite_rel(ours)
+    for term, (F, q, ddf, _) in satterthwaite_terms(ours, datasets[CASES[case][0]]).items():
+        assert F == pytest.approx(ref["contest_F"][term], rel=1e-6), term
+        assert q == ref["contest_numdf"][term], term
+        assert ddf == pytest.approx(ref["contest_dendf"][term], rel=rel), term
