@@ -15,6 +15,8 @@ coefficient_tests, satterthwaite_terms
 parametric_bootstrap, BootstrapResult
     Parametric bootstrap (as lme4's bootMer) of any fitted model, with percentile CIs and
     p-values.
+bootstrap_lrt, LrtResult
+    Parametric bootstrap likelihood-ratio test of a term (as pbkrtest::PBmodcomp).
 fit_source_study_models, fit_design_models, ModelResult
     The source study's gloss and depth models, and the design's extra models.
 find_metamers, Metamer, plot_depth_matches, plot_gloss_matches, plot_gloss_contours,
@@ -37,6 +39,7 @@ from analysis.figures import (
 from analysis.formula import FormulaError, LmmError
 from analysis.lmm import LmmFit, bc_power, fit, standardise_predictors
 from analysis.load import SESSION_COLUMNS, SessionData, SessionDataError, load_sessions
+from analysis.lrt import LrtResult, bootstrap_lrt
 from analysis.models import ModelResult, fit_design_models, fit_source_study_models
 from analysis.report import ReportExistsError, build_report
 from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
@@ -49,6 +52,7 @@ __all__ = [
     "FormulaError",
     "LmmError",
     "LmmFit",
+    "LrtResult",
     "Metamer",
     "ModelResult",
     "ReportExistsError",
@@ -56,6 +60,7 @@ __all__ = [
     "SessionDataError",
     "WaldTest",
     "bc_power",
+    "bootstrap_lrt",
     "build_report",
     "coefficient_tests",
     "find_metamers",

@@ -48,10 +48,11 @@ def _cmd_fit(args) -> int:
     from analysis.summary import format_summary, read_model_data
     from analysis.typeii import type2_wald
 
-    if args.bootstrap < 0:
-        print(f"error: --bootstrap {args.bootstrap}: use 0 (none) or a positive number of runs",
-              file=sys.stderr)
-        return 2
+    for flag in ("bootstrap", "lrt"):
+        if getattr(args, flag) < 0:
+            print(f"error: --{flag} {getattr(args, flag)}: use 0 (none) or a positive number of "
+                  "runs", file=sys.stderr)
+            return 2
     out = Path(args.out)
     if (out / "fit.json").exists():
         print(f"error: {out / 'fit.json'} exists; fits are never overwritten: pass another --out",
@@ -75,7 +76,18 @@ def _cmd_fit(args) -> int:
                                     n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
                                     progress=not args.quiet)
         record["bootstrap"] = asdict(boot)
+    if args.lrt:
+        from analysis.lrt import bootstrap_lrt
+
+        record["bootstrap_lrt"] = [
+            asdict(bootstrap_lrt(data, result, term, n_boot=args.lrt, seed=args.seed + k,
+                                 n_jobs=args.jobs, progress=not args.quiet))
+            for k, term in enumerate(result.terms)]
     text = format_summary(result, tests, satt)
+    for lrt in record.get("bootstrap_lrt", []):
+        text += (f"Bootstrap LRT (PBmodcomp) {lrt['term']}: LRT = {lrt['lrt']:.4f}, df = "
+                 f"{lrt['df']}, p (chi2) = {lrt['p_chi2']:.3g}, p (bootstrap, {lrt['n_ok']} runs)"
+                 f" = {lrt['p_boot']:.3g}\n")
     out.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out / "summary.txt", text)
     write_text_atomic(out / "fit.json", json.dumps(record, indent=1))
@@ -146,6 +158,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True, help="output folder (must not hold a fit.json)")
     p.add_argument("--bootstrap", type=int, default=0, metavar="N",
                    help="parametric bootstrap runs (default 0 = none)")
+    p.add_argument("--lrt", type=int, default=0, metavar="N",
+                   help="parametric bootstrap likelihood-ratio test of each term with N runs, as "
+                   "pbkrtest::PBmodcomp (default 0 = none)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
     p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
     p.add_argument("--quiet", action="store_true", help="no progress bar")

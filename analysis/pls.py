@@ -79,10 +79,20 @@ class Problem:
     cp: CrossProducts | None = field(repr=False, default=None)
 
 
-def make_problem(spec: ModelSpec, *, reml: bool, y=None) -> Problem:
-    """Cross-products of ``spec``'s model (with response ``y``, default the spec's)."""
+def make_problem(spec: ModelSpec, *, reml: bool, y=None, columns=None) -> Problem:
+    """Cross-products of ``spec``'s model.
+
+    Parameters
+    ----------
+    spec : ModelSpec
+    reml : bool
+    y : array_like, optional
+        Another response (default the spec's).
+    columns : sequence of int, optional
+        Keep only these columns of X (a reduced model, e.g. without one term).
+    """
     y = spec.y if y is None else np.asarray(y, float)
-    X = spec.fixed.X
+    X = spec.fixed.X if columns is None else spec.fixed.X[:, list(columns)]
     Z = spec.Z()
     q_sizes = spec.q_sizes
     n_levels = tuple(int(lv.size) for lv in spec.re_levels)

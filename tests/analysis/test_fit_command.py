@@ -29,13 +29,16 @@ def _run(*args, timeout=300):
 
 def test_csv_fit_writes_the_same_fit_as_the_function(tmp_path):
     formula = "y ~ gloss * depth + (1 + gloss + depth | participant)"
-    out = _run(REF / "unbalanced_5_data.csv", "--formula", formula, "--out", tmp_path / "f")
+    out = _run(REF / "unbalanced_5_data.csv", "--formula", formula, "--out", tmp_path / "f",
+               "--lrt", "5", "--quiet")
     assert out.returncode == 0, out.stderr
+    assert "Bootstrap LRT (PBmodcomp) gloss:depth" in out.stdout
     assert "Type II Wald chi-square tests" in out.stdout
     record = json.loads((tmp_path / "f" / "fit.json").read_text())
     data = pd.read_csv(REF / "unbalanced_5_data.csv", dtype={"participant": str})
     assert LmmFit(**record["fit"]) == fit(formula, data)
     assert [t["term"] for t in record["type2_wald"]] == ["gloss", "depth", "gloss:depth"]
+    assert [t["n_ok"] for t in record["bootstrap_lrt"]] == [5, 5, 5]
     assert (tmp_path / "f" / "summary.txt").read_text() in out.stdout
     # Never overwritten.
     again = _run(REF / "unbalanced_5_data.csv", "--formula", formula, "--out", tmp_path / "f")
