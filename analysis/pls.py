@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg.lapack import dpotrf
 
 from analysis.deviance import CrossProducts, _deviance_fast, crossproducts, with_response
 from analysis.formula import ModelSpec
@@ -59,6 +60,11 @@ class Problem:
         ``Z_1' [Z_rest | X | y]`` by level of the first term.
     WW : ndarray, shape (m, m)
         ``[Z_rest | X | y]' [Z_rest | X | y]``.
+    patterns : tuple of (ndarray of int, ndarray)
+        Levels of the first term with the same ``Z_1'Z_1`` block (e.g. every stimulus seen by
+        all participants) and, per pattern, ``P[a, b] = sum_j Z1W_j[a]' Z1W_j[b]``, shape
+        (q1, q1, m, m); empty when patterns would not save work (then the levels are factored
+        one by one).
     """
 
     q_sizes: tuple
@@ -77,6 +83,7 @@ class Problem:
     Z: sp.csc_matrix = field(repr=False)
     X: np.ndarray = field(repr=False)
     cp: CrossProducts | None = field(repr=False, default=None)
+    patterns: tuple = field(repr=False, default=())
 
 
 def make_problem(spec: ModelSpec, *, reml: bool, y=None, columns=None) -> Problem:
@@ -138,6 +145,11 @@ def _with_products(pr: Problem, y, *, first: bool = False) -> Problem:
         G1d = (Z1.T @ Z1).toarray()
         G1 = np.stack([G1d[j * q1:(j + 1) * q1, j * q1:(j + 1) * q1] for j in range(J1)])
         object.__setattr__(pr, "G1", G1)
+        groups = _block_patterns(G1)
+        if len(groups) * q1 <= J1 // 2:
+            object.__setattr__(pr, "patterns", tuple(
+                (members, np.einsum("jam,jbn->abmn", Z1W[members], Z1W[members]))
+                for members in groups))
     else:
         WW = pr.WW.copy()
         Z1W = pr.Z1W.copy()
@@ -146,9 +158,35 @@ def _with_products(pr: Problem, y, *, first: bool = False) -> Problem:
         WW[:, -1] = wy
         WW[-1, :] = wy
         Z1W[:, :, -1] = (Z1.T @ y).reshape(J1, q1)
+        if pr.patterns:
+            new = []
+            for members, P in pr.patterns:
+                P = P.copy()
+                cross = np.einsum("jam,jb->abm", Z1W[members], Z1W[members, :, -1])
+                P[:, :, :, -1] = cross
+                P[:, :, -1, :] = cross.transpose(1, 0, 2)
+                new.append((members, P))
+            object.__setattr__(pr, "patterns", tuple(new))
     object.__setattr__(pr, "WW", WW)
     object.__setattr__(pr, "Z1W", Z1W)
     return pr
+
+
+def _block_patterns(G1) -> list:
+    """Levels whose ``Z_1'Z_1`` blocks agree to 1e-12 (relative), as index arrays."""
+    J = G1.shape[0]
+    keys = G1.reshape(J, -1)
+    tol = 1e-12 * max(float(np.abs(keys).max()), 1.0)
+    reps, members = [], []
+    for j in range(J):
+        for k, rep in enumerate(reps):
+            if np.all(np.abs(keys[j] - rep) <= tol):
+                members[k].append(j)
+                break
+        else:
+            reps.append(keys[j])
+            members.append([j])
+    return [np.array(m) for m in members]
 
 
 def with_y(pr: Problem, y) -> Problem:
@@ -195,6 +233,8 @@ def _factorise(theta, pr: Problem):
     theta = np.asarray(theta, float)
     q1 = pr.q_sizes[0]
     qr = pr.q_rest
+    if pr.patterns:
+        return _factorise_patterns(theta, pr)
     M = pr.WW.copy()
     Z1W = pr.Z1W
     if qr:
@@ -222,6 +262,50 @@ def _factorise(theta, pr: Problem):
     C = np.linalg.cholesky(M)
     ld = ld1 + 2.0 * float(np.sum(np.log(np.diag(C)[:qr])))
     return ld, C
+
+
+def _factorise_patterns(theta, pr: Problem):
+    """`_factorise` with the first term's levels taken a pattern at a time.
+
+    Within a pattern every level has the same ``A = T' G T + I``, so the levels' share of the
+    Schur complement, ``sum_j (Z1W_j S)' T A^-1 T' (Z1W_j S)``, is ``S' (sum_ab K_ab P_ab) S``
+    with ``K = T A^-1 T'``: the cost no longer grows with the number of levels (162 stimuli are
+    one pattern when every participant saw every stimulus).
+    """
+    q1, qr = pr.q_sizes[0], pr.q_rest
+    M = pr.WW.copy()
+    ld1 = 0.0
+    if q1 == 1:
+        t2 = theta[0] * theta[0]
+        for members, P in pr.patterns:
+            g = pr.G1[members[0], 0, 0]
+            M -= (t2 / (t2 * g + 1.0)) * P[0, 0]
+            ld1 += members.size * math.log(t2 * g + 1.0)
+    else:
+        T = term_factor(theta, pr.q_sizes, 0)
+        for members, P in pr.patterns:
+            A = T.T @ pr.G1[members[0]] @ T + np.eye(q1)
+            L = np.linalg.cholesky(A)
+            Q = np.linalg.solve(L, T.T)
+            M -= np.tensordot(Q.T @ Q, P, axes=([0, 1], [0, 1]))
+            ld1 += 2.0 * members.size * float(np.log(np.diag(L)).sum())
+    if qr:
+        lam = np.zeros((qr, qr))
+        lam[pr.lam_rows, pr.lam_cols] = theta[pr.lam_theta]
+        M[:qr, :] = lam.T @ M[:qr, :]
+        M[:, :qr] = M[:, :qr] @ lam
+        M.flat[: qr * (M.shape[0] + 1): M.shape[0] + 1] += 1.0
+    C = _cholesky(M)
+    return ld1 + 2.0 * float(np.log(C.diagonal()[:qr]).sum()), C
+
+
+def _cholesky(M: np.ndarray) -> np.ndarray:
+    """Lower Cholesky factor by LAPACK's dpotrf (numpy's wrapper costs more than a 40 x 40
+    factorisation); the upper triangle is left as garbage, so read only the lower one."""
+    C, info = dpotrf(M, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        raise np.linalg.LinAlgError(f"not positive definite (dpotrf info {info})")
+    return C
 
 
 def deviance(theta, pr: Problem) -> float:
@@ -280,7 +364,7 @@ def solve(theta, pr: Problem) -> Solution:
     """Profile beta and sigma out at ``theta`` (Bates et al. 2015, eqs. 30-33)."""
     ld, C = _factorise(theta, pr)
     qr, p, n = pr.q_rest, pr.p, pr.n
-    RXt = C[qr:qr + p, qr:qr + p]
+    RXt = np.tril(C[qr:qr + p, qr:qr + p])
     cb = C[-1, qr:qr + p]
     r2 = float(C[-1, -1]) ** 2
     beta = np.linalg.solve(RXt.T, cb)

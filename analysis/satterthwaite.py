@@ -91,7 +91,7 @@ def richardson_hessian(f, x, *, d=0.1, eps=1e-4, r=4, v=2) -> np.ndarray:
 def _parts(theta, pr: Problem):
     ld, C = _factorise(theta, pr)
     qr, p = pr.q_rest, pr.p
-    RXt = C[qr:qr + p, qr:qr + p]
+    RXt = np.tril(C[qr:qr + p, qr:qr + p])
     return ld, float(C[-1, -1]) ** 2, RXt
 
 

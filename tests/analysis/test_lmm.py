@@ -271,3 +271,25 @@ def test_trial_order_does_not_split_patterns():
     # Participants see the stimuli in different orders: their sums differ by rounding only.
     frame = _data("gloss").sample(frac=1.0, random_state=2).reset_index(drop=True)
     assert len(_problem(frame).cp.patterns) == 1
+
+
+@pytest.mark.parametrize("formula", [
+    FORMULA + " + (1 | stimulus)",
+    "y ~ gloss * depth + (1 | stimulus) + (1 + gloss | participant)",
+    "y ~ gloss + (1 + gloss | participant)",
+    "y ~ gloss * depth + (1 | participant) + (1 | stimulus)",
+])
+@pytest.mark.parametrize("reml", [False, True])
+def test_patterns_of_levels_equal_level_by_level_elimination(formula, reml):
+    """Levels of the first term with equal Z'Z blocks taken together (what makes the crossed
+    model fast) against eliminating them one by one, complete and incomplete data."""
+    frame = _data("unbalanced_5").assign(stimulus=lambda f: (f.index % 40).astype(str))
+    for data in (frame, frame.iloc[::2].reset_index(drop=True)):
+        pr = make_problem(build_model(formula, data), reml=reml)
+        general = dataclasses.replace(pr, cp=None)
+        one_by_one = dataclasses.replace(pr, cp=None, patterns=())
+        from analysis.pls import theta_lower
+
+        for theta in np.abs(np.random.default_rng(5).normal(0.6, 0.4, (4, theta_lower(pr).size))):
+            assert deviance(theta, general) == pytest.approx(deviance(theta, one_by_one),
+                                                             rel=1e-12)
