@@ -87,9 +87,9 @@ def bc_power(u, lam: float) -> np.ndarray:
 def standardise_predictors(frame: pd.DataFrame, design: StudyDesign) -> pd.DataFrame:
     """Add centred, scaled predictors ``gloss`` and ``depth`` from the true stimulus values.
 
-    The seed codes its predictors centred. We also divide by the standard deviation: a Type II
-    Wald chi-square does not depend on the predictors' scale (only on their centring, through the
-    interaction), while lme4 fitted on raw % and cm units warned of non-convergence in most fits
+    The source study codes its predictors centred. We also divide by the standard deviation: a
+    Type II Wald chi-square does not depend on the predictors' scale (only on their centring,
+    through the interaction), while lme4 fitted on raw % and cm units warned of non-convergence in most fits
     and its chi-square moved by up to 62 %. Centre and scale come from the design's rendered
     levels (the balanced stimulus set), not from the data, so that one coefficient means the same
     in every data set, incomplete ones included.

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 from scipy import stats
 
-from analysis.bootstrap import BOOT_FTOL_ABS, BOOT_XTOL_ABS, _run_blocks, simulate_responses
+from analysis.bootstrap import _run_blocks, refit, simulate_responses
 from analysis.formula import build_model
 from analysis.lmm import LmmFit, fit_problem, polish
 from analysis.pls import make_problem, solve, theta_start, with_y
@@ -79,10 +79,7 @@ def _block(large, small, null, seed_seq, n_runs: int):
         try:
             devs = []
             for pr, theta0 in ((large, theta_large), (small, theta_small)):
-                prb = with_y(pr, ys[r])
-                _, dev, _ = fit_problem(prb, starts=[(theta0, 0.1), (theta_start(prb), None)],
-                                        ftol_abs=BOOT_FTOL_ABS, xtol_abs=BOOT_XTOL_ABS)
-                devs.append(dev)
+                devs.append(refit(with_y(pr, ys[r]), theta0)[1])
         except (np.linalg.LinAlgError, ValueError):
             continue
         out[r] = devs[1] - devs[0]
