@@ -50,10 +50,12 @@ class WaldTest:
 def _conj_comp(X: np.ndarray, Z: np.ndarray, ip: np.ndarray) -> np.ndarray:
     """car's ``ConjComp``: the complement of span(X) in span(Z) conjugate under ``ip``."""
     M = Z.T @ ip @ X
-    rank = np.linalg.matrix_rank(M)
+    Q, R = np.linalg.qr(M, mode="complete")
+    # R's qr() rank: diagonal elements of R above 1e-7 of the largest column norm.
+    diag = np.abs(np.diag(R))
+    rank = int(np.sum(diag > 1e-7 * max(float(np.max(np.linalg.norm(M, axis=0))), 1e-300)))
     if rank == 0:
         return Z
-    Q, _ = np.linalg.qr(M, mode="complete")
     return Z @ Q[:, rank:]
 
 
