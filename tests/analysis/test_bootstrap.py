@@ -72,6 +72,7 @@ def test_bad_arguments(fitted):
 
 
 @pytest.mark.r
+@pytest.mark.slow
 def test_bench_against_bootmer_runs(repo_root):
     """The bench script end to end on a few runs (the claim itself is measured by `make bench`)."""
     import subprocess

@@ -26,7 +26,8 @@ from analysis.typeii import hypothesis_matrices, type2_wald
 from .lmmref import export_dataset, r_reference
 from .sessions import write_sessions
 
-pytestmark = pytest.mark.r
+# The R runs of every case (module fixture) take about two minutes.
+pytestmark = [pytest.mark.r, pytest.mark.slow]
 
 SOURCE = "gloss * depth + (1 + gloss + depth | participant)"
 CROSSED = ("gloss_match_pct ~ gloss * depth + illumination + (1 + gloss + depth | participant)"

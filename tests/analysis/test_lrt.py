@@ -41,6 +41,7 @@ def sleep(tmp_path_factory):
 
 
 @pytest.mark.r
+@pytest.mark.slow
 def test_lrt_and_bootstrap_p_agree_with_pbmodcomp(sleep):
     folder, data = sleep
     (folder / "pb.R").write_text(R_SCRIPT % (folder / "data.csv"))
