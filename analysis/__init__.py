@@ -7,14 +7,19 @@ matches_to_physical
 load_sessions, SessionData, SessionDataError
     Read and validate a data folder's session CSVs (with ``experiment.read_session``; the
     column list is ``experiment.SESSION_COLUMNS``).
-fit_lmm, LmmFit, LmmError, bc_power, standardise_predictors
-    Linear mixed models by lme4's profiled deviance (ML); car's Box-Cox.
+fit, LmmFit, LmmError, FormulaError, bc_power, standardise_predictors
+    Linear mixed models by lme4 formula, fitted as lme4 (ML or REML); car's Box-Cox.
 type2_wald, WaldTest
     Type II Wald chi-square tests as car::Anova(type = 2).
+coefficient_tests, satterthwaite_terms
+    t tests per coefficient and F tests per term with Satterthwaite's df, as lmerTest.
 parametric_bootstrap, BootstrapResult
-    Parametric bootstrap (as lme4's bootMer) with percentile CIs and p-values.
-fit_seed_models, ModelResult
-    The seed's gloss and depth models.
+    Parametric bootstrap (as lme4's bootMer) of any fitted model, with percentile CIs and
+    p-values.
+bootstrap_lrt, LrtResult
+    Parametric bootstrap likelihood-ratio test of a term (as pbkrtest::PBmodcomp).
+fit_source_study_models, fit_design_models, ModelResult
+    The source study's gloss and depth models, and the design's extra models.
 find_metamers, Metamer, plot_depth_matches, plot_gloss_matches, plot_gloss_contours,
 plot_observers
     The source study's figures.
@@ -31,17 +36,22 @@ from analysis.figures import (
     plot_gloss_matches,
     plot_observers,
 )
-from analysis.lmm import LmmError, LmmFit, bc_power, fit_lmm, standardise_predictors
+from analysis.formula import FormulaError, LmmError
+from analysis.lmm import LmmFit, bc_power, fit, standardise_predictors
 from analysis.load import SessionData, SessionDataError, load_sessions
-from analysis.models import ModelResult, fit_seed_models
+from analysis.lrt import LrtResult, bootstrap_lrt
+from analysis.models import ModelResult, fit_design_models, fit_source_study_models
 from analysis.report import ReportExistsError, build_report
+from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
 from analysis.typeii import WaldTest, type2_wald
 from analysis.units import matches_to_physical
 
 __all__ = [
     "BootstrapResult",
+    "FormulaError",
     "LmmError",
     "LmmFit",
+    "LrtResult",
     "Metamer",
     "ModelResult",
     "ReportExistsError",
@@ -49,10 +59,13 @@ __all__ = [
     "SessionDataError",
     "WaldTest",
     "bc_power",
+    "bootstrap_lrt",
     "build_report",
+    "coefficient_tests",
     "find_metamers",
-    "fit_lmm",
-    "fit_seed_models",
+    "fit",
+    "fit_design_models",
+    "fit_source_study_models",
     "load_sessions",
     "matches_to_physical",
     "parametric_bootstrap",
@@ -60,6 +73,7 @@ __all__ = [
     "plot_gloss_contours",
     "plot_gloss_matches",
     "plot_observers",
+    "satterthwaite_terms",
     "standardise_predictors",
     "type2_wald",
 ]

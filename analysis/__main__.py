@@ -1,7 +1,8 @@
 """``python -m analysis``: turn session data into results.
 
-Subcommands: ``units`` (slider matches to %/cm), ``report`` (the HTML analysis report),
-``gap`` and ``imagestats`` (passed on to ``analysis.gap`` and ``analysis.imagestats``).
+Subcommands: ``units`` (slider matches to %/cm), ``fit`` (one mixed model by lme4 formula),
+``report`` (the HTML analysis report), ``gap`` and ``imagestats`` (passed on to
+``analysis.gap`` and ``analysis.imagestats``).
 """
 
 from __future__ import annotations
@@ -30,6 +31,72 @@ def _cmd_units(args) -> int:
         print(f"error: {args.csv}: {exc}", file=sys.stderr)
         return 1
     frame.to_csv(sys.stdout, index=False)
+    return 0
+
+
+def _cmd_fit(args) -> int:
+    import json
+    from dataclasses import asdict
+    from pathlib import Path
+
+    from analysis.bootstrap import parametric_bootstrap
+    from analysis.formula import LmmError
+    from analysis.lmm import fit
+    from analysis.load import SessionDataError
+    from analysis.satterthwaite import coefficient_tests, satterthwaite_terms
+    from analysis.summary import format_summary, read_model_data
+    from analysis.typeii import type2_wald
+    from labfiles import atomic_write_text, write_new_file
+
+    for flag in ("bootstrap", "lrt"):
+        if getattr(args, flag) < 0:
+            print(f"error: --{flag} {getattr(args, flag)}: use 0 (none) or a positive number of "
+                  "runs", file=sys.stderr)
+            return 2
+    out = Path(args.out)
+    if (out / "fit.json").exists():
+        print(f"error: {out / 'fit.json'} exists; fits are never overwritten: pass another --out",
+              file=sys.stderr)
+        return 1
+    try:
+        data = read_model_data(args.data, load_design(args.design))
+        result = fit(args.formula, data, reml=args.reml)
+    except (LmmError, SessionDataError, DesignError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    tests = type2_wald(result)
+    satt = coefficient_tests(result, data)
+    record = {"data": str(args.data), "fit": asdict(result),
+              "type2_wald": [asdict(t) for t in tests],
+              "satterthwaite_t": {k: dict(zip(("df", "t", "p"), v)) for k, v in satt.items()},
+              "satterthwaite_f": {k: dict(zip(("F", "num_df", "den_df", "p"), v))
+                                  for k, v in satterthwaite_terms(result, data).items()}}
+    if args.bootstrap:
+        boot = parametric_bootstrap(data, result, observed_chi2={t.term: t.chi2 for t in tests},
+                                    n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
+                                    progress=not args.quiet)
+        record["bootstrap"] = asdict(boot)
+    if args.lrt:
+        from analysis.lrt import bootstrap_lrt
+
+        record["bootstrap_lrt"] = [
+            asdict(bootstrap_lrt(data, result, term, n_boot=args.lrt, seed=args.seed + k,
+                                 n_jobs=args.jobs, progress=not args.quiet))
+            for k, term in enumerate(result.terms)]
+    text = format_summary(result, tests, satt)
+    for lrt in record.get("bootstrap_lrt", []):
+        text += (f"Bootstrap LRT (PBmodcomp) {lrt['term']}: LRT = {lrt['lrt']:.4f}, df = "
+                 f"{lrt['df']}, p (chi2) = {lrt['p_chi2']:.3g}, p (bootstrap, {lrt['n_ok']} runs)"
+                 f" = {lrt['p_boot']:.3g}\n")
+    out.mkdir(parents=True, exist_ok=True)
+    try:
+        write_new_file(out / "fit.json", json.dumps(record, indent=1))
+    except FileExistsError as exc:
+        print(f"error: {exc.strerror}", file=sys.stderr)
+        return 1
+    atomic_write_text(out / "summary.txt", text)
+    print(text, end="")
+    print(f"fit: {out / 'fit.json'}")
     return 0
 
 
@@ -84,6 +151,29 @@ def main(argv: list[str] | None = None) -> int:
     p = sub.add_parser("units", help="add physical units (%%, cm) to a session CSV's matches")
     p.add_argument("csv", help="a session CSV")
     p.set_defaults(func=_cmd_units)
+    p = sub.add_parser(
+        "fit", help="fit one linear mixed model given by an lme4 formula",
+        description="Fit a linear mixed model as lme4's lmer does (same formula syntax, same "
+        "estimates) to a session folder (standardised gloss and depth, depth_match_bc; see "
+        "`report`) or to any CSV, and write OUT/fit.json and OUT/summary.txt. Formula: fixed "
+        "effects as in R (a * b, a:b, C(f, contr.sum) for sum contrasts; factors get treatment "
+        "contrasts), random effects (1 + a | g) correlated, (1 + a || g) uncorrelated, "
+        "(1 | g1/g2) nested, several terms crossed.",
+        epilog='example: python -m analysis fit data/ --formula "gloss_match_pct ~ gloss * depth '
+        '+ illumination + (1 + gloss + depth | participant) + (1 | stimulus_id)" --out fits/crossed')
+    p.add_argument("data", help="a session folder (holding sessions/) or a CSV file")
+    p.add_argument("--formula", required=True, help="lme4 formula, e.g. 'y ~ x + (1 | g)'")
+    p.add_argument("--reml", action="store_true", help="REML instead of maximum likelihood")
+    p.add_argument("--out", required=True, help="output folder (must not hold a fit.json)")
+    p.add_argument("--bootstrap", type=int, default=0, metavar="N",
+                   help="parametric bootstrap runs (default 0 = none)")
+    p.add_argument("--lrt", type=int, default=0, metavar="N",
+                   help="parametric bootstrap likelihood-ratio test of each term with N runs, as "
+                   "pbkrtest::PBmodcomp (default 0 = none)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
+    p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_fit)
     p = sub.add_parser(
         "report", help="figures, mixed models and bootstrap of DATA_DIR/sessions as HTML",
         description="Load and validate every session CSV of DATA_DIR, draw the seed's figures, "

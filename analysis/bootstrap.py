@@ -1,11 +1,12 @@
 """Parametric bootstrap of a fitted mixed model: 95 % CIs and p-values for the Type II tests.
 
 Like lme4's ``bootMer(type = "parametric", use.u = FALSE)``: each run simulates a new response
-from the fitted model (new random effects ``b ~ N(0, sigma^2 T T')`` per participant and new
-residuals ``N(0, sigma^2)``), refits, and records the fixed effects, the random-effect SDs and
-the Type II Wald statistics. Only the cross-products with y change between runs (X, Z and the
-grouping are fixed), so a refit reuses every y-free product; each refit takes the better of a
-warm start at the original theta (initial step 0.1) and lme4's cold start.
+from the fitted model (new random effects ``b ~ N(0, sigma^2 T_k T_k')`` per level of each
+grouping factor and new residuals ``N(0, sigma^2)``), refits, and records the fixed effects, the
+random-effect SDs and the Type II Wald statistics. Only the cross-products with y change between
+runs (X, Z and the grouping are fixed), so a refit reuses every y-free product; each refit
+starts at the original theta (initial step 0.1), as bootMer, and when that ends singular also
+from lme4's start, keeping the better (`refit`).
 
 CIs are percentile intervals. The p-value of a term's Type II test is the bootstrap Wald test:
 ``chi2*`` of the refit's estimate *centred at the original estimate* (the Wald pivot
@@ -23,24 +24,19 @@ from __future__ import annotations
 import json
 import time
 from dataclasses import asdict, dataclass
+from functools import partial
 
 import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
-from analysis.deviance import crossproducts, with_response
-from analysis.lmm import (
-    FIXED_TERMS,
-    RANDOM_TERMS,
-    LmmFit,
-    fit_crossproducts,
-    model_matrices,
-    summarise_fit,
-)
+from analysis.formula import build_model
+from analysis.lmm import SINGULAR_TOL, LmmFit, fit_problem
+from analysis.pls import make_problem, solve, term_factor, theta_lower, theta_start, with_y
 from analysis.typeii import hypothesis_matrix, wald_chi2
 
-__all__ = ["BootstrapResult", "parametric_bootstrap"]
+__all__ = ["BootstrapResult", "parametric_bootstrap", "re_labels", "refit", "simulate_responses"]
 
 BLOCK = 100
 # lme4's default nloptwrap tolerances, the ones bootMer refits with.
@@ -54,7 +50,7 @@ class BootstrapResult:
 
     Attributes
     ----------
-    response : str
+    response, formula : str
     n_boot : int
         Runs requested.
     n_ok : int
@@ -63,7 +59,7 @@ class BootstrapResult:
     fixef_ci : dict of str to [float, float]
         95 % percentile CI of each fixed effect.
     re_sd_ci : dict of str to [float, float]
-        95 % percentile CI of each random-effect SD.
+        95 % percentile CI of each random-effect SD, keyed ``"group: coefficient"``.
     sigma_ci : [float, float]
     chi2_p : dict of str to float
         Bootstrap p-value of each term's Type II Wald test.
@@ -75,6 +71,7 @@ class BootstrapResult:
     """
 
     response: str
+    formula: str
     n_boot: int
     n_ok: int
     seed: int
@@ -94,70 +91,115 @@ class BootstrapResult:
         return cls(**json.loads(text))
 
 
-def _sorted_problem(frame: pd.DataFrame, response: str, group: str):
-    X, Z, y, groups, levels = model_matrices(frame, response, group)
-    order = np.argsort(groups, kind="stable")
-    X, Z, y, groups = X[order], Z[order], y[order], groups[order]
-    starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
-    return X, Z, y, groups, starts, levels
+def re_labels(fit: LmmFit) -> list[str]:
+    """``"group: coefficient"`` of every random-effect SD, in lme4's order."""
+    return [f"{r['group']}: {n}" for r in fit.random for n in r["names"]]
 
 
-def _block(X, Z, groups, starts, fit: LmmFit, seed_seq, n_runs: int, terms):
-    """Refit ``n_runs`` simulated responses; rows of fixef, SDs, sigma, chi2, pivot, singular."""
-    rng = np.random.default_rng(seed_seq)
-    beta = fit.fixef_array()
-    theta = np.asarray(fit.theta)
-    q = Z.shape[1]
-    T = np.zeros((q, q))
-    T[np.triu_indices(q)[::-1]] = theta
-    sigma = fit.sigma
-    J = starts.size
-    mean = X @ beta
-    base = crossproducts(X, Z, mean, groups)
-    out = np.full((n_runs, len(beta) + q + 1 + (len(terms) - 1) + 1), np.nan)
-    for r in range(n_runs):
-        b = sigma * (rng.standard_normal((J, q)) @ T.T)
-        y = mean + np.einsum("nk,nk->n", Z, b[groups]) + sigma * rng.standard_normal(mean.size)
-        Zty = np.add.reduceat(Z * y[:, None], starts, axis=0)
-        cp = with_response(base, Zty, X.T @ y, y @ y)
-        try:
-            th, _, _, _ = fit_crossproducts(
-                cp, warm_start=theta, ftol_abs=BOOT_FTOL_ABS, xtol_abs=BOOT_XTOL_ABS
-            )
-            refit = summarise_fit(th, cp, response=fit.response, n_groups=J)
-        except (np.linalg.LinAlgError, ValueError):
-            continue
-        b_star = refit.fixef_array()
-        V = refit.vcov_array()
-        chi2 = []
-        for term in terms[1:]:
-            L = hypothesis_matrix(term, V, terms)
-            chi2.append(wald_chi2(L, b_star, V, beta0=beta))
-        out[r] = np.concatenate([
-            b_star, [refit.re_sd[t] for t in RANDOM_TERMS], [refit.sigma], chi2,
-            [float(refit.singular)],
-        ])
+def simulate_responses(pr, beta, theta, sigma, rng: np.random.Generator, n: int) -> np.ndarray:
+    """``n`` responses from the fitted model, as lme4's ``simulate(use.u = FALSE)``.
+
+    ``y = X beta + Z Lambda(theta) u + e`` with ``u ~ N(0, sigma^2 I)`` and ``e ~ N(0,
+    sigma^2 I)``; returns shape (n, n_obs).
+    """
+    theta = np.asarray(theta, float)
+    mean = pr.X @ np.asarray(beta, float)
+    out = np.empty((n, mean.size))
+    for r in range(n):
+        b = []
+        for k, (q, J) in enumerate(zip(pr.q_sizes, pr.n_levels)):
+            T = term_factor(theta, pr.q_sizes, k)
+            b.append((sigma * rng.standard_normal((J, q)) @ T.T).ravel())
+        out[r] = mean + pr.Z @ np.concatenate(b) + sigma * rng.standard_normal(mean.size)
     return out
 
 
+def refit(prb, theta0):
+    """Refit a simulated response: from the original theta, and from lme4's start if singular.
+
+    ``bootMer`` refits from the original theta only. On the source study's model and the
+    crossed one (800 simulated responses, ``bench/analysis_bootstrap_vs_bootmer.py``'s data)
+    that start missed the optimum by more than 0.01 deviance units 4 times (by up to 1.9), each
+    time at a singular point; lme4's start (identity) found the better optimum. It is tried only
+    there (about a third of refits), which costs 40 % fewer evaluations than always trying both.
+
+    Returns
+    -------
+    theta : ndarray
+    deviance : float
+    """
+    th, dev, _ = fit_problem(prb, starts=[(theta0, 0.1)], ftol_abs=BOOT_FTOL_ABS,
+                             xtol_abs=BOOT_XTOL_ABS)
+    lower = theta_lower(prb)
+    if np.any(th[lower == 0] < SINGULAR_TOL):
+        th2, dev2, _ = fit_problem(prb, starts=[(theta_start(prb), None)],
+                                   ftol_abs=BOOT_FTOL_ABS, xtol_abs=BOOT_XTOL_ABS)
+        if dev2 < dev:
+            th, dev = th2, dev2
+    return th, dev
+
+
+def _refit(pr, y, theta0):
+    prb = with_y(pr, y)
+    th, _ = refit(prb, theta0)
+    return th, solve(th, prb)
+
+
+def _block(pr, fit: LmmFit, seed_seq, n_runs: int):
+    """Refit ``n_runs`` simulated responses; rows of fixef, SDs, sigma, chi2, singular."""
+    rng = np.random.default_rng(seed_seq)
+    beta = fit.fixef_array()
+    theta0 = np.asarray(fit.theta)
+    n_sd = sum(pr.q_sizes)
+    out = np.full((n_runs, beta.size + n_sd + 1 + len(fit.terms) + 1), np.nan)
+    ys = simulate_responses(pr, beta, theta0, fit.sigma, rng, n_runs)
+    for r in range(n_runs):
+        try:
+            th, sol = _refit(pr, ys[r], theta0)
+        except (np.linalg.LinAlgError, ValueError):
+            continue
+        sds, diag = [], []
+        for k in range(len(pr.q_sizes)):
+            T = term_factor(th, pr.q_sizes, k)
+            sds.extend(sol.sigma * np.sqrt(np.sum(T * T, axis=1)))
+            diag.extend(np.diag(T))
+        chi2 = [wald_chi2(hypothesis_matrix(t, sol.vcov, terms=fit.terms, assign=fit.assign,
+                                            term_factors=fit.term_factors),
+                          sol.beta, sol.vcov, beta0=beta) for t in fit.terms]
+        out[r] = np.concatenate([sol.beta, sds, [sol.sigma], chi2,
+                                 [float(min(diag) < SINGULAR_TOL)]])
+    return out
+
+
+def _run_blocks(worker, n_boot: int, seed: int, n_jobs: int, desc: str, progress: bool):
+    sizes = [BLOCK] * (n_boot // BLOCK) + ([n_boot % BLOCK] if n_boot % BLOCK else [])
+    seeds = np.random.SeedSequence(seed).spawn(len(sizes))
+    parts = []
+    with tqdm(total=n_boot, desc=desc, unit="refit", disable=not progress) as bar:
+        runner = Parallel(n_jobs=n_jobs, return_as="generator")
+        for part in runner(delayed(worker)(s, n) for s, n in zip(seeds, sizes)):
+            parts.append(part)
+            bar.update(part.shape[0])
+    return np.vstack(parts)
+
+
 def parametric_bootstrap(
-    frame: pd.DataFrame,
+    data: pd.DataFrame,
     fit: LmmFit,
     *,
     observed_chi2: dict,
     n_boot: int = 10_000,
     seed: int = 0,
     n_jobs: int = 2,
-    group: str = "participant",
     progress: bool = True,
     return_samples: bool = False,
 ):
-    """Parametric bootstrap of ``fit`` on ``frame``: percentile CIs and Wald p-values.
+    """Parametric bootstrap of ``fit`` on ``data``: percentile CIs and Wald p-values.
 
     Parameters
     ----------
-    frame : DataFrame
-        The model frame the fit came from (standardised ``gloss``, ``depth``, the response).
+    data : DataFrame
+        The data the fit came from (its formula is rebuilt on them).
     fit : LmmFit
     observed_chi2 : dict of str to float
         The observed Type II chi-square of each term (`analysis.typeii.type2_wald`).
@@ -183,46 +225,37 @@ def parametric_bootstrap(
     """
     if n_boot < 1:
         raise ValueError(f"n_boot must be >= 1; got {n_boot}")
-    terms = FIXED_TERMS
-    unknown = set(observed_chi2) - set(terms[1:])
+    unknown = set(observed_chi2) - set(fit.terms)
     if unknown:
-        raise ValueError(f"unknown terms {sorted(unknown)} in observed_chi2; use {terms[1:]}")
-    X, Z, _, groups, starts, _ = _sorted_problem(frame, fit.response, group)
-    sizes = [BLOCK] * (n_boot // BLOCK) + ([n_boot % BLOCK] if n_boot % BLOCK else [])
-    seeds = np.random.SeedSequence(seed).spawn(len(sizes))
+        raise ValueError(f"unknown terms {sorted(unknown)} in observed_chi2; use {fit.terms}")
+    pr = make_problem(build_model(fit.formula, data), reml=fit.reml)
     t0 = time.perf_counter()
-    jobs = (delayed(_block)(X, Z, groups, starts, fit, s, n, terms) for s, n in zip(seeds, sizes))
-    parts = []
-    with tqdm(total=n_boot, desc=f"bootstrap {fit.response}", unit="refit",
-              disable=not progress) as bar:
-        runner = Parallel(n_jobs=n_jobs, return_as="generator")
-        for part in runner(jobs):
-            parts.append(part)
-            bar.update(part.shape[0])
+    samples = _run_blocks(partial(_block, pr, fit), n_boot, seed, n_jobs,
+                          f"bootstrap {fit.response}", progress)
     seconds = time.perf_counter() - t0
-    samples = np.vstack(parts)
-    ok = np.all(np.isfinite(samples[:, : len(terms)]), axis=1)
+    names = list(fit.fixef)
+    labels = re_labels(fit)
+    p, q, k = len(names), len(labels), len(fit.terms)
+    ok = np.all(np.isfinite(samples[:, :p]), axis=1)
     s = samples[ok]
-    p = len(terms)
-    q = len(RANDOM_TERMS)
-    k = len(terms) - 1
 
     def ci(col):
         return [float(v) for v in np.percentile(s[:, col], [2.5, 97.5])]
 
     chi2 = s[:, p + q + 1: p + q + 1 + k]
     pvals = {}
-    for i, term in enumerate(terms[1:]):
+    for i, term in enumerate(fit.terms):
         if term in observed_chi2:
             exceed = int(np.sum(chi2[:, i] >= observed_chi2[term]))
             pvals[term] = (1 + exceed) / (s.shape[0] + 1)
     result = BootstrapResult(
         response=fit.response,
+        formula=fit.formula,
         n_boot=int(n_boot),
         n_ok=int(s.shape[0]),
         seed=int(seed),
-        fixef_ci={t: ci(i) for i, t in enumerate(terms)},
-        re_sd_ci={t: ci(p + i) for i, t in enumerate(RANDOM_TERMS)},
+        fixef_ci={t: ci(i) for i, t in enumerate(names)},
+        re_sd_ci={t: ci(p + i) for i, t in enumerate(labels)},
         sigma_ci=ci(p + q),
         chi2_p=pvals,
         singular_fraction=float(np.mean(s[:, p + q + 1 + k])),

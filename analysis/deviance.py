@@ -1,4 +1,8 @@
-"""lme4's profiled deviance for ``(1 + gloss + depth | participant)`` models.
+"""The profiled deviance of one grouping factor with three random coefficients, in scalars.
+
+The source study's ``(1 + gloss + depth | participant)`` models are refitted thousands of times
+in a bootstrap; `analysis.pls` evaluates their deviance with this kernel (tested equal to its
+general block elimination).
 
 Bates, Maechler, Bolker & Walker (2015), "Fitting linear mixed-effects models using lme4", J. Stat.
 Softw. 67(1), section 3. The random effects are ``b = Lambda(theta) u``, ``u ~ N(0, sigma^2 I)``;
@@ -20,14 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = [
-    "CrossProducts",
-    "crossproducts",
-    "profiled_deviance",
-    "theta_lower_bounds",
-    "theta_to_T",
-    "with_response",
-]
+__all__ = ["CrossProducts", "crossproducts", "with_response"]
 
 
 @dataclass(frozen=True)
@@ -139,46 +136,6 @@ def with_response(cp: CrossProducts, Zty, Xty, yty) -> CrossProducts:
     return _assemble(cp.ZtZ, cp.ZtX, Zty, cp.XtX, Xty, yty, cp.n, cp.pattern_of)
 
 
-def theta_lower_bounds(q: int) -> np.ndarray:
-    """lme4's bounds: 0 for the diagonal of the Cholesky block, -inf elsewhere.
-
-    theta lists the lower triangle column by column (lme4's order).
-    """
-    return np.array([0.0 if i == j else -np.inf for j in range(q) for i in range(j, q)])
-
-
-def theta_to_T(theta, q: int) -> np.ndarray:
-    """The lower-triangular relative covariance factor T of one participant."""
-    T = np.zeros((q, q))
-    # Column-major lower triangle, as lme4's Lind.
-    T[np.triu_indices(q)[::-1]] = theta
-    return T
-
-
-def _solve_pls(theta, cp: CrossProducts):
-    """Penalised least squares at theta: (log|L_theta|^2, R_X, c_beta, r^2).
-
-    With ``A_j = T' Z_j'Z_j T + I = L_j L_j'`` per group and ``R_j = L_j^-1 T' Z_j'[X y]``, the
-    Schur complement ``[X y]'[X y] - sum_j R_j' R_j`` has the Cholesky factor
-    ``[[R_X', 0], [c_beta', r]]``: lme4's R_X, the fixed-effect right-hand side and the square
-    root of the penalised residual sum of squares in one factorisation (Bates et al. 2015, eqs.
-    16-18 and 30-34).
-    """
-    q = cp.ZtZ.shape[1]
-    p = cp.XtX.shape[0]
-    T = np.zeros((q, q))
-    T[cp.tril] = theta
-    A = T.T @ cp.ZtZ @ T
-    A += np.eye(q)
-    L = np.linalg.cholesky(A)
-    R = np.linalg.solve(L, T.T @ cp.ZtXy)
-    Rf = R.reshape(-1, p + 1)
-    M = cp.XtXy - Rf.T @ Rf
-    ldL2 = 2.0 * float(np.sum(np.log(L[:, cp.diag_q, cp.diag_q])))
-    C = np.linalg.cholesky(M)
-    return ldL2, C[:p, :p], C[p, :p], float(C[p, p]) ** 2
-
-
 def _pattern_terms(theta, G, cols, S):
     """One pattern's share of the profiled deviance, in scalar arithmetic (q = 3).
 
@@ -228,7 +185,7 @@ def _pattern_terms(theta, G, cols, S):
 
 
 def _deviance_fast(theta, cp: CrossProducts) -> float:
-    """`profiled_deviance` for q = 3 by patterns of identical participant blocks.
+    """The profiled ML deviance for q = 3 by patterns of identical participant blocks.
 
     Per pattern k (``n_k`` participants with the same ``Z_j'Z_j`` and ``Z_j'X_j``), the
     Schur complement loses ``n_k R_k' R_k`` (its y column through the pattern's mean ``Z'y``)
@@ -306,27 +263,3 @@ def _schur5(XtXy, R0, R1, R2, J, m_yy) -> float:
     c43 = (x[4][3] - J * (a4 * a3 + b4 * b3 + e4 * e3) - c40 * c30 - c41 * c31
            - c42 * c32) / c33
     return m_yy - c40 * c40 - c41 * c41 - c42 * c42 - c43 * c43
-
-
-def profiled_deviance(theta, cp: CrossProducts) -> float:
-    """lme4's profiled ML deviance at theta (Bates et al. 2015, eq. 34).
-
-    ``-2 log L = log|L_theta|^2 + n (1 + log(2 pi r^2(theta) / n))``, with ``r^2`` the penalised
-    residual sum of squares at the conditional estimates of beta and u.
-
-    Parameters
-    ----------
-    theta : array_like, shape (q (q + 1) / 2,)
-        Lower triangle of the relative covariance factor, column by column (lme4's order).
-    cp : CrossProducts
-
-    Returns
-    -------
-    float
-        The deviance (what ``lmer(..., REML = FALSE, devFunOnly = TRUE)(theta)`` returns).
-    """
-    if cp.ZtZ.shape[1] == 3:
-        return _deviance_fast(np.asarray(theta, float).tolist(), cp)
-    ldL2, _, _, pwrss = _solve_pls(np.asarray(theta, float), cp)
-    n = cp.n
-    return ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))

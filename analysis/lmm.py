@@ -1,17 +1,14 @@
-"""Linear mixed models by lme4's profiled deviance (maximum likelihood).
+"""Linear mixed models by formula, fitted exactly as lme4 does (ML or REML).
 
-The model is the seed's ``y ~ gloss * depth + (1 + gloss + depth | participant)``: fixed effects
-for the intercept, gloss, depth and their interaction; per participant a correlated random
-intercept and random slopes for gloss and depth. It is fitted exactly as lme4 does (Bates,
-Maechler, Bolker & Walker 2015, "Fitting linear mixed-effects models using lme4", J. Stat.
-Softw. 67(1), section 3): the random effects are ``b = Lambda(theta) u`` with ``u ~ N(0, sigma^2
-I)``; for a given relative covariance factor ``theta`` the fixed effects and ``sigma`` are profiled
-out with a Cholesky factorisation, and the profiled ML deviance (their eq. 34) is minimised over
-``theta`` alone by bound-constrained derivative-free optimisation (BOBYQA, as lme4's default
-``nloptwrap``).
-
-The deviance itself lives in `analysis.deviance`; this module holds the model frame, the
-optimisation (two starts) and the fitted record.
+``fit("y ~ gloss * depth + (1 + gloss + depth | participant) + (1 | stimulus_id)", data)``
+takes lme4's formula syntax (`analysis.formula`) and minimises lme4's profiled deviance or REML
+criterion (Bates, Maechler, Bolker & Walker 2015, "Fitting linear mixed-effects models using
+lme4", J. Stat. Softw. 67(1), section 3; the deviance is in `analysis.pls`) over the relative
+covariance factor theta alone, by bound-constrained derivative-free optimisation (BOBYQA, lme4's
+default ``nloptwrap``), from lme4's start (every factor the identity) and, for one grouping
+factor whose random coefficients are also fixed ones, from a method-of-moments start; the better
+optimum is kept. The record, `LmmFit`, holds what ``summary(lmer(...))`` prints and round-trips
+through JSON.
 """
 
 from __future__ import annotations
@@ -24,49 +21,32 @@ import nlopt
 import numpy as np
 import pandas as pd
 
-from analysis.deviance import (
-    CrossProducts,
-    _deviance_fast,
-    _solve_pls,
-    crossproducts,
-    profiled_deviance,
-    theta_lower_bounds,
-    theta_to_T,
-    with_response,
+from analysis.formula import LmmError, ModelSpec, build_model
+from analysis.pls import (
+    Problem,
+    deviance,
+    make_problem,
+    solve,
+    term_factor,
+    theta_lower,
+    theta_start,
 )
 from studydesign import StudyDesign
 
 __all__ = [
-    "FIXED_TERMS",
-    "RANDOM_TERMS",
-    "CrossProducts",
     "LmmError",
     "LmmFit",
     "bc_power",
-    "cold_start",
-    "crossproducts",
-    "fit_crossproducts",
-    "fit_lmm",
-    "model_matrices",
+    "fit",
+    "fit_problem",
     "moment_start",
-    "profiled_deviance",
+    "polish",
     "standardise_predictors",
-    "summarise_fit",
-    "theta_lower_bounds",
-    "with_response",
+    "summarise",
 ]
 
-#: Fixed-effect coefficient names in lme4's order for ``gloss * depth``.
-FIXED_TERMS = ("(Intercept)", "gloss", "depth", "gloss:depth")
-#: Random-effect names per participant, in lme4's order for ``(1 + gloss + depth | participant)``.
-RANDOM_TERMS = ("(Intercept)", "gloss", "depth")
-
-# lme4's isSingular(): a diagonal element of a Cholesky block of theta below this is "singular".
+# lme4's isSingular(): a diagonal element of a term's factor below this is "singular".
 SINGULAR_TOL = 1e-4
-
-
-class LmmError(ValueError):
-    """Bad input to a mixed model (missing columns, too few participants, non-finite values)."""
 
 
 def bc_power(u, lam: float) -> np.ndarray:
@@ -107,9 +87,9 @@ def bc_power(u, lam: float) -> np.ndarray:
 def standardise_predictors(frame: pd.DataFrame, design: StudyDesign) -> pd.DataFrame:
     """Add centred, scaled predictors ``gloss`` and ``depth`` from the true stimulus values.
 
-    The seed codes its predictors centred. We also divide by the standard deviation: a Type II
-    Wald chi-square does not depend on the predictors' scale (only on their centring, through the
-    interaction), while lme4 fitted on raw % and cm units warned of non-convergence in most fits
+    The source study codes its predictors centred. We also divide by the standard deviation: a
+    Type II Wald chi-square does not depend on the predictors' scale (only on their centring,
+    through the interaction), while lme4 fitted on raw % and cm units warned of non-convergence in most fits
     and its chi-square moved by up to 62 %. Centre and scale come from the design's rendered
     levels (the balanced stimulus set), not from the data, so that one coefficient means the same
     in every data set, incomplete ones included.
@@ -139,104 +119,73 @@ def standardise_predictors(frame: pd.DataFrame, design: StudyDesign) -> pd.DataF
     return out
 
 
-def model_matrices(frame: pd.DataFrame, response: str, group: str = "participant"):
-    """Fixed design X, random design Z, response y and group index for the seed's model.
-
-    Parameters
-    ----------
-    frame : DataFrame
-        With columns ``gloss``, ``depth`` (standardised), ``response`` and ``group``.
-    response : str
-        Column of the response.
-    group : str
-        Column of the grouping factor.
-
-    Returns
-    -------
-    X : ndarray, shape (n, 4)
-        Columns `FIXED_TERMS`.
-    Z : ndarray, shape (n, 3)
-        Columns `RANDOM_TERMS` (the per-observation rows of each participant's block).
-    y : ndarray, shape (n,)
-    groups : ndarray of int, shape (n,)
-        Index of each row's group in ``levels``.
-    levels : ndarray
-        Group labels, sorted.
-    """
-    missing = [c for c in ("gloss", "depth", response, group) if c not in frame.columns]
-    if missing:
-        raise LmmError(f"columns {missing} missing from the model frame")
-    g = frame["gloss"].to_numpy(float)
-    d = frame["depth"].to_numpy(float)
-    y = frame[response].to_numpy(float)
-    if not (np.isfinite(g).all() and np.isfinite(d).all() and np.isfinite(y).all()):
-        raise LmmError(f"non-finite gloss, depth or {response!r}; drop or fix those rows first")
-    levels, groups = np.unique(frame[group].astype(str).to_numpy(), return_inverse=True)
-    if levels.size < 2:
-        raise LmmError(f"a mixed model needs >= 2 {group}s; got {levels.tolist()}")
-    one = np.ones_like(g)
-    X = np.column_stack([one, g, d, g * d])
-    Z = np.column_stack([one, g, d])
-    if np.linalg.matrix_rank(X) < X.shape[1]:
-        raise LmmError(
-            "the fixed effects cannot be estimated: the data need at least two gloss and two "
-            f"depth levels (got gloss {np.unique(g).size}, depth {np.unique(d).size} distinct)"
-        )
-    return X, Z, y, groups, levels
-
-
 @dataclass(frozen=True)
 class LmmFit:
-    """A fitted linear mixed model (ML), in lme4's terms.
+    """A fitted linear mixed model, in lme4's terms.
 
     Attributes
     ----------
-    response : str
+    formula, response : str
+    reml : bool
     fixef : dict of str to float
-        Fixed effects, keyed by `FIXED_TERMS` (per SD of the standardised predictors).
+        Fixed effects, R's coefficient names, in the design's order.
     se : dict of str to float
-        Their standard errors (sqrt of the diagonal of ``vcov``).
+        Their standard errors.
     vcov : list of list of float
-        Fixed-effect covariance, ``sigma^2 (R_X' R_X)^-1`` (lme4's ``vcov``).
+        ``sigma^2 (R_X' R_X)^-1`` (lme4's ``vcov``).
+    terms : list of str
+        Fixed-effect terms without the intercept (``"gloss"``, ``"gloss:depth"``).
+    assign : list of int
+        Per coefficient, its index into ``terms`` (-1: intercept), as R's ``assign``.
+    term_factors : list of list of str
+        Per term, the variables it is made of.
     theta : list of float
-        Relative covariance factor at the optimum (lme4's ``getME(fit, "theta")``).
+        lme4's ``getME(fit, "theta")``.
     sigma : float
-        Residual SD (ML: ``sqrt(r^2 / n)``).
-    re_sd : dict of str to float
-        Random-effect SDs per participant, keyed by `RANDOM_TERMS`.
-    re_cor : dict of str to float
-        Random-effect correlations, keyed ``"a,b"``.
-    loglik, deviance : float
-    n_obs, n_groups : int
+        Residual SD.
+    random : list of dict
+        Per random term (lme4's order): ``group``, ``names`` (its coefficients), ``n_levels``,
+        ``sd`` (name -> SD) and ``cor`` ("a,b" -> correlation), as ``VarCorr``.
+    loglik : float
+        ``logLik`` (for REML fits the REML log-likelihood, as lme4).
+    deviance : float
+        ``-2 loglik``: the ML deviance, or the REML criterion (lme4's ``REMLcrit``).
+    n_obs, n_dropped : int
+        Observations used, and rows left out for missing values.
     singular : bool
-        A diagonal element of theta below 1e-4 (lme4's ``isSingular``).
+        lme4's ``isSingular``: a diagonal element of theta below 1e-4.
     n_evals : int
-        Deviance evaluations the optimiser used (both starts).
-    start : str
-        Which start gave the optimum: "warm" or "cold".
+        Deviance evaluations the optimiser used.
     """
 
+    formula: str
     response: str
+    reml: bool
     fixef: dict
     se: dict
     vcov: list
+    terms: list
+    assign: list
+    term_factors: list
     theta: list
     sigma: float
-    re_sd: dict
-    re_cor: dict
+    random: list
     loglik: float
     deviance: float
     n_obs: int
-    n_groups: int
+    n_dropped: int
     singular: bool
     n_evals: int
-    start: str
 
     def fixef_array(self) -> np.ndarray:
-        return np.array([self.fixef[t] for t in FIXED_TERMS])
+        return np.array(list(self.fixef.values()))
 
     def vcov_array(self) -> np.ndarray:
         return np.array(self.vcov)
+
+    def n_groups(self) -> dict:
+        """Levels of each grouping factor (lme4's ``ngrps``)."""
+        return {r["group"]: r["n_levels"] for r in self.random}
 
     def to_json(self) -> str:
         return json.dumps(asdict(self), indent=1)
@@ -246,20 +195,15 @@ class LmmFit:
         return cls(**json.loads(text))
 
 
-def _optimise(cp: CrossProducts, start, step, ftol_abs, xtol_abs, maxeval):
-    q = cp.ZtZ.shape[1]
-    k = q * (q + 1) // 2
-    opt = nlopt.opt(nlopt.LN_BOBYQA, k)
-    opt.set_lower_bounds(theta_lower_bounds(q))
+def _optimise(pr: Problem, start, step, ftol_abs, xtol_abs, maxeval):
+    lower = theta_lower(pr)
+    opt = nlopt.opt(nlopt.LN_BOBYQA, lower.size)
+    opt.set_lower_bounds(lower)
     n_evals = [0]
-
-    fast = q == 3
 
     def objective(x, grad):
         n_evals[0] += 1
-        if fast:
-            return _deviance_fast(x.tolist(), cp)
-        return profiled_deviance(x, cp)
+        return deviance(x, pr)
 
     opt.set_min_objective(objective)
     opt.set_ftol_abs(ftol_abs)
@@ -267,40 +211,134 @@ def _optimise(cp: CrossProducts, start, step, ftol_abs, xtol_abs, maxeval):
     opt.set_maxeval(maxeval)
     if step is not None:
         opt.set_initial_step(step)
-    x0 = np.maximum(np.asarray(start, float), theta_lower_bounds(q))
+    x0 = np.maximum(np.asarray(start, float), lower)
     try:
         x = opt.optimize(x0)
         f = opt.last_optimum_value()
     except nlopt.RoundoffLimited:
         # BOBYQA stops on round-off when the deviance is flat to machine precision (an optimum
-        # on the boundary); the best point seen so far is the answer.
-        x = x0
-        f = profiled_deviance(x0, cp)
+        # on the boundary); the start is then as good as any point it saw.
+        x, f = x0, deviance(x0, pr)
     return np.asarray(x), float(f), n_evals[0]
 
 
-def cold_start(q: int = 3) -> np.ndarray:
-    """lme4's starting value: theta of the identity (1 on the diagonal, 0 elsewhere)."""
-    return np.array([1.0 if i == j else 0.0 for j in range(q) for i in range(j, q)])
+def fit_problem(pr: Problem, *, starts, ftol_abs: float = 1e-12, xtol_abs: float = 1e-10,
+                maxeval: int = 100_000):
+    """Minimise the deviance from each start; the best optimum.
+
+    Parameters
+    ----------
+    pr : Problem
+    starts : sequence of (array_like, float or None)
+        Start thetas with an initial step (None: nlopt's default, what lme4 uses).
+    ftol_abs, xtol_abs : float
+        nlopt's stopping tolerances on the deviance and on theta (lme4's defaults are 1e-8;
+        tighter ones let two implementations agree to 1e-6 and better).
+    maxeval : int
+
+    Returns
+    -------
+    theta : ndarray
+    deviance : float
+    n_evals : int
+    """
+    best, n_total = None, 0
+    for start, step in starts:
+        x, f, n = _optimise(pr, start, step, ftol_abs, xtol_abs, maxeval)
+        n_total += n
+        if best is None or f < best[1]:
+            best = (x, f)
+    return best[0], best[1], n_total
 
 
-def moment_start(X, Z, y, groups) -> np.ndarray:
+def _derivatives(f, x, free, h):
+    """Central-difference gradient and Hessian of ``f`` at ``x`` in the coordinates ``free``."""
+    k = len(free)
+    f0 = f(x)
+    g, H = np.zeros(k), np.zeros((k, k))
+    step = [h * max(abs(x[i]), 0.1) for i in free]
+
+    def at(moves):
+        y = x.copy()
+        for i, d in moves:
+            y[free[i]] += d
+        return f(y)
+
+    for i in range(k):
+        fp, fm = at([(i, step[i])]), at([(i, -step[i])])
+        g[i] = (fp - fm) / (2 * step[i])
+        H[i, i] = (fp - 2 * f0 + fm) / step[i] ** 2
+        for j in range(i):
+            H[i, j] = H[j, i] = (at([(i, step[i]), (j, step[j])]) - at([(i, step[i]), (j, -step[j])])
+                                 - at([(i, -step[i]), (j, step[j])])
+                                 + at([(i, -step[i]), (j, -step[j])])) / (4 * step[i] * step[j])
+    return f0, g, H
+
+
+def polish(pr: Problem, theta, *, steps: int = 4) -> np.ndarray:
+    """Newton steps on the deviance from a BOBYQA optimum, off the bounds only.
+
+    BOBYQA stops where the deviance changes by less than its tolerance, which on a flat
+    likelihood (crossed designs, REML) leaves theta uncertain in the 6th digit, and with it the
+    fixed-effect covariance. A few Newton steps with central-difference derivatives (relative
+    step 1e-4) bring theta to where the gradient vanishes, to about 1e-8. The deviance is then
+    flat to its rounding error (~1e-13 relative), so a step is kept if the Hessian is positive
+    definite and the deviance does not rise by more than 1e-10 relative; elements on their bound
+    (a zero variance) stay there.
+    """
+    x = np.asarray(theta, float).copy()
+    lower = theta_lower(pr)
+    free = [i for i in range(x.size) if not (lower[i] == 0.0 and x[i] < 1e-6)]
+    if not free:
+        return x
+
+    def f(y):
+        return deviance(y, pr)
+
+    for _ in range(steps):
+        f0, g, H = _derivatives(f, x, free, 1e-4)
+        try:
+            delta = np.linalg.solve(H, g)
+        except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(delta)) or np.any(np.linalg.eigvalsh(H) <= 0):
+            break
+        y = x.copy()
+        y[free] -= delta
+        y = np.maximum(y, lower)
+        if f(y) > f0 + 1e-10 * abs(f0):
+            break
+        x = y
+        if np.max(np.abs(delta)) < 1e-10 * max(1.0, float(np.max(np.abs(x)))):
+            break
+    return x
+
+
+def moment_start(spec: ModelSpec) -> np.ndarray | None:
     """A warm start for theta from per-group least squares (method of moments).
 
-    Each group's coefficients on ``X`` are fitted alone; the covariance of their ``Z`` part
-    across groups, relative to the pooled residual variance, approximates ``T T'``. Its
-    eigenvalues are clipped at 0 before the Cholesky factor is taken.
+    Only for one grouping factor whose random coefficients are all fixed coefficients too (as
+    ``y ~ gloss * depth + (1 + gloss + depth | participant)``); else None. Each group's
+    coefficients on X are fitted alone; the covariance of the random ones across groups,
+    relative to the pooled residual variance, approximates ``T T'``; its eigenvalues are clipped
+    at 0 before the Cholesky factor is taken.
     """
-    J = int(np.max(groups)) + 1
-    q = Z.shape[1]
+    if len(spec.re_groups) != 1:
+        return None
+    names = list(spec.fixed.names)
+    if any(n not in names for n in spec.re_names[0]):
+        return None
+    cols = [names.index(n) for n in spec.re_names[0]]
+    X, y, groups = spec.fixed.X, spec.y, spec.re_index[0]
     coefs, rss, dof = [], 0.0, 0
-    for j in range(J):
+    for j in range(int(groups.max()) + 1):
         rows = groups == j
         b, _, rank, _ = np.linalg.lstsq(X[rows], y[rows], rcond=None)
-        coefs.append(b[:q])
+        coefs.append(b[cols])
         r = y[rows] - X[rows] @ b
         rss += float(r @ r)
         dof += int(rows.sum()) - rank
+    q = len(cols)
     sigma2 = rss / max(dof, 1)
     S = np.atleast_2d(np.cov(np.array(coefs).T)) / max(sigma2, 1e-300)
     w, V = np.linalg.eigh(S)
@@ -309,113 +347,54 @@ def moment_start(X, Z, y, groups) -> np.ndarray:
     return T[np.triu_indices(q)[::-1]]
 
 
-def fit_crossproducts(
-    cp: CrossProducts,
-    *,
-    warm_start=None,
-    ftol_abs: float = 1e-12,
-    xtol_abs: float = 1e-10,
-    maxeval: int = 100_000,
-):
-    """Minimise the profiled deviance; the better of a warm and a cold start.
-
-    Parameters
-    ----------
-    cp : CrossProducts
-    warm_start : array_like or None
-        A theta near the optimum (e.g. the original fit's, in a bootstrap); started with an
-        initial step of 0.1. The cold start is lme4's (identity) with nlopt's default step. A
-        single cold start missed the optimum in up to 7 % of bootstrap samples while planning.
-    ftol_abs, xtol_abs : float
-        nlopt's stopping tolerances on the deviance and on theta (lme4's defaults are 1e-8;
-        tighter ones let two implementations agree to 1e-5 and better).
-    maxeval : int
-
-    Returns
-    -------
-    theta : ndarray
-    deviance : float
-    n_evals : int
-    start : str
-        "warm" or "cold".
-    """
-    q = cp.ZtZ.shape[1]
-    best = None
-    n_total = 0
-    starts = [("cold", cold_start(q), None)]
-    if warm_start is not None:
-        starts.insert(0, ("warm", np.asarray(warm_start, float), 0.1))
-    for name, start, step in starts:
-        x, f, n = _optimise(cp, start, step, ftol_abs, xtol_abs, maxeval)
-        n_total += n
-        if best is None or f < best[1]:
-            best = (x, f, name)
-    return best[0], best[1], n_total, best[2]
-
-
-def summarise_fit(theta, cp: CrossProducts, *, response: str, n_groups: int, n_evals=0,
-                  start="cold") -> LmmFit:
-    """Fixed effects, SEs, variance components and log-likelihood at theta."""
+def summarise(theta, pr: Problem, spec: ModelSpec, *, n_evals: int = 0) -> LmmFit:
+    """The fitted record at ``theta``: fixed effects, VarCorr, log-likelihood."""
     theta = np.asarray(theta, float)
-    q = cp.ZtZ.shape[1]
-    ldL2, RX, cb, pwrss = _solve_pls(theta, cp)
-    n = cp.n
-    deviance = ldL2 + n * (1.0 + math.log(2.0 * math.pi * pwrss / n))
-    beta = np.linalg.solve(RX.T, cb)
-    sigma2 = pwrss / n
-    RXinv = np.linalg.inv(RX)
-    vcov = sigma2 * (RXinv.T @ RXinv)
-    T = theta_to_T(theta, q)
-    cov_b = sigma2 * (T @ T.T)
-    sd = np.sqrt(np.diag(cov_b))
-    cor = {}
-    for i in range(q):
-        for j in range(i + 1, q):
-            denom = sd[i] * sd[j]
-            cor[f"{RANDOM_TERMS[i]},{RANDOM_TERMS[j]}"] = (
-                float(cov_b[i, j] / denom) if denom > 0 else float("nan")
-            )
-    diag = np.array([theta[k] for k, (i, j) in enumerate(
-        (i, j) for j in range(q) for i in range(j, q)) if i == j])
+    sol = solve(theta, pr)
+    names = spec.fixed.names
+    se = np.sqrt(np.diag(sol.vcov))
+    random, diag = [], []
+    for k, (group, rnames) in enumerate(zip(spec.re_groups, spec.re_names)):
+        T = term_factor(theta, pr.q_sizes, k)
+        diag.extend(np.diag(T).tolist())
+        cov = sol.sigma**2 * (T @ T.T)
+        sd = np.sqrt(np.diag(cov))
+        cor = {}
+        for i in range(len(rnames)):
+            for j in range(i + 1, len(rnames)):
+                den = sd[i] * sd[j]
+                cor[f"{rnames[i]},{rnames[j]}"] = float(cov[i, j] / den) if den > 0 else math.nan
+        random.append({"group": group, "names": list(rnames), "n_levels": int(pr.n_levels[k]),
+                       "sd": {n: float(v) for n, v in zip(rnames, sd)}, "cor": cor})
     return LmmFit(
-        response=response,
-        fixef={t: float(b) for t, b in zip(FIXED_TERMS, beta)},
-        se={t: float(s) for t, s in zip(FIXED_TERMS, np.sqrt(np.diag(vcov)))},
-        vcov=vcov.tolist(),
-        theta=theta.tolist(),
-        sigma=float(math.sqrt(sigma2)),
-        re_sd={t: float(s) for t, s in zip(RANDOM_TERMS, sd)},
-        re_cor=cor,
-        loglik=float(-deviance / 2.0),
-        deviance=float(deviance),
-        n_obs=int(n),
-        n_groups=int(n_groups),
-        singular=bool(np.min(diag) < SINGULAR_TOL),
-        n_evals=int(n_evals),
-        start=start,
+        formula=spec.formula, response=spec.response, reml=pr.reml,
+        fixef={n: float(b) for n, b in zip(names, sol.beta)},
+        se={n: float(s) for n, s in zip(names, se)},
+        vcov=sol.vcov.tolist(), terms=list(spec.fixed.terms), assign=list(spec.fixed.assign),
+        term_factors=[sorted(f) for f in spec.fixed.term_factors], theta=theta.tolist(),
+        sigma=float(sol.sigma), random=random, loglik=float(-sol.deviance / 2.0),
+        deviance=float(sol.deviance), n_obs=pr.n, n_dropped=spec.n_dropped,
+        singular=bool(min(diag) < SINGULAR_TOL), n_evals=int(n_evals),
     )
 
 
-def fit_lmm(
-    frame: pd.DataFrame,
-    *,
-    response: str,
-    group: str = "participant",
-    ftol_abs: float = 1e-12,
-    xtol_abs: float = 1e-10,
-) -> LmmFit:
-    """Fit ``response ~ gloss * depth + (1 + gloss + depth | group)`` by ML, as lme4.
+def fit(formula: str, data: pd.DataFrame, *, reml: bool = False, ftol_abs: float = 1e-12,
+        xtol_abs: float = 1e-10) -> LmmFit:
+    """Fit a linear mixed model given by an lme4 formula, as ``lmer(formula, data, REML = reml)``.
 
     Parameters
     ----------
-    frame : DataFrame
-        Standardised predictors ``gloss`` and ``depth`` (see `standardise_predictors`), the
-        response column and the group column.
-    response : str
-        E.g. ``"gloss_match_pct"`` or ``"depth_match_bc"``.
-    group : str
+    formula : str
+        lme4 syntax, e.g. ``"gloss_match_pct ~ gloss * depth + illumination +
+        (1 + gloss + depth | participant) + (1 | stimulus_id)"``; see `analysis.formula`.
+    data : DataFrame
+        Long format, one row per observation. Rows with missing values in the formula's
+        variables are left out (and counted in ``n_dropped``).
+    reml : bool
+        Restricted maximum likelihood (lme4's default is True; the source study used ML, which
+        likelihood-ratio tests of fixed effects need, so ours is False).
     ftol_abs, xtol_abs : float
-        Optimiser tolerances (see `fit_crossproducts`).
+        Optimiser tolerances (see `fit_problem`).
 
     Returns
     -------
@@ -424,12 +403,14 @@ def fit_lmm(
     Raises
     ------
     LmmError
-        Missing columns, non-finite values or fewer than two groups.
+        A formula that does not parse or names a column not in the data, a grouping factor
+        with one level, non-finite responses, or fixed effects the data cannot estimate.
     """
-    X, Z, y, groups, levels = model_matrices(frame, response, group)
-    cp = crossproducts(X, Z, y, groups)
-    theta, _, n_evals, start = fit_crossproducts(
-        cp, warm_start=moment_start(X, Z, y, groups), ftol_abs=ftol_abs, xtol_abs=xtol_abs
-    )
-    return summarise_fit(theta, cp, response=response, n_groups=levels.size, n_evals=n_evals,
-                         start=start)
+    spec = build_model(formula, data)
+    pr = make_problem(spec, reml=reml)
+    starts = [(theta_start(pr), None)]
+    warm = moment_start(spec)
+    if warm is not None:
+        starts.insert(0, (warm, 0.1))
+    theta, _, n_evals = fit_problem(pr, starts=starts, ftol_abs=ftol_abs, xtol_abs=xtol_abs)
+    return summarise(polish(pr, theta), pr, spec, n_evals=n_evals)

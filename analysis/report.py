@@ -1,9 +1,10 @@
-"""The analysis report: session data in, an HTML page with the source study's figures and
-tests out.
+"""The analysis report: session data in, an HTML page with the source study's figures and tests.
 
-`build_report` loads and validates the sessions, draws the figures, fits the two mixed models
-with Type II Wald tests, runs the parametric bootstrap, checks the source study's qualitative
-pattern and writes ``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
+`build_report` loads and validates the sessions, draws the figures, fits the source study's two
+mixed models and the design's extra ones (``[analysis.models]``, e.g. stimuli crossed with
+participants) with Type II Wald tests, runs the parametric bootstrap, checks the source study's
+qualitative findings under its models and under their re-specifications, and writes
+``REPORT_DIR/index.html`` (plus the figures as PNG and every number in
 ``results.json``). An existing report is never overwritten: if ``REPORT_DIR/index.html`` exists
 the build stops before computing anything (choose another ``--out`` or move the old report
 away); ``index.html`` is written last (``labfiles.write_new_file``), which fails rather than
@@ -12,8 +13,10 @@ replace a file. Every file gets the umask's permissions, so the lab's other acco
 
 from __future__ import annotations
 
+import functools
 import html
 import json
+import operator
 import platform
 from dataclasses import asdict
 from datetime import UTC, datetime
@@ -22,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.bootstrap import parametric_bootstrap
+from analysis.bootstrap import parametric_bootstrap, re_labels
 from analysis.figures import (
     find_metamers,
     group_means,
@@ -32,9 +35,8 @@ from analysis.figures import (
     plot_observers,
     save_figure,
 )
-from analysis.lmm import FIXED_TERMS, RANDOM_TERMS
 from analysis.load import load_sessions
-from analysis.models import fit_seed_models, model_frame
+from analysis.models import fit_design_models, fit_source_study_models, model_frame
 from labfiles import atomic_write_text, write_new_file
 from studydesign import StudyDesign
 
@@ -62,6 +64,16 @@ def chi2_sentence(test, n_participants: int) -> str:
 
 def source_study_pattern(models: dict, frame: pd.DataFrame, *, alpha: float = ALPHA) -> dict:
     """The source study's qualitative findings, each checked on these data.
+
+    Parameters
+    ----------
+    models : dict
+        ModelResult under the keys "gloss" and "depth" (the source study's models or models
+        that re-specify them, e.g. with stimuli crossed); each needs the terms gloss, depth and
+        gloss:depth.
+    frame : DataFrame
+        The loaded sessions.
+    alpha : float
 
     Returns
     -------
@@ -120,9 +132,20 @@ def _table(header, rows) -> str:
     return f"<table><tr>{head}</tr>{body}</table>"
 
 
-def _model_section(res, boot, n_part: int) -> str:
+def _ci(boot, table: str, key) -> str:
+    if boot is None:
+        return ""
+    values = boot.sigma_ci if table == "sigma" else getattr(boot, table)[key]
+    return "[{:.3f}, {:.3f}]".format(*values)
+
+
+def _model_section(res, boot) -> str:
     fit = res.fit
-    parts = [f"<h3>{html.escape(res.label)}</h3>"]
+    n_part = fit.n_groups().get("participant", 0)
+    groups = ", ".join(f"{r['group']} ({r['n_levels']})" for r in fit.random)
+    parts = [f"<h3>{html.escape(res.label)}</h3>",
+             (f"<p><code>{html.escape(fit.formula)}</code>, {'REML' if fit.reml else 'ML'}; "
+             f"{fit.n_obs} trials; grouping factors (levels): {html.escape(groups)}.</p>")]
     if res.boxcox_lambda is not None:
         parts.append(f"<p>Response: car::bcPower(depth, λ = {res.boxcox_lambda:g}) = "
                      "(depth<sup>λ</sup> − 1)/λ.</p>")
@@ -131,27 +154,35 @@ def _model_section(res, boot, n_part: int) -> str:
     rows = []
     for t in res.tests:
         bp = "" if boot is None else format_p(boot.chi2_p[t.term], floor=1 / (boot.n_ok + 1))
-        rows.append([t.term, f"{t.chi2:.2f}", t.df, format_p(t.p), bp])
-    parts.append(_table(["term", "χ²", "df", "p (χ²)", "p (bootstrap)"], rows))
-    rows = []
-    for t in FIXED_TERMS:
-        ci = "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.fixef_ci[t])
-        rows.append([t, f"{fit.fixef[t]:.3f}", f"{fit.se[t]:.3f}", ci])
-    parts.append("<p>Fixed effects (per SD of the standardised predictors):</p>")
+        F, q, ddf, fp = res.f_tests.get(t.term, [float("nan")] * 4)
+        rows.append([t.term, f"{t.chi2:.2f}", t.df, format_p(t.p), bp,
+                     f"F({q:g}, {ddf:.1f}) = {F:.2f}", format_p(fp)])
+    parts.append(_table(["term", "χ²", "df", "p (χ²)", "p (bootstrap)", "F (Satterthwaite df)",
+                         "p (F)"], rows))
+    rows = [[t, f"{fit.fixef[t]:.3f}", f"{fit.se[t]:.3f}", _ci(boot, "fixef_ci", t)]
+            for t in fit.fixef]
+    parts.append("<p>Fixed effects (gloss and depth per SD of the design's levels):</p>")
     parts.append(_table(["coefficient", "estimate", "SE", "95 % bootstrap CI"], rows))
-    rows = [[f"participant: {t}", f"{fit.re_sd[t]:.3f}",
-             "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.re_sd_ci[t])]
-            for t in RANDOM_TERMS]
-    rows.append(["residual", f"{fit.sigma:.3f}",
-                 "" if boot is None else "[{:.3f}, {:.3f}]".format(*boot.sigma_ci)])
+    sds = [sd for r in fit.random for sd in r["sd"].values()]
+    rows = [[label, f"{sd:.3f}", _ci(boot, "re_sd_ci", label)]
+            for label, sd in zip(re_labels(fit), sds)]
+    rows.append(["residual", f"{fit.sigma:.3f}", _ci(boot, "sigma", None)])
     parts.append(_table(["random effect", "SD", "95 % bootstrap CI"], rows))
-    cors = ", ".join(f"{k}: {v:.2f}" for k, v in fit.re_cor.items())
+    cors = ", ".join(f"{r['group']}: {k}: {v:.2f}" for r in fit.random for k, v in r["cor"].items())
     singular = (" <b>Singular fit</b> (a random-effect variance or correlation on the boundary, "
                 "as lme4's isSingular)." if fit.singular else "")
-    parts.append(f"<p>Random-effect correlations: {html.escape(cors)}. Log-likelihood "
-                 f"{fit.loglik:.2f} (ML), {fit.n_obs} trials, {fit.n_groups} participants."
-                 f"{singular}</p>")
+    parts.append(f"<p>Random-effect correlations: {html.escape(cors or 'none')}. "
+                 f"Log-likelihood {fit.loglik:.2f}.{singular}</p>")
     return "\n".join(parts)
+
+
+def _respecified(models: dict, extra: dict) -> dict:
+    """The source models with each replaced by the design model that re-specifies it."""
+    out = dict(models)
+    for res in extra.values():
+        if res.source_model and {"gloss", "depth", "gloss:depth"} <= set(res.fit.terms):
+            out[res.source_model] = res
+    return out
 
 
 def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000,
@@ -195,11 +226,13 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     frame = data.frame
     out.mkdir(parents=True, exist_ok=True)
     n_part = len(data.participants)
-    models = fit_seed_models(frame, design)
+    models = fit_source_study_models(frame, design)
+    extra = fit_design_models(frame, design)
+    every = {**models, **extra}
     boots = {}
     if n_boot > 0:
         mf = model_frame(frame, design)
-        for k, (name, res) in enumerate(models.items()):
+        for k, (name, res) in enumerate(every.items()):
             boots[name] = parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(),
                                                n_boot=n_boot, seed=seed + k, n_jobs=n_jobs,
                                                progress=progress)
@@ -216,7 +249,10 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     }
     for name, fig in figures.items():
         save_figure(fig, out / name)
-    pattern = source_study_pattern(models, frame)
+    respecified = _respecified(models, extra)
+    patterns = {"source": source_study_pattern(models, frame)}
+    if respecified != models:
+        patterns["respecified"] = source_study_pattern(respecified, frame)
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
     results = {
         "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
@@ -224,15 +260,19 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
         "warnings": list(data.warnings),
         "calibrations": [{"calibration_id": c, "participants": list(p), "n_trials": n}
                          for c, p, n in data.calibrations],
-        "models": {k: json.loads(v.to_json()) for k, v in models.items()},
+        "models": {k: json.loads(v.to_json()) for k, v in every.items()},
         "bootstrap": {k: asdict(v) for k, v in boots.items()}, "bootstrap_seed": seed,
         "metamers": [m.to_dict() for m in metamers],
-        "source_study_pattern": {k: {"holds": bool(v[0]), "detail": v[1]}
-                                 for k, v in pattern.items()},
+        "source_study_pattern": {
+            which: {"models": {k: respecified[k].name if which == "respecified" else k
+                               for k in ("gloss", "depth")},
+                    "findings": {k: {"holds": bool(v[0]), "detail": v[1]}
+                                 for k, v in pattern.items()}}
+            for which, pattern in patterns.items()},
         "versions": _versions(),
     }
     atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
-    page = _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed)
+    page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
     _write_new(index, page)
     return index
 
@@ -242,15 +282,31 @@ def _calibrations_line(data) -> str:
                      for cid, who, n in data.calibrations) or "none recorded"
 
 
-def _page(data, models, boots, metamers, pattern, figures, results, n_part, n_boot, seed) -> str:
+def _pattern_table(patterns: dict, results: dict) -> str:
+    header, cols = ["finding"], []
+    for which, pattern in patterns.items():
+        names = results["source_study_pattern"][which]["models"]
+        header += [f"holds: {names['gloss']} / {names['depth']}", "numbers"]
+        cols.append(pattern)
+    rows = [[finding] + functools.reduce(operator.iadd, (["yes" if p[finding][0] else "NO", p[finding][1]] for p in cols), [])
+            for finding in cols[0]]
+    return _table(header, rows)
+
+
+def _page(data, models, boots, metamers, patterns, figures, results, n_part, n_boot,
+          seed) -> str:
     esc = html.escape
     warn = ("<ul class='warn'>" + "".join(f"<li>{esc(w)}</li>" for w in data.warnings) + "</ul>"
             if data.warnings else "<p>None: every session is complete.</p>")
-    pat_rows = [[k, "yes" if ok else "NO", detail] for k, (ok, detail) in pattern.items()]
     meta = (", ".join(esc(m.describe()) for m in metamers) if metamers
             else "none (depth has no significant effect on estimated gloss, or no pair of stimuli "
                  "with different gloss and depth looks equally glossy within 2 % with a 95 % CI "
                  "containing 0)")
+    respec = results["source_study_pattern"].get("respecified")
+    respec_note = (
+        f" and with the design's re-specified models ({esc(respec['models']['gloss'])} / "
+        f"{esc(respec['models']['depth'])}, e.g. stimuli crossed with participants)."
+        if respec else "; the design re-specifies neither model.")
     boot_note = (f"Parametric bootstrap: {n_boot} runs per model (seed {seed}; "
                  + "; ".join(f"{k}: {b.seconds:.1f} s, {b.n_ok} refits, "
                              f"{100 * b.singular_fraction:.0f} % singular"
@@ -285,17 +341,21 @@ from {len(data.files)} session files in <code>{esc(results['data_dir'])}</code>;
 <code>{esc(str(results['design']))}</code>. Created {results['created_utc']}.</p>
 <h2>Data warnings</h2>{warn}
 <p>Calibrations in these data: {esc(_calibrations_line(data))}.</p>
-<h2>The source study's pattern</h2>
-{_table(['finding', 'holds here', 'numbers'], pat_rows)}
+<h2>The source study's findings</h2>
+<p>Each finding checked with the source study's models (gloss / depth){respec_note}</p>
+{_pattern_table(patterns, results)}
 <h2>Figures</h2>
 {figs}
 <p>Gloss metamers (equal perceived gloss, different true gloss and depth): {meta}.</p>
 <h2>Linear mixed models</h2>
-<p>Model: response ~ gloss × depth + (1 + gloss + depth | participant), maximum likelihood,
-fitted by lme4's profiled deviance (Bates et al. 2015) with BOBYQA from two starts. True gloss
-and depth are centred and scaled by the mean and SD of the design's rendered levels (Type II
-χ² do not depend on the scale). Type II Wald χ² as car::Anova(type = 2). {esc(boot_note)}</p>
-{''.join(_model_section(models[k], boots.get(k), n_part) for k in models)}
+<p>The source study's models, response ~ gloss × depth + (1 + gloss + depth | participant),
+and the design's extra models ([analysis.models] in the design), each fitted by maximum
+likelihood with lme4's profiled deviance (Bates et al. 2015) and BOBYQA. True gloss and depth
+are centred and scaled by the mean and SD of the design's rendered levels (Type II χ² do not
+depend on the scale). Type II Wald χ² as car::Anova(type = 2); the same hypotheses as F tests
+with Satterthwaite's denominator degrees of freedom, as lmerTest (Kuznetsova et al. 2017).
+{esc(boot_note)}</p>
+{''.join(_model_section(models[k], boots.get(k)) for k in models)}
 <h2>Software</h2><p>{esc(', '.join(f'{k} {v}' for k, v in results['versions'].items()))}.
 All numbers: <a href="results.json">results.json</a>.</p>
 </body></html>

@@ -13,15 +13,15 @@ does not depend on which basis of that space ``L`` holds, so numpy's QR signs do
 
 from __future__ import annotations
 
+import functools
 import json
+import operator
 from dataclasses import asdict, dataclass
 
 import numpy as np
 from scipy import stats
 
-from analysis.lmm import FIXED_TERMS
-
-__all__ = ["WaldTest", "hypothesis_matrix", "type2_wald", "wald_chi2"]
+__all__ = ["WaldTest", "hypothesis_matrices", "hypothesis_matrix", "type2_wald", "wald_chi2"]
 
 
 @dataclass(frozen=True)
@@ -33,6 +33,7 @@ class WaldTest:
     term : str
     chi2 : float
     df : int
+        Rows of the hypothesis (coefficients of the term; 2 for a three-level factor).
     p : float
         Upper tail of the chi-square distribution with ``df`` degrees of freedom.
     """
@@ -46,43 +47,55 @@ class WaldTest:
         return json.dumps(asdict(self))
 
 
-def _factors(term: str) -> frozenset:
-    return frozenset(term.split(":"))
-
-
 def _conj_comp(X: np.ndarray, Z: np.ndarray, ip: np.ndarray) -> np.ndarray:
     """car's ``ConjComp``: the complement of span(X) in span(Z) conjugate under ``ip``."""
     M = Z.T @ ip @ X
-    rank = np.linalg.matrix_rank(M)
+    Q, R = np.linalg.qr(M, mode="complete")
+    # R's qr() rank: diagonal elements of R above 1e-7 of the largest column norm.
+    diag = np.abs(np.diag(R))
+    rank = int(np.sum(diag > 1e-7 * max(float(np.max(np.linalg.norm(M, axis=0))), 1e-300)))
     if rank == 0:
         return Z
-    Q, _ = np.linalg.qr(M, mode="complete")
     return Z @ Q[:, rank:]
 
 
-def hypothesis_matrix(term: str, vcov: np.ndarray, terms=FIXED_TERMS) -> np.ndarray:
+def hypothesis_matrix(term: str, vcov, *, terms, assign, term_factors) -> np.ndarray:
     """car's Type II hypothesis matrix for ``term`` (rows: contrasts of the coefficients).
 
     Parameters
     ----------
     term : str
-        A term of ``terms`` other than the intercept, e.g. ``"gloss"``.
+        A fixed-effect term, e.g. ``"gloss"`` or ``"illumination"``.
     vcov : ndarray, shape (p, p)
         Fixed-effect covariance.
     terms : sequence of str
-        Coefficient names; one coefficient per term, the first the intercept.
+        The model's terms without the intercept (`analysis.lmm.LmmFit.terms`).
+    assign : sequence of int
+        Per coefficient, its term's index (-1: intercept).
+    term_factors : sequence of collection of str
+        Per term, its variables; a term's relatives are the other terms containing all of them.
 
     Returns
     -------
     ndarray, shape (k, p)
+
+    Raises
+    ------
+    ValueError
+        If ``term`` is not one of ``terms``.
     """
-    if term not in terms[1:]:
-        raise ValueError(f"unknown term {term!r}; the model's terms are {list(terms[1:])}")
-    p = len(terms)
-    eye = np.eye(p)
-    own = [terms.index(term)]
-    relatives = [i for i, t in enumerate(terms[1:], start=1)
-                 if t != term and _factors(term) < _factors(t)]
+    terms = list(terms)
+    if term not in terms:
+        raise ValueError(f"unknown term {term!r}; the model's terms are {terms}")
+    vcov = np.asarray(vcov, float)
+    assign = np.asarray(assign)
+    k = terms.index(term)
+    mine = set(term_factors[k])
+    eye = np.eye(assign.size)
+    own = np.flatnonzero(assign == k).tolist()
+    relatives = [np.flatnonzero(assign == j).tolist() for j in range(len(terms))
+                 if j != k and mine <= set(term_factors[j])]
+    relatives = functools.reduce(operator.iadd, relatives, [])
     H2 = eye[relatives + own]
     if not relatives:
         return H2
@@ -98,28 +111,30 @@ def wald_chi2(L: np.ndarray, beta: np.ndarray, vcov: np.ndarray, beta0=None) -> 
     return float(Lb @ np.linalg.solve(L @ vcov @ L.T, Lb))
 
 
-def type2_wald(beta, vcov, terms=FIXED_TERMS) -> tuple[WaldTest, ...]:
-    """Type II Wald chi-square test of every term but the intercept.
+def hypothesis_matrices(fit) -> dict:
+    """car's Type II hypothesis matrix of every term of a fitted model, in ``fit.terms`` order."""
+    V = fit.vcov_array()
+    return {t: hypothesis_matrix(t, V, terms=fit.terms, assign=fit.assign,
+                                 term_factors=fit.term_factors) for t in fit.terms}
+
+
+def type2_wald(fit) -> tuple[WaldTest, ...]:
+    """Type II Wald chi-square test of every fixed-effect term, as ``car::Anova(fit, type = 2)``.
 
     Parameters
     ----------
-    beta : array_like, shape (p,)
-        Fixed effects, in the order of ``terms``.
-    vcov : array_like, shape (p, p)
-        Their covariance (lme4's ``vcov``).
-    terms : sequence of str
+    fit : analysis.lmm.LmmFit
 
     Returns
     -------
     tuple of WaldTest
-        In the order of ``terms[1:]`` (car's row order).
+        In the order of ``fit.terms`` (car's row order).
     """
-    beta = np.asarray(beta, float)
-    vcov = np.asarray(vcov, float)
+    beta = fit.fixef_array()
+    V = fit.vcov_array()
     out = []
-    for term in terms[1:]:
-        L = hypothesis_matrix(term, vcov, terms)
-        chi2 = wald_chi2(L, beta, vcov)
+    for term, L in hypothesis_matrices(fit).items():
+        chi2 = wald_chi2(L, beta, V)
         df = L.shape[0]
         out.append(WaldTest(term=term, chi2=chi2, df=df, p=float(stats.chi2.sf(chi2, df))))
     return tuple(out)

@@ -11,7 +11,9 @@ frozen :class:`StudyDesign` loaded from ``design.toml``.
 
 from studydesign.colour import REC709_Y, rec709_luminance
 from studydesign.design import (
+    MODEL_RESPONSES,
     STIMULUS_COLUMNS,
+    AnalysisModel,
     AnalysisSpec,
     ArraySpec,
     DepthSpec,
@@ -28,8 +30,10 @@ from studydesign.design import (
 )
 
 __all__ = [
+    "MODEL_RESPONSES",
     "REC709_Y",
     "STIMULUS_COLUMNS",
+    "AnalysisModel",
     "AnalysisSpec",
     "ArraySpec",
     "DepthSpec",

@@ -17,6 +17,8 @@ import numpy as np
 import pandas as pd
 
 __all__ = [
+    "MODEL_RESPONSES",
+    "AnalysisModel",
     "AnalysisSpec",
     "ArraySpec",
     "DepthSpec",
@@ -290,11 +292,72 @@ class SliderSpec:
         return np.clip(v, self.min, self.max) if clip else v
 
 
+#: Responses of the analysis's model frame a mixed model may use (analysis.models.model_frame).
+MODEL_RESPONSES = ("gloss_match_pct", "depth_match_bc", "depth_match_cm")
+
+
+@dataclass(frozen=True)
+class AnalysisModel:
+    """An extra mixed model the report fits (a table of ``[analysis.models]``).
+
+    Attributes
+    ----------
+    name : str
+        The table's name, e.g. ``gloss_crossed`` (letters, digits, ``_``).
+    response : str
+        One of `MODEL_RESPONSES`.
+    formula : str
+        The right-hand side of ``response ~ ...`` in lme4 syntax, with at least one random term,
+        e.g. ``gloss * depth + (1 + gloss + depth | participant) + (1 | stimulus_id)``.
+    label : str
+        What the model is, for the report.
+    source_model : str
+        ``"gloss"`` or ``"depth"`` when the model re-specifies that model of the source study
+        (the report then checks the source's findings under it), else ``""``.
+    """
+
+    name: str
+    response: str
+    formula: str
+    label: str = ""
+    source_model: str = ""
+
+    def __post_init__(self) -> None:
+        where = f"analysis.models.{self.name}"
+        _require(self.name.replace("_", "").isalnum(),
+                 f"{where}: use letters, digits or '_' in a model name")
+        _require(self.name not in ("gloss", "depth"),
+                 f"{where}: 'gloss' and 'depth' name the source study's models; choose another "
+                 "name (e.g. gloss_crossed)")
+        _require(self.response in MODEL_RESPONSES,
+                 f"{where}.response {self.response!r} is not one of {list(MODEL_RESPONSES)}")
+        _require(isinstance(self.formula, str) and "~" not in self.formula,
+                 f"{where}.formula must be the right-hand side only (no '~'; the response is "
+                 f"{where}.response), e.g. 'gloss * depth + (1 | participant)'")
+        depth = 0
+        for ch in self.formula:
+            depth += {"(": 1, ")": -1}.get(ch, 0)
+            _require(depth >= 0, f"{where}.formula {self.formula!r} has an unmatched ')'")
+        _require(depth == 0, f"{where}.formula {self.formula!r} has an unmatched '('")
+        _require("|" in self.formula,
+                 f"{where}.formula {self.formula!r} has no random-effect term such as "
+                 "(1 | participant)")
+        _require(self.source_model in ("", "gloss", "depth"),
+                 f"{where}.source_model {self.source_model!r} must be 'gloss', 'depth' or "
+                 "left out")
+        _require(not self.source_model
+                 or {"gloss": "gloss_match_pct", "depth": "depth_match_bc"}[self.source_model]
+                 == self.response,
+                 f"{where}: source_model {self.source_model!r} needs the source model's "
+                 "response (gloss: gloss_match_pct, depth: depth_match_bc)")
+
+
 @dataclass(frozen=True)
 class AnalysisSpec:
     depth_bins_cm: dict[str, tuple[float, ...]]
     gloss_bins_pct: dict[str, tuple[float, ...]]
     depth_boxcox_lambda: float
+    models: tuple[AnalysisModel, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -459,6 +522,19 @@ def _build(cls, raw: dict, name: str, path: Path, **override):
         raise DesignError(f"{path}: [{name}]: {exc}") from exc
 
 
+def _models(raw: Any, path: Path) -> tuple[AnalysisModel, ...]:
+    if not isinstance(raw, dict):
+        raise DesignError(f"{path}: [analysis.models] must hold one table per model")
+    out = []
+    for name, table in raw.items():
+        if not isinstance(table, dict):
+            raise DesignError(f"{path}: analysis.models.{name} must be a table "
+                              "(response, formula, label, source_model)")
+        defaults = {"name": name, "label": "", "source_model": ""}
+        out.append(_build(AnalysisModel, {**defaults, **table}, f"analysis.models.{name}", path))
+    return tuple(out)
+
+
 def load_design(path: str | Path | None = None) -> StudyDesign:
     """Load and validate a study design.
 
@@ -519,6 +595,7 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         gloss_bins_pct={
             k: tuple(float(x) for x in v) for k, v in an.get("gloss_bins_pct", {}).items()
         },
+        models=_models(an.get("models", {}), path),
     )
     imagestats = _build(ImageStatsSpec, _section(raw, "imagestats", path), "imagestats", path)
     return StudyDesign(

@@ -10,6 +10,7 @@ one kept), then ``car::Anova(type = 2)``.
 
 from __future__ import annotations
 
+import dataclasses
 import shutil
 import subprocess
 from pathlib import Path
@@ -18,25 +19,19 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.lmm import (
-    FIXED_TERMS,
-    RANDOM_TERMS,
-    LmmError,
-    LmmFit,
-    bc_power,
-    crossproducts,
-    fit_lmm,
-    model_matrices,
-    moment_start,
-    profiled_deviance,
-)
+from analysis.formula import build_model
+from analysis.lmm import LmmError, LmmFit, bc_power, fit, moment_start
 from analysis.load import load_sessions
-from analysis.models import ModelResult, fit_seed_models
+from analysis.models import ModelResult, fit_source_study_models
+from analysis.pls import deviance, make_problem
 from analysis.typeii import hypothesis_matrix, type2_wald
 
 from .lmmdata import CASES, sample_thetas, simulate_case
 from .sessions import write_sessions
 
+FORMULA = "y ~ gloss * depth + (1 + gloss + depth | participant)"
+FIXED_TERMS = ("(Intercept)", "gloss", "depth", "gloss:depth")
+RANDOM_TERMS = ("(Intercept)", "gloss", "depth")
 REF = Path(__file__).parent / "reference"
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,22 +48,27 @@ def _ref(path: Path) -> dict:
     return out
 
 
+def _problem(frame):
+    return make_problem(build_model(FORMULA, frame), reml=False)
+
+
 def _compare(fit: LmmFit, ref: dict, *, rel=1e-5, chi_rel=1e-4):
     for t in FIXED_TERMS:
         assert fit.fixef[t] == pytest.approx(ref["fixef"][t], rel=rel, abs=rel * 1e-3), t
         assert fit.se[t] == pytest.approx(ref["se"][t], rel=rel), t
     assert fit.loglik == pytest.approx(ref["loglik"][""], rel=rel)
     sd_max = max(ref["sd"].values())
+    (participant,) = fit.random
     for t in RANDOM_TERMS:
         # A zero variance component (singular fit) is compared on the scale of the largest one.
-        assert fit.re_sd[t] == pytest.approx(ref["sd"][t], rel=rel, abs=rel * sd_max), t
+        assert participant["sd"][t] == pytest.approx(ref["sd"][t], rel=rel, abs=rel * sd_max), t
     for pair, r in ref["cor"].items():
         a, b = pair.split(",")
         if min(ref["sd"][a], ref["sd"][b]) > 1e-2 * sd_max:
-            assert fit.re_cor[pair] == pytest.approx(r, abs=rel * 10), pair
+            assert participant["cor"][pair] == pytest.approx(r, abs=rel * 10), pair
     assert fit.sigma == pytest.approx(ref["sigma"][""], rel=rel)
     assert fit.singular == bool(ref["singular"][""])
-    tests = type2_wald(fit.fixef_array(), fit.vcov_array())
+    tests = type2_wald(fit)
     for w in tests:
         assert w.chi2 == pytest.approx(ref["chisq"][w.term], rel=chi_rel), w.term
 
@@ -88,24 +88,22 @@ def test_bc_power_rejects_non_positive(bad):
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_deviance_at_fixed_theta_matches_lme4(case):
-    X, Z, y, groups, _ = model_matrices(_data(case), "y")
-    cp = crossproducts(X, Z, y, groups)
+    pr = _problem(_data(case))
     thetas = np.loadtxt(REF / f"{case}_thetas.csv", delimiter=",")
     ref = _ref(REF / f"{case}_lme4.csv")["dev_at"]
-    ours = [profiled_deviance(t, cp) for t in thetas]
+    ours = [deviance(t, pr) for t in thetas]
     assert ours == pytest.approx([ref[str(k + 1)] for k in range(len(thetas))], rel=1e-10)
 
 
 @pytest.mark.parametrize("case", list(CASES))
 def test_fit_matches_lme4_and_car(case):
-    fit = fit_lmm(_data(case), response="y")
-    _compare(fit, _ref(REF / f"{case}_lme4.csv"))
+    _compare(fit(FORMULA, _data(case)), _ref(REF / f"{case}_lme4.csv"))
 
 
 def test_singular_cases_are_singular_in_both():
     for case in ("singular_zero_slope", "singular_tiny", "singular_perfect_cor"):
         assert _ref(REF / f"{case}_lme4.csv")["singular"][""] == 1.0
-        assert fit_lmm(_data(case), response="y").singular
+        assert fit(FORMULA, _data(case)).singular
 
 
 def test_better_of_two_starts_escapes_lme4s_local_optimum():
@@ -113,8 +111,8 @@ def test_better_of_two_starts_escapes_lme4s_local_optimum():
     # one the warm start finds (in R as in ours); a single cold start would report it.
     ref = _ref(REF / "singular_perfect_cor_lme4.csv")
     assert ref["dev_cold"][""] - ref["dev_warm"][""] > 1.0
-    fit = fit_lmm(_data("singular_perfect_cor"), response="y")
-    assert fit.deviance == pytest.approx(ref["dev_warm"][""], rel=1e-10)
+    result = fit(FORMULA, _data("singular_perfect_cor"))
+    assert result.deviance == pytest.approx(ref["dev_warm"][""], rel=1e-10)
 
 
 @pytest.mark.r
@@ -127,78 +125,98 @@ def test_live_r_matches(tmp_path, design):
     frame.to_csv(tmp_path / "data.csv", index=False, float_format="%.17g")
     thetas = sample_thetas(rng)
     np.savetxt(tmp_path / "thetas.csv", thetas, delimiter=",", fmt="%.17g")
-    X, Z, y, groups, _ = model_matrices(frame, "y")
-    np.savetxt(tmp_path / "start.csv", moment_start(X, Z, y, groups)[None, :], delimiter=",",
-               fmt="%.17g")
+    np.savetxt(tmp_path / "start.csv", moment_start(build_model(FORMULA, frame))[None, :],
+               delimiter=",", fmt="%.17g")
     subprocess.run([rscript, str(ROOT / "analysis/r/lmm_reference.R"), str(tmp_path / "data.csv"),
                     str(tmp_path / "thetas.csv"), str(tmp_path / "start.csv"),
                     str(tmp_path / "out.csv")], check=True, capture_output=True, timeout=120)
     ref = _ref(tmp_path / "out.csv")
-    cp = crossproducts(X, Z, y, groups)
-    assert [profiled_deviance(t, cp) for t in thetas] == pytest.approx(
+    pr = _problem(frame)
+    assert [deviance(t, pr) for t in thetas] == pytest.approx(
         [ref["dev_at"][str(k + 1)] for k in range(len(thetas))], rel=1e-10)
-    _compare(fit_lmm(frame, response="y"), ref)
+    _compare(fit(FORMULA, frame), ref)
 
 
 def test_fit_recovers_known_fixed_effects(design, rng):
     frame = simulate_case("gloss", design, rng)
-    fit = fit_lmm(frame, response="y")
+    result = fit(FORMULA, frame)
     truth = CASES["gloss"][1]
     for t, b in zip(FIXED_TERMS, truth):
-        assert abs(fit.fixef[t] - b) < 4 * fit.se[t], t
+        assert abs(result.fixef[t] - b) < 4 * result.se[t], t
 
 
 def test_type2_chi2_does_not_depend_on_predictor_scale():
     frame = _data("gloss")
-    base = type2_wald(*_fe_vcov(fit_lmm(frame, response="y")))
+    base = type2_wald(fit(FORMULA, frame))
     scaled = frame.assign(gloss=frame["gloss"] * 10.0, depth=frame["depth"] * 0.4)
-    other = type2_wald(*_fe_vcov(fit_lmm(scaled, response="y")))
+    other = type2_wald(fit(FORMULA, scaled))
     assert [w.chi2 for w in other] == pytest.approx([w.chi2 for w in base], rel=1e-5)
 
 
-def _fe_vcov(fit):
-    return fit.fixef_array(), fit.vcov_array()
-
-
 def test_hypothesis_of_highest_term_is_its_coefficient():
-    L = hypothesis_matrix("gloss:depth", np.eye(4))
+    spec = {"terms": ["gloss", "depth", "gloss:depth"], "assign": [-1, 0, 1, 2],
+                "term_factors": [["gloss"], ["depth"], ["depth", "gloss"]]}
+    L = hypothesis_matrix("gloss:depth", np.eye(4), **spec)
     assert L.tolist() == [[0.0, 0.0, 0.0, 1.0]]
     with pytest.raises(ValueError, match="unknown term"):
-        hypothesis_matrix("illumination", np.eye(4))
+        hypothesis_matrix("illumination", np.eye(4), **spec)
 
 
 def test_fit_round_trips_through_json():
-    fit = fit_lmm(_data("unbalanced_5"), response="y")
-    assert LmmFit.from_json(fit.to_json()) == fit
+    result = fit(FORMULA, _data("unbalanced_5"))
+    assert LmmFit.from_json(result.to_json()) == result
 
 
 @pytest.mark.parametrize(
-    "change, message",
+    "change, formula, message",
     [
-        (lambda f: f.drop(columns="depth"), "missing"),
-        (lambda f: f.assign(y=np.where(f.index == 3, np.nan, f["y"])), "non-finite"),
-        (lambda f: f.assign(participant="P01"), ">= 2"),
-        (lambda f: f.assign(depth=0.5), "at least two gloss and two depth levels"),
+        (lambda f: f.drop(columns="depth"), FORMULA, "'depth', which is not a column"),
+        (lambda f: f.assign(y="x"), FORMULA, "must be numeric"),
+        (lambda f: f.assign(participant="P01"), FORMULA, "has one level"),
+        (lambda f: f.assign(depth=0.5), FORMULA, "not estimable"),
+        (lambda f: f, "y ~ gloss + (1 | observer)", "'observer' is not a column"),
+        (lambda f: f, "y ~ gloss + illumination + (1 | participant)", "'illumination'"),
+        (lambda f: f, "gloss ~ depth", "no random-effect term"),
+        (lambda f: f, "y gloss + (1 | participant)", "exactly one '~'"),
+        (lambda f: f, "y ~ gloss + (1 | participant", "unbalanced"),
+        (lambda f: f, "y ~ gloss + (1 participant)", "one '|'"),
+        (lambda f: f, "y ~ gloss + (1 | participant) + (1 | trial_id)", "'trial_id'"),
     ],
 )
-def test_bad_model_frames_are_rejected(change, message):
+def test_bad_input_is_rejected_with_the_fix(change, formula, message):
+    frame = _data("unbalanced_5")
     with pytest.raises(LmmError, match=message):
-        fit_lmm(change(_data("unbalanced_5")), response="y")
+        fit(formula, change(frame))
+
+
+def test_grouping_factor_with_a_level_per_observation_is_rejected():
+    frame = _data("unbalanced_5").assign(row=lambda f: np.arange(len(f)).astype(str))
+    with pytest.raises(LmmError, match="fewer levels than observations"):
+        fit("y ~ gloss + (1 | row)", frame)
+
+
+def test_missing_values_are_left_out_and_counted():
+    frame = _data("unbalanced_5")
+    holes = frame.assign(y=np.where(frame.index % 50 == 3, np.nan, frame["y"]))
+    result = fit(FORMULA, holes)
+    assert result.n_dropped == int((frame.index % 50 == 3).sum()) > 0
+    assert result.n_obs == len(frame) - result.n_dropped
+    complete = fit(FORMULA, holes.dropna().reset_index(drop=True))
+    assert complete.n_dropped == 0
+    assert result.fixef == pytest.approx(complete.fixef, rel=1e-12)
+    assert result.loglik == pytest.approx(complete.loglik, rel=1e-12)
 
 
 @pytest.mark.parametrize("case", ["gloss", "unbalanced_5"])
-def test_scalar_deviance_equals_the_numpy_blocks(case):
-    """The fast scalar path (patterns of identical blocks) against per-participant numpy blocks."""
-    from analysis.deviance import _solve_pls
-
-    X, Z, y, groups, _ = model_matrices(_data(case), "y")
-    cp = crossproducts(X, Z, y, groups)
+def test_scalar_kernel_equals_the_general_block_elimination(case):
+    """The source-study kernel (patterns of identical blocks) against the general one."""
+    pr = _problem(_data(case))
+    assert pr.cp is not None
+    general = dataclasses.replace(pr, cp=None)
     # Complete data: one pattern; 20 % of trials dropped at random: one per participant.
-    assert len(cp.patterns) == (1 if case == "gloss" else 5)
+    assert len(pr.cp.patterns) == (1 if case == "gloss" else 5)
     for theta in sample_thetas(np.random.default_rng(3)):
-        ldL2, _, _, pwrss = _solve_pls(theta, cp)
-        slow = ldL2 + cp.n * (1 + np.log(2 * np.pi * pwrss / cp.n))
-        assert profiled_deviance(theta, cp) == pytest.approx(slow, rel=1e-12)
+        assert deviance(theta, pr) == pytest.approx(deviance(theta, general), rel=1e-12)
 
 
 def test_patterns_group_identical_participants(design):
@@ -207,15 +225,11 @@ def test_patterns_group_identical_participants(design):
     trial = frame.index % design.n_stimuli
     drop = frame.index[(frame["participant"].isin(["P01", "P02"]) & (trial == 5))
                        | ((frame["participant"] == "P03") & (trial == 9))]
-    X, Z, y, groups, _ = model_matrices(frame.drop(index=drop), "y")
-    cp = crossproducts(X, Z, y, groups)
-    assert sorted(p[3] for p in cp.patterns) == [1, 2, 8]
-    from analysis.deviance import _solve_pls
-
+    pr = _problem(frame.drop(index=drop).reset_index(drop=True))
+    assert sorted(p[3] for p in pr.cp.patterns) == [1, 2, 8]
+    general = dataclasses.replace(pr, cp=None)
     theta = sample_thetas(np.random.default_rng(1))[4]
-    ldL2, _, _, pwrss = _solve_pls(theta, cp)
-    assert profiled_deviance(theta, cp) == pytest.approx(
-        ldL2 + cp.n * (1 + np.log(2 * np.pi * pwrss / cp.n)), rel=1e-12)
+    assert deviance(theta, pr) == pytest.approx(deviance(theta, general), rel=1e-12)
 
 
 def test_unrolled_schur_complement_equals_the_loop():
@@ -230,24 +244,24 @@ def test_unrolled_schur_complement_equals_the_loop():
         _schur_loop(XtXy, [(*R, 2)], m_yy), rel=1e-12)
 
 
-def test_new_response_needs_only_its_cross_products():
-    from analysis.deviance import with_response
+@pytest.mark.parametrize("formula", [FORMULA, FORMULA + " + (1 | stimulus)"])
+def test_new_response_needs_only_its_cross_products(formula):
+    from analysis.pls import theta_lower, with_y
 
-    X, Z, y, groups, _ = model_matrices(_data("gloss"), "y")
-    base = crossproducts(X, Z, y, groups)
-    y2 = y[::-1].copy()
-    fresh = crossproducts(X, Z, y2, groups)
-    Zty = np.zeros_like(base.Zty)
-    np.add.at(Zty, groups, Z * y2[:, None])
-    swapped = with_response(base, Zty, X.T @ y2, y2 @ y2)
-    for theta in sample_thetas(np.random.default_rng(8)):
-        assert profiled_deviance(theta, swapped) == pytest.approx(
-            profiled_deviance(theta, fresh), rel=1e-12)
+    frame = _data("gloss").assign(stimulus=lambda f: (f.index % 162).astype(str))
+    pr = make_problem(build_model(formula, frame), reml=False)
+    y2 = frame["y"].to_numpy()[::-1].copy()
+    fresh = make_problem(build_model(formula, frame.assign(y=y2)), reml=False)
+    swapped = with_y(pr, y2)
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        theta = np.abs(rng.normal(0.5, 0.3, theta_lower(pr).size))
+        assert deviance(theta, swapped) == pytest.approx(deviance(theta, fresh), rel=1e-12)
 
 
 def test_model_results_round_trip_through_json(design, tmp_path):
     write_sessions(tmp_path, design, np.random.default_rng(3), n_participants=3)
-    models = fit_seed_models(load_sessions(tmp_path, design).frame, design)
+    models = fit_source_study_models(load_sessions(tmp_path, design).frame, design)
     for res in models.values():
         assert ModelResult.from_json(res.to_json()) == res
     assert models["depth"].boxcox_lambda == design.analysis.depth_boxcox_lambda
@@ -255,6 +269,27 @@ def test_model_results_round_trip_through_json(design, tmp_path):
 
 def test_trial_order_does_not_split_patterns():
     # Participants see the stimuli in different orders: their sums differ by rounding only.
-    frame = _data("gloss").sample(frac=1.0, random_state=2)
-    X, Z, y, groups, _ = model_matrices(frame, "y")
-    assert len(crossproducts(X, Z, y, groups).patterns) == 1
+    frame = _data("gloss").sample(frac=1.0, random_state=2).reset_index(drop=True)
+    assert len(_problem(frame).cp.patterns) == 1
+
+
+@pytest.mark.parametrize("formula", [
+    FORMULA + " + (1 | stimulus)",
+    "y ~ gloss * depth + (1 | stimulus) + (1 + gloss | participant)",
+    "y ~ gloss + (1 + gloss | participant)",
+    "y ~ gloss * depth + (1 | participant) + (1 | stimulus)",
+])
+@pytest.mark.parametrize("reml", [False, True])
+def test_patterns_of_levels_equal_level_by_level_elimination(formula, reml):
+    """Levels of the first term with equal Z'Z blocks taken together (what makes the crossed
+    model fast) against eliminating them one by one, complete and incomplete data."""
+    frame = _data("unbalanced_5").assign(stimulus=lambda f: (f.index % 40).astype(str))
+    for data in (frame, frame.iloc[::2].reset_index(drop=True)):
+        pr = make_problem(build_model(formula, data), reml=reml)
+        general = dataclasses.replace(pr, cp=None)
+        one_by_one = dataclasses.replace(pr, cp=None, patterns=())
+        from analysis.pls import theta_lower
+
+        for theta in np.abs(np.random.default_rng(5).normal(0.6, 0.4, (4, theta_lower(pr).size))):
+            assert deviance(theta, general) == pytest.approx(deviance(theta, one_by_one),
+                                                             rel=1e-12)

@@ -15,7 +15,7 @@ from analysis.typeii import WaldTest
 from .sessions import write_sessions
 
 
-def test_sentence_in_the_seeds_style():
+def test_sentence_in_the_source_studys_style():
     t = WaldTest(term="depth", chi2=3716.0449, df=1, p=1e-300)
     assert chi2_sentence(t, 11) == "χ²(1, N = 11) = 3716.04, p < 0.001"
     assert format_p(0.0234) == "p = 0.023"
@@ -44,7 +44,17 @@ def test_report_has_figures_tables_and_warnings(tmp_path, data_dir, design):
         assert (tmp_path / "report" / png).stat().st_size > 10_000
     results = json.loads((tmp_path / "report" / "results.json").read_text(encoding="utf-8"))
     assert results["bootstrap"]["gloss"]["n_boot"] == 30
-    assert set(results["models"]) == {"gloss", "depth"}
+    assert set(results["models"]) == {"gloss", "depth", "gloss_crossed", "depth_crossed"}
+    assert results["bootstrap"]["gloss_crossed"]["n_ok"] > 0
+    crossed = results["models"]["gloss_crossed"]["fit"]
+    assert [r["group"] for r in crossed["random"]] == ["stimulus_id", "participant"]
+    # The source study's findings, checked under its models and under the crossed ones.
+    patterns = results["source_study_pattern"]
+    assert patterns["respecified"]["models"] == {"gloss": "gloss_crossed",
+                                                 "depth": "depth_crossed"}
+    assert set(patterns["respecified"]["findings"]) == set(patterns["source"]["findings"])
+    assert "holds: gloss_crossed / depth_crossed" in text
+    assert "(1 | stimulus_id)" in text
     assert results["n_trials"] == 4 * design.n_stimuli - design.sessions.trials_per_session + 30
 
 
@@ -85,7 +95,8 @@ def test_no_metamers_for_observers_without_a_depth_effect(tmp_path, design):
     build_report(tmp_path / "data", tmp_path / "r", design, n_boot=0, progress=False)
     results = json.loads((tmp_path / "r" / "results.json").read_text(encoding="utf-8"))
     assert results["metamers"] == []
-    assert not results["source_study_pattern"]["depth effect on estimated gloss"]["holds"]
+    findings = results["source_study_pattern"]["source"]["findings"]
+    assert not findings["depth effect on estimated gloss"]["holds"]
 
 
 def test_imagestats_is_passed_through_or_named_as_missing():

@@ -1,4 +1,4 @@
-"""Scientific check: simulated observers through the whole analysis give the seed's pattern.
+"""Scientific check: simulated observers through the whole analysis give the source study's pattern.
 
 With the seed's 11 observers, ``humanlike`` observers must show a large depth effect on
 estimated depth with no gloss effect and no interaction, significant gloss, depth and
@@ -17,7 +17,7 @@ import pytest
 
 import experiment
 from analysis.load import load_sessions
-from analysis.models import fit_seed_models
+from analysis.models import fit_source_study_models
 from analysis.report import source_study_pattern
 from experiment import SESSION_COLUMNS
 
@@ -46,11 +46,11 @@ def _pattern(tmp_path, design, kind, seed):
     _write(tmp_path, design, kind, seed)
     frame = load_sessions(tmp_path, design).frame
     assert frame["participant"].nunique() == N_OBSERVERS
-    return source_study_pattern(fit_seed_models(frame, design), frame)
+    return source_study_pattern(fit_source_study_models(frame, design), frame)
 
 
 @pytest.mark.parametrize("seed", [11, 12])
-def test_humanlike_observers_show_the_seeds_pattern(tmp_path, design, seed):
+def test_humanlike_observers_show_the_source_studys_pattern(tmp_path, design, seed):
     pattern = _pattern(tmp_path, design, "humanlike", seed)
     failed = {k: v[1] for k, v in pattern.items() if not v[0]}
     assert not failed, f"observers from {SOURCE}: pattern missing: {failed}"

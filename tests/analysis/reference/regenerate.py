@@ -2,7 +2,8 @@
 
 Run from the repository root: ``.venv/bin/python tests/analysis/reference/regenerate.py``.
 For each case in ``tests/analysis/lmmdata.CASES`` it writes ``<case>_data.csv`` (simulated with a
-fixed seed), ``<case>_thetas.csv``, ``<case>_start.csv`` (``analysis.lmm.moment_start``) and ``<case>_lme4.csv`` (R's output from
+fixed seed), ``<case>_thetas.csv``, ``<case>_start.csv`` (``analysis.lmm.moment_start``) and
+``<case>_lme4.csv`` (R's output from
 ``analysis/r/lmm_reference.R``: lme4 1.1-31, car 3.1-1 from Debian).
 """
 
@@ -21,7 +22,8 @@ sys.path.insert(0, str(HERE.parent))
 
 from lmmdata import CASES, sample_thetas, simulate_case
 
-from analysis.lmm import model_matrices, moment_start
+from analysis.formula import build_model
+from analysis.lmm import moment_start
 from studydesign import load_design
 
 SEED = 6
@@ -32,8 +34,8 @@ def regenerate(case: str, seed: int) -> None:
     frame = simulate_case(case, load_design(), rng)
     frame.to_csv(HERE / f"{case}_data.csv", index=False, float_format="%.17g")
     np.savetxt(HERE / f"{case}_thetas.csv", sample_thetas(rng), delimiter=",", fmt="%.17g")
-    X, Z, y, groups, _ = model_matrices(frame, "y")
-    np.savetxt(HERE / f"{case}_start.csv", moment_start(X, Z, y, groups)[None, :], delimiter=",",
+    spec = build_model("y ~ gloss * depth + (1 + gloss + depth | participant)", frame)
+    np.savetxt(HERE / f"{case}_start.csv", moment_start(spec)[None, :], delimiter=",",
                fmt="%.17g")
     subprocess.run(
         ["Rscript", str(ROOT / "analysis/r/lmm_reference.R"), str(HERE / f"{case}_data.csv"),
