@@ -84,8 +84,11 @@ def _diagnose(args, design) -> int:
 def _print(diag, name: str) -> None:
     for w in diag.warnings:
         print(f"warning ({name}): {w}", file=sys.stderr)
+    from analysis.gap.report import no_significant_gap
+
+    verdict = "no significant gap" if no_significant_gap(diag) else diag.verdict
     remains = " (and a gap remains)" if diag.unexplained_remains and diag.steps else ""
-    print(f"{name}: verdict {diag.verdict}{remains}; gap {diag.gap_before:.4f} -> "
+    print(f"{name}: verdict {verdict}{remains}; gap {diag.gap_before:.4f} -> "
           f"{diag.gap_after:.4f} nats per unit; {diag.summary}", flush=True)
 
 

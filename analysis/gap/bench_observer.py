@@ -25,8 +25,8 @@ illumination_depth the depth response is shifted by +s under one illumination, -
 Scores (:func:`run_harder_observer`): top-1 (the added catalogue effect among the chosen, at
 its moderate strength), exact verdicts (the chosen set is the base's effects plus the added
 one), false attribution (anything attributed, or a remaining gap flagged, for the null),
-'unexplained' rate (a remaining gap flagged, or nothing attributed, when an out-of-catalogue
-effect is present, with or without co-occurring catalogue effects), wrong 'remaining' flags
+'unexplained' rate (a remaining gap flagged when an out-of-catalogue effect is present, with
+or without co-occurring catalogue effects), wrong 'remaining' flags
 (a gap flagged where only catalogue effects are present), shrinkage error (held-out loss the
 chosen model removed vs that of the generating process at population level), and verdict
 agreement across seeds (the same files diagnosed with other bootstrap seeds).
@@ -279,10 +279,8 @@ def score_harder(records: list[dict]) -> dict:
                  lambda r: set(r["chosen"]) == set(r["expected"]) and not r["remains"])
     false_attr = rate(lambda r: r["case"] == "null",
                       lambda r: bool(r["chosen"]) or r["remains"])
-    unexpl = rate(lambda r: r["case"] in ("out", "both"),
-                  lambda r: r["remains"] or r["verdict"] == "unexplained")
-    unexpl_both = rate(lambda r: r["case"] == "both",
-                       lambda r: r["remains"] or r["verdict"] == "unexplained")
+    unexpl = rate(lambda r: r["case"] in ("out", "both"), lambda r: r["remains"])
+    unexpl_both = rate(lambda r: r["case"] == "both", lambda r: r["remains"])
     wrong_rem = rate(lambda r: r["case"] in ("base", "catalogue"), lambda r: r["remains"])
     agree = rate(lambda r: True, lambda r: r["agree"])
     errs = [abs(r["pred_shrink"] - r["true_shrink"]) / r["true_shrink"] for r in records

@@ -128,8 +128,9 @@ def _top(diag) -> str:
 
 
 def _says_unexplained(diag) -> bool:
-    """The diagnosis says a gap is left that the catalogue does not explain."""
-    return diag.verdict == "unexplained" or diag.unexplained_remains
+    """The diagnosis says a gap is left that the catalogue does not explain (not merely that
+    nothing was attributed: 'no significant gap' is no such statement)."""
+    return diag.unexplained_remains
 
 
 def _run_one(design, layer, effect, strength, rng, n_boot):

@@ -194,11 +194,15 @@ class Diagnosis:
 
     @property
     def unexplained_remains(self) -> bool:
-        """True when a gap is left that the catalogue does not explain: nothing (or too
-        little) attributed, or a significant gap above the ceiling after the chosen ones."""
-        if self.remaining is not None and self.remaining.get("significant"):
-            return True
-        return self.verdict == "unexplained" and bool(self.steps)
+        """True when a gap is left that the catalogue does not explain: with a ceiling, the
+        chosen model (or the plain simulation, if nothing is chosen) falls significantly short
+        of it; without one, nothing (or too little) attributed of a gap above tolerance."""
+        if self.remaining is not None:
+            return bool(self.remaining.get("significant"))
+        if self.verdict != "unexplained":
+            return False
+        return bool(self.steps) or bool(
+            self.gap_before_ci and self.gap_before_ci[0] > max(self.min_gain, 0.0))
 
     def to_dict(self) -> dict:
         out = asdict(self)
@@ -513,6 +517,11 @@ def summarise(d: Diagnosis) -> str:
     if not d.steps:
         if further:
             return f"No catalogue effect explains the gap; {further}."
+        if rem:
+            return (f"No significant gap: the simulation predicts the held-out data as well as "
+                    f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
+                    f"CI {-rem['ci'][1]:+.3f} to {-rem['ci'][0]:+.3f}; positive: the simulation "
+                    "is better), and no catalogue effect improves it.")
         if d.gap_before_ci and d.gap_before_ci[0] <= max(d.min_gain, 0.0):
             above = (f"{d.min_gain:g} nats per unit above the noise floor" if d.min_gain > 0
                      else "above the noise floor")

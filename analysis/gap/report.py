@@ -19,11 +19,14 @@ __all__ = ["no_significant_gap", "verdict_text", "write_multi_report", "write_re
 
 
 def no_significant_gap(d: Diagnosis) -> bool:
-    """True when nothing was attributed, nothing remains above the ceiling, the floor is sound,
-    and the held-out gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none)."""
-    rem = d.remaining or {}
-    return (not d.steps and not rem.get("significant") and d.floor_status == "ok"
-            and bool(d.gap_before_ci) and d.gap_before_ci[0] <= max(d.min_gain, 0.0))
+    """True when nothing was attributed, the floor is sound, and either (with a ceiling) the
+    simulation falls short of the ceiling by nothing significant, or (without) the held-out
+    gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none)."""
+    if d.steps or d.floor_status != "ok":
+        return False
+    if d.remaining is not None:  # with a ceiling: the simulation does as well as it
+        return not d.remaining.get("significant")
+    return bool(d.gap_before_ci) and d.gap_before_ci[0] <= max(d.min_gain, 0.0)
 
 
 def verdict_text(d: Diagnosis) -> str:
