@@ -25,6 +25,7 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
     :func:`analysis.gap.observer.load_sim`)."""
     from analysis.gap.observer import (
         OBSERVER_MIN_GAIN,
+        adapt_base,
         ceiling_floor,
         ceiling_loss,
         check_sim,
@@ -48,7 +49,9 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
     rng = np.random.default_rng(seed)
     ceil, floor = {}, {}
     for tr, te in folds:
-        model = fit_ceiling(tr)
+        shared = bool(set(tr["participant"]) & set(te["participant"]))
+        adapt_base(tr, te, base)
+        model = fit_ceiling(tr, by_participant=shared)
         ceil[id(te)] = ceiling_loss(model, te)
         floor[id(te)] = ceiling_floor(model, te, rng)
     diag = diagnose_losses(

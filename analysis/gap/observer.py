@@ -35,6 +35,7 @@ __all__ = [
     "OBSERVER_CANDIDATES",
     "OBSERVER_MIN_GAIN",
     "ObserverBase",
+    "adapt_base",
     "base_from_params",
     "base_from_sessions",
     "check_sim",
@@ -123,6 +124,9 @@ class ObserverBase:
     stimuli : tuple
         Sorted (true_gloss_pct, true_depth_cm) levels of the simulated sessions, if known.
     n_illuminations : int or None
+    sd : dict or None
+        Between-observer SDs of ``coef`` (same layout, slider units), from a table's
+        ``{mean, sd}`` entries: how far one observer may depart from the population.
     """
 
     kind: str
@@ -131,6 +135,7 @@ class ObserverBase:
     participants: tuple = ()
     stimuli: tuple = ()
     n_illuminations: int | None = None
+    sd: dict | None = None
 
     def mean(self, gloss_u, depth_u, mid: float) -> dict:
         g, d = np.asarray(gloss_u, float) - mid, np.asarray(depth_u, float) - mid
@@ -161,6 +166,7 @@ def base_from_params(table: Mapping, kind: str, slider, *, source: str = "",
         Unknown kind, or a humanlike table missing a parameter.
     """
     p = _table_means(table)
+    sd = None
     if kind == "ideal":
         coef = {"gloss": (0.0, 1.0, 0.0, 0.0), "depth": (0.0, 1.0)}
     elif kind in ("humanlike", "fitted"):
@@ -170,28 +176,80 @@ def base_from_params(table: Mapping, kind: str, slider, *, source: str = "",
         if missing:
             raise GapError(f"observer table {source or ''} lacks {missing}; write it with "
                            "python -m experiment fit-observer")
-        # Evaluate the physical model on a grid and read off the slider-unit coefficients
-        # (exact: both the model and the slider map are linear in each variable).
-        mid = 0.5 * (slider.min + slider.max)
-        m_g, m_d = float(slider.to_gloss_pct(mid)), float(slider.to_depth_cm(mid))
-        gu = np.array([mid - 1, mid + 1, mid - 1, mid + 1, mid])
-        du = np.array([mid - 1, mid - 1, mid + 1, mid + 1, mid])
-        g_pct = np.array([float(slider.to_gloss_pct(v)) for v in gu])
-        d_cm = np.array([float(slider.to_depth_cm(v)) for v in du])
-        dh = m_d + p["depth_slope"] * (d_cm - m_d) + p["depth_intercept_cm"]
-        gh = (m_g + p["gloss_slope"] * (g_pct - m_g) + p["crosstalk_pct_per_cm"] * (d_cm - m_d)
-              + p["interaction_per_cm"] * (g_pct - m_g) * (d_cm - m_d)
-              + p["gloss_intercept_pct"])
-        ghu, dhu = to_slider_units(slider, gh, dh)
-        x = np.c_[np.ones(5), gu - mid, du - mid, (gu - mid) * (du - mid)]
-        cg = np.linalg.lstsq(x, ghu - mid, rcond=None)[0]
-        cd = np.linalg.lstsq(x[:, [0, 2]], dhu - mid, rcond=None)[0]
-        coef = {"gloss": tuple(float(v) for v in cg), "depth": tuple(float(v) for v in cd)}
+        coef = _humanlike_coef(p, slider)
+        var = {r: np.zeros(len(v)) for r, v in coef.items()}
+        for name in need:
+            spec = table.get(name)
+            if isinstance(spec, Mapping) and float(spec.get("sd", 0.0)) > 0:
+                moved = _humanlike_coef({**p, name: p[name] + float(spec["sd"])}, slider)
+                for r in var:
+                    var[r] += (np.asarray(moved[r]) - np.asarray(coef[r])) ** 2
+        sd = {r: tuple(float(v) for v in np.sqrt(var[r])) for r in var}
     else:
         raise GapError(f"unknown observer kind {kind!r}; use ideal or humanlike")
     info = dict(fit_info or {})
     parts = tuple(str(v) for v in info.get("participants", ()))
-    return ObserverBase(kind=kind, source=source, coef=coef, participants=parts)
+    return ObserverBase(kind=kind, source=source, coef=coef, participants=parts, sd=sd)
+
+
+def _humanlike_coef(p: Mapping, slider) -> dict:
+    """Slider-unit coefficients of the humanlike model at parameters ``p`` (physical units):
+    the physical model evaluated on a grid and read off (exact: both the model and the
+    slider map are linear in each variable)."""
+    mid = 0.5 * (slider.min + slider.max)
+    m_g, m_d = float(slider.to_gloss_pct(mid)), float(slider.to_depth_cm(mid))
+    gu = np.array([mid - 1, mid + 1, mid - 1, mid + 1, mid])
+    du = np.array([mid - 1, mid - 1, mid + 1, mid + 1, mid])
+    g_pct = np.array([float(slider.to_gloss_pct(v)) for v in gu])
+    d_cm = np.array([float(slider.to_depth_cm(v)) for v in du])
+    dh = m_d + p["depth_slope"] * (d_cm - m_d) + p["depth_intercept_cm"]
+    gh = (m_g + p["gloss_slope"] * (g_pct - m_g) + p["crosstalk_pct_per_cm"] * (d_cm - m_d)
+          + p["interaction_per_cm"] * (g_pct - m_g) * (d_cm - m_d) + p["gloss_intercept_pct"])
+    ghu, dhu = to_slider_units(slider, gh, dh)
+    x = np.c_[np.ones(5), gu - mid, du - mid, (gu - mid) * (du - mid)]
+    cg = np.linalg.lstsq(x, ghu - mid, rcond=None)[0]
+    cd = np.linalg.lstsq(x[:, [0, 2]], dhu - mid, rcond=None)[0]
+    return {"gloss": tuple(float(v) for v in cg), "depth": tuple(float(v) for v in cd)}
+
+
+def _base_x(data: pd.DataFrame, r: str) -> np.ndarray:
+    """The base model's regressors of response ``r`` (centred at the slider's middle)."""
+    mid = data.attrs["mid"]
+    g = data["gloss_u"].to_numpy(float) - mid
+    d = data["depth_u"].to_numpy(float) - mid
+    return np.c_[np.ones(len(g)), g, d, g * d] if r == "gloss" else np.c_[np.ones(len(g)), d]
+
+
+def adapt_base(train: pd.DataFrame, test: pd.DataFrame, base: ObserverBase) -> None:
+    """Each participant's own base, in place: where a participant is in both parts (folds by
+    trial), their coefficients are the posterior mean given their training trials, with the
+    simulation's population values as the prior mean and its between-observer SDs as the
+    prior SDs (a random-effects model's best linear unbiased predictor): the simulated
+    observer allows each observer that much individual departure, so it is no gap. Without
+    SDs (the ideal observer, simulated sessions) nothing changes."""
+    if not base.sd or not any(any(v > 0 for v in sd) for sd in base.sd.values()):
+        return
+    lo, hi = train.attrs["range"]
+    shared = set(train["participant"]) & set(test["participant"])
+    for r in RESP:
+        prior_var = np.maximum(np.asarray(base.sd[r], float) ** 2, 1e-10)
+        x_tr, x_te = _base_x(train, r), _base_x(test, r)
+        y = train[f"{r}_match"].to_numpy(float)
+        res = y - train[f"{r}_base"].to_numpy(float)
+        inside = (y > lo + 1e-9) & (y < hi - 1e-9)
+        noise = float(np.var(res[inside]))
+        add_tr, add_te = np.zeros(len(train)), np.zeros(len(test))
+        for pid in shared:
+            m_tr = (train["participant"] == pid).to_numpy() & inside
+            xx = x_tr[m_tr]
+            prec = xx.T @ xx / noise + np.diag(1 / prior_var)
+            delta = np.linalg.solve(prec, xx.T @ res[m_tr] / noise)
+            add_tr[(train["participant"] == pid).to_numpy()] = (
+                x_tr[(train["participant"] == pid).to_numpy()] @ delta)
+            m_te = (test["participant"] == pid).to_numpy()
+            add_te[m_te] = x_te[m_te] @ delta
+        train[f"{r}_base"] = train[f"{r}_base"].to_numpy(float) + add_tr
+        test[f"{r}_base"] = test[f"{r}_base"].to_numpy(float) + add_te
 
 
 def base_from_sessions(frame: pd.DataFrame, design, *, source: str = "sessions") -> ObserverBase:
@@ -463,9 +521,11 @@ class Ceiling:
     label: float
     mid: float
     span: float
+    parts: tuple = ()
 
 
-def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str):
+def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
+              parts: tuple = ()):
     g = (data["gloss_u"].to_numpy(float) - mid) / span
     d = (data["depth_u"].to_numpy(float) - mid) / span
     prev = data[f"{r}_prev"].to_numpy(float)
@@ -473,8 +533,13 @@ def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str):
     x_prev = np.where(np.isnan(prev), 0.0, prev - truth)
     ill = data["illumination"].to_numpy(str)
     dummies = [(ill == name).astype(float) for name in ills[1:]]
+    who = data["participant"].to_numpy(str)
+    # Each participant's own intercept and slopes (effect coding: the population is their
+    # average), where the same participants are in the training and the held-out part.
+    own = [(who == q).astype(float) - (who == parts[-1]) for q in parts[:-1]]
     mean_x = np.c_[np.ones(len(g)), g, d, g * d, g * g, d * d, x_prev,
-                   *[u * v for u in dummies for v in (np.ones(len(g)), g)]]
+                   *[u * v for u in dummies for v in (np.ones(len(g)), g)],
+                   *[u * v for u in own for v in (np.ones(len(g)), g, d)]]
     var_x = np.c_[np.ones(len(g)), g, d, *dummies]
     return mean_x, var_x
 
@@ -548,7 +613,7 @@ def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray) -
     return (m_c * tau2 / (tau2 + s_w2 / n_c)).to_dict()
 
 
-def fit_ceiling(train: pd.DataFrame) -> Ceiling:
+def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False) -> Ceiling:
     """Fit the flexible model to ``train`` (a frame from :func:`observer_frame`).
 
     Per response: least squares on a quadratic surface in gloss and depth (with their product),
@@ -562,17 +627,19 @@ def fit_ceiling(train: pd.DataFrame) -> Ceiling:
     Responses at the slider ends enter the surface at their expected value beyond the end
     (censored regression). The cell means come in two levels, the stimulus (gloss x depth
     level, pooled over illuminations) and then the cell, each shrunk by how far it replicates
-    across participants.
+    across participants. ``by_participant`` (folds by trial: the held-out trials' participants
+    are in ``train``): each participant's own intercept and gloss and depth slopes as well.
     """
     mid = train.attrs["mid"]
     lo, hi = train.attrs["range"]
     span = 0.5 * (hi - lo)
     ills = tuple(sorted(train["illumination"].unique()))
     keys, stim = _cell_keys(train), _stimulus_keys(train)
+    parts = tuple(sorted(train["participant"].unique())) if by_participant else ()
     coef, var_coef, cells = {}, {}, {}
     mu, sd = {}, {}
     for r in RESP:
-        mx, vx = _features(train, ills, mid, span, r)
+        mx, vx = _features(train, ills, mid, span, r, parts)
         y = _tobit_fill(train[f"{r}_match"].to_numpy(float), mx, lo, hi)
         b = np.linalg.lstsq(mx, y, rcond=None)[0]
         res = y - mx @ b
@@ -597,14 +664,14 @@ def fit_ceiling(train: pd.DataFrame) -> Ceiling:
             if v < best[0]:
                 best = (v, lam, w)
     return Ceiling(coef=coef, var_coef=var_coef, cells=cells, ills=ills, lapse=best[1],
-                   label=best[2], mid=mid, span=span)
+                   label=best[2], mid=mid, span=span, parts=parts)
 
 
 def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
     keys, stim = pd.Series(_cell_keys(data)), pd.Series(_stimulus_keys(data))
     mu, sd = {}, {}
     for r in RESP:
-        mx, vx = _features(data, model.ills, model.mid, model.span, r)
+        mx, vx = _features(data, model.ills, model.mid, model.span, r, model.parts)
         off = (stim.map(model.cells[r]["stimulus"]).fillna(0.0).to_numpy(float)
                + keys.map(model.cells[r]["cell"]).fillna(0.0).to_numpy(float))
         mu[r] = mx @ model.coef[r] + off
@@ -651,7 +718,8 @@ def observer_where(fits: list) -> str:
     ``fits``: ``[(train, test, fitted), ...]`` per fold (see engine.diagnose_losses)."""
     rows = []
     for train, test, fitted in fits:
-        model = fit_ceiling(train)
+        model = fit_ceiling(train, by_participant=bool(
+            set(train["participant"]) & set(test["participant"])))
         chosen = predict(test, fitted)
         sig = _fit_sigma(train, predict(train, fitted))
         c_pred, c_sd = _ceiling_pred(model, test)
@@ -666,7 +734,8 @@ def observer_where(fits: list) -> str:
                 "gloss": test["gloss_u"].to_numpy(float),
                 "depth": test["depth_u"].to_numpy(float),
                 "prev": (test[f"{r}_prev"] - test[f"{r}_u"]).fillna(0.0).to_numpy(float),
-                "illumination": test["illumination"].to_numpy(str)}))
+                "illumination": test["illumination"].to_numpy(str),
+                "participant": test["participant"].to_numpy(str)}))
     frame = pd.concat(rows, ignore_index=True)
     r = frame.groupby("response")["excess"].mean().idxmax()
     sub = frame[frame["response"] == r]
@@ -690,6 +759,17 @@ def observer_where(fits: list) -> str:
     stim_key = sub["gloss"].round(6).astype(str) + "|" + sub["depth"].round(6).astype(str)
     r2_stim = float(np.var(pd.Series(t).groupby(stim_key.to_numpy()).transform("mean"))
                     / max(np.var(t), 1e-12))
+    # Shortfalls of single participants (their own intercepts and slopes), where the same
+    # participants were trained on: a participant-specific linear fit explains far more.
+    parts = sorted(sub["participant"].unique())
+    if len(parts) > 1:
+        who = sub["participant"].to_numpy(str)
+        own = np.c_[*[(who == q) * v for q in parts for v in (np.ones(t.size), g, d)]]
+        r2_own = 1 - np.var(t - own @ np.linalg.lstsq(own, t, rcond=None)[0]) / max(
+            np.var(t), 1e-12)
+        if r2_own > 0.3 and r2_own > 2 * r2_smooth:
+            return (f"{what}, differing between participants (their own intercepts and "
+                    "slopes; the simulation has no such individual differences)")
     ill_means = sub.assign(t=t).groupby("illumination")["t"].mean()
     ill_spread = float(ill_means.max() - ill_means.min()) if ill_means.size > 1 else 0.0
     name = max(corr, key=lambda n: abs(corr[n]))
