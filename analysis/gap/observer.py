@@ -342,6 +342,10 @@ def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:
                    "the truth; to compare with the humanlike simulation, fit one with python -m "
                    "experiment fit-observer PILOT_SESSIONS --out observers.toml and pass --sim "
                    "observers.toml")
+    elif base.kind == "humanlike" and base.source.endswith(".toml"):
+        out.append(f"the simulation is the humanlike table of {base.source}, which was not "
+                   "fitted to a pilot (no [fit] table): fit one with python -m experiment "
+                   "fit-observer PILOT_SESSIONS --out observers.toml")
     elif base.kind == "unknown":
         out.append("the simulated sessions do not say which observer made them (app_version)")
     return out
