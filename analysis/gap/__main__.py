@@ -12,9 +12,9 @@ LAYERS = ("observer", "display", "render")
 
 
 def _harder(args, design, layers) -> int:
-    """The harder benchmark: the observer part here; the display and render parts come from
-    ``analysis.gap.bench_display`` (``run_harder(design, layer, trials=, seed=, log=)`` and
-    ``format_harder(layer, result)``) where it exists."""
+    """The harder benchmark: the observer part (``analysis.gap.bench_observer``) and the
+    display part (``analysis.gap.bench_display``: ``run_display_cases``,
+    ``score_display_cases``, ``format_display_scores``) where that module exists."""
     from analysis.gap.bench_observer import format_harder, run_harder_observer
 
     log = None if args.quiet else print
@@ -22,14 +22,19 @@ def _harder(args, design, layers) -> int:
         if layer == "observer":
             r = run_harder_observer(design, trials=args.trials, seed=args.seed, log=log)
             print(format_harder(r), flush=True)
-            continue
-        try:
-            from analysis.gap import bench_display
-        except ImportError:
-            print(f"{layer} (harder): not available in this build (no analysis.gap.bench_display)")
-            continue
-        r = bench_display.run_harder(design, layer, trials=args.trials, seed=args.seed, log=log)
-        print(bench_display.format_harder(layer, r), flush=True)
+        elif layer == "display":
+            try:
+                from analysis.gap import bench_display
+            except ImportError:
+                print("display (harder): not available in this build (no "
+                      "analysis.gap.bench_display)")
+                continue
+            records = bench_display.run_display_cases(design, trials=args.trials,
+                                                      seed=args.seed, log=log)
+            print(bench_display.format_display_scores(
+                bench_display.score_display_cases(records)), flush=True)
+        else:
+            print(f"{layer} (harder): no harder cases for this layer; use the plain benchmark")
     print(f"seed {args.seed}, {args.trials} cases per layer (harder benchmark)")
     return 0
 

@@ -169,3 +169,27 @@ def test_a_new_candidate_is_one_object():
         from analysis.gap import engine
 
         engine._REGISTRY["observer"].pop("depth_shift_for_test")
+
+
+def test_harder_benchmark_scores_remaining_gaps_and_seed_agreement():
+    from analysis.gap.bench_observer import format_harder, score_harder
+
+    def rec(case, added, chosen, remains, agree=True):
+        return {"case": case, "added": added, "chosen": chosen, "remains": remains,
+                "verdict": " + ".join(chosen) or "unexplained", "agree": agree,
+                "expected": sorted({"central_tendency", "crosstalk"}
+                                   | {n for n in added if n == "lapses"}
+                                   if case != "null" else set()),
+                "pred_shrink": 0.5, "true_shrink": 0.55}
+    base = ["central_tendency", "crosstalk"]
+    r = score_harder([rec("null", {}, [], True), rec("null", {}, [], False),
+                      rec("base", {}, base, False), rec("catalogue", {"lapses": 0.1},
+                                                        [*base, "lapses"], False),
+                      rec("out", {"interaction": 0.06}, base, True),
+                      rec("both", {"lapses": 0.1, "interaction": 0.06}, base, False, False)])
+    assert r["false_attribution"] == (0.5, 2)  # a flagged remaining gap counts as attribution
+    assert r["unexplained_out"] == (0.5, 2) and r["unexplained_out_with_catalogue"] == (0.0, 1)
+    assert r["top1"] == (0.5, 2) and r["exact"] == (1.0, 2)
+    assert r["seed_agreement"][0] == pytest.approx(5 / 6)
+    assert r["shrink_error"][0] == pytest.approx(0.05 / 0.55)
+    assert "NOT met" in format_harder(r)
