@@ -141,16 +141,33 @@ IS="$RUN/imagestats"
   --out "$IS/report" --n-boot 200 --seed 1
 # --- end image statistics ---
 
-# --- sim-to-real gap (issue 8) ---
+# --- sim-to-real gap ---
 step "sim-to-real gap: observer, display and render layers, then which layer carries the gap"
 GAP="$RUN/gap"
 mkdir -p "$GAP"
 GAP_REAL=(); GAP_SIM=()
-# Observer: the humanlike sessions (app) against the ideal observer's (experiment simulate).
+# Observer, as a lab would: a pilot of four (simulated humanlike observers, no app), the
+# humanlike observer fitted to it (experiment fit-observer), then the app's humanlike sessions
+# (other participants) diagnosed against the fitted observer (expected: no significant gap) and
+# against the ideal observer (expected: central tendency + crosstalk, the humanlike observer's
+# known effects), each with three bootstrap seeds: the verdicts must not depend on --seed.
 if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
-  "$PY" -m analysis gap diagnose --layer observer --real "$RUN/data/sessions" \
-    --sim "$RUN/data_ideal/sessions" --out "$GAP/observer"
-  GAP_REAL+=("observer=$RUN/data/sessions"); GAP_SIM+=("observer=$RUN/data_ideal/sessions")
+  "$PY" -m experiment simulate --observer humanlike --participants PILOT1 PILOT2 PILOT3 PILOT4 \
+    --data "$RUN/pilot" --seed 2
+  OBS_SIM="$RUN/data_ideal/sessions"; SIMS=("ideal=$OBS_SIM")
+  if "$PY" -m experiment fit-observer "$RUN/pilot" --out "$GAP/observers.toml"; then
+    OBS_SIM="$GAP/observers.toml"; SIMS=("fitted=$OBS_SIM" "${SIMS[@]}")
+  else
+    echo "gap observer layer: fit-observer failed; diagnosing against the ideal observer only"
+  fi
+  for pair in "${SIMS[@]}"; do
+    for seed in 0 1 2; do
+      "$PY" -m analysis gap diagnose --layer observer --real "$RUN/data/sessions" \
+        --sim "${pair#*=}" --out "$GAP/observer_${pair%%=*}_seed$seed" --seed "$seed" \
+        2>>"$GAP/observer_warnings.txt" | tee -a "$GAP/observer_verdicts.txt"
+    done
+  done
+  GAP_REAL+=("observer=$RUN/data/sessions"); GAP_SIM+=("observer=$OBS_SIM")
 else
   echo "error: the gap observer layer needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)" >&2; exit 1
 fi
@@ -175,7 +192,7 @@ if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
     --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"
 fi
-echo "blind benchmark (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5"
+echo "blind benchmarks (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5; harder: $PY -m analysis gap benchmark --layer observer --harder --trials 40 --seed 1"
 # --- end sim-to-real gap ---
 
 step "done"

@@ -11,10 +11,40 @@ from studydesign import load_design
 LAYERS = ("observer", "display", "render")
 
 
+def _harder(args, design, layers) -> int:
+    """The harder benchmark: the observer part (``analysis.gap.bench_observer``) and the
+    display part (``analysis.gap.bench_display``: ``run_display_cases``,
+    ``score_display_cases``, ``format_display_scores``) where that module exists."""
+    from analysis.gap.bench_observer import format_harder, run_harder_observer
+
+    log = None if args.quiet else print
+    for layer in layers:
+        if layer == "observer":
+            r = run_harder_observer(design, trials=args.trials, seed=args.seed, log=log)
+            print(format_harder(r), flush=True)
+        elif layer == "display":
+            try:
+                from analysis.gap import bench_display
+            except ImportError:
+                print("display (harder): not available in this build (no "
+                      "analysis.gap.bench_display)")
+                continue
+            records = bench_display.run_display_cases(design, trials=args.trials,
+                                                      seed=args.seed, log=log)
+            print(bench_display.format_display_scores(
+                bench_display.score_display_cases(records)), flush=True)
+        else:
+            print(f"{layer} (harder): no harder cases for this layer; use the plain benchmark")
+    print(f"seed {args.seed}, {args.trials} cases per layer (harder benchmark)")
+    return 0
+
+
 def _benchmark(args, design) -> int:
     from analysis.gap.benchmark import format_scores, run_benchmark, run_thresholds
 
     layers = LAYERS if args.layer == "all" else (args.layer,)
+    if args.harder:
+        return _harder(args, design, layers)
     for layer in layers:
         log = None if args.quiet else print
         r = run_benchmark(design, layer, trials=args.trials, seed=args.seed, log=log)
@@ -33,36 +63,38 @@ def _benchmark(args, design) -> int:
 
 
 def _diagnose(args, design) -> int:
-    from analysis.gap.diagnose import diagnose_all_files, diagnose_files
+    from analysis.gap.diagnose import diagnose
     from analysis.gap.report import write_multi_report, write_report
 
+    opts = {"sim_kind": args.sim_kind} if args.sim_kind else {}
     if args.layer == "all":
         from analysis.gap.layers import parse_layer_paths, which_layer
 
-        results = diagnose_all_files(parse_layer_paths(args.real), parse_layer_paths(args.sim),
-                                     design, seed=args.seed)
+        results = diagnose("all", parse_layer_paths(args.real), parse_layer_paths(args.sim),
+                           design, seed=args.seed, **opts)
         which = which_layer({n: d for n, (d, _) in results.items()})
         path = write_multi_report(results, which, args.out)
         for name, (diag, _) in results.items():
-            print(f"{name}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
-                  f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %){_no_gap_note(diag)}")
+            _print(diag, name)
         print(f"{which['text']}\nreport {path}")
         return 0
 
-    diag, local = diagnose_files(args.layer, args.real, args.sim, design, seed=args.seed)
+    diag, local = diagnose(args.layer, args.real, args.sim, design, seed=args.seed, **opts)
     path = write_report(diag, local, args.out)
-    print(f"{diag.layer}: verdict {diag.verdict}; gap {diag.gap_before:.4f} -> "
-          f"{diag.gap_after:.4f} ({diag.shrink_pct:.1f} %){_no_gap_note(diag)}; report {path}")
+    _print(diag, diag.layer)
+    print(f"report {path}")
     return 0
 
 
-def _no_gap_note(diag) -> str:
+def _print(diag, name: str) -> None:
+    for w in diag.warnings:
+        print(f"warning ({name}): {w}", file=sys.stderr)
     from analysis.gap.report import no_significant_gap
 
-    if not no_significant_gap(diag):
-        return ""
-    lo, hi = diag.gap_before_ci
-    return f" - no significant gap (95 % CI {lo:.3f} to {hi:.3f})"
+    verdict = "no significant gap" if no_significant_gap(diag) else diag.verdict
+    remains = " (and a gap remains)" if diag.unexplained_remains and diag.steps else ""
+    print(f"{name}: verdict {verdict}{remains}; gap {diag.gap_before:.4f} -> "
+          f"{diag.gap_after:.4f} nats per unit; {diag.summary}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -75,16 +107,26 @@ def main(argv=None) -> int:
     b.add_argument("--threshold-reps", type=int, default=0,
                    help="runs per effect and strength for the detection thresholds (0: skip)")
     b.add_argument("--quiet", action="store_true", help="print only the scores")
+    b.add_argument("--harder", action="store_true",
+                   help="the harder benchmark: human-like observers (in-catalogue effects always "
+                        "present) with effects outside the catalogue on top, co-occurring "
+                        "effects, a generator written apart from the experiment's observers, "
+                        "verdict agreement across seeds; --trials cases")
     d = sub.add_parser("diagnose", help="diagnose real data against the simulation")
     d.add_argument("--layer", choices=[*LAYERS, "all"], required=True)
     d.add_argument("--real", required=True,
                    help="observer: session CSV folder; display: readings.csv or its folder; "
                         "render: the gloss-fit output folder; all: LAYER=PATH,... ")
     d.add_argument("--sim", required=True,
-                   help="observer: simulated session CSV folder; display: calibration.json or "
-                        "its folder; render: the gloss-fit output folder; all: LAYER=PATH,...")
+                   help="observer: an observers TOML (python -m experiment fit-observer) or a "
+                        "simulated session CSV folder; display: calibration.json or its folder; "
+                        "render: the gloss-fit output folder; all: LAYER=PATH,...")
+    d.add_argument("--sim-kind", choices=("humanlike", "ideal"), default=None,
+                   help="observer layer with an observers TOML: which table is the simulation "
+                        "(default humanlike)")
     d.add_argument("--out", required=True)
-    d.add_argument("--seed", type=int, default=0)
+    d.add_argument("--seed", type=int, default=0,
+                   help="the bootstrap's seed (the observer layer's folds do not depend on it)")
     args = ap.parse_args(argv)
     design = load_design()
     try:

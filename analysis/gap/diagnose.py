@@ -1,4 +1,5 @@
-"""Diagnose a layer from files: read real and simulated data, rank candidates, localise."""
+"""One entry point for every layer: :func:`diagnose` reads real and simulated data (files or
+loaded objects), ranks the layer's registered candidates, tests what remains, and localises."""
 
 from __future__ import annotations
 
@@ -6,95 +7,112 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.display import (
-    DISPLAY_CANDIDATES,
-    DISPLAY_MIN_SHARE,
-    display_ceiling,
-    display_floor,
-    display_frame,
-    display_loss,
-    display_loss_info,
-    display_unit_ids,
-    load_display,
-    localise_display,
-    split_display,
-)
-from analysis.gap.engine import Diagnosis, GapError, diagnose_losses
-from analysis.gap.observer import (
-    OBSERVER_CANDIDATES,
-    OBSERVER_MIN_GAIN,
-    load_sessions,
-    localise_observer,
-    observer_floor,
-    observer_frame,
-    observer_loss,
-    observer_unit_ids,
-    split_observer,
-)
-from analysis.gap.render import (
-    RENDER_CANDIDATES,
-    RENDER_MIN_SHARE,
-    load_render,
-    localise_render,
-    render_ceiling,
-    render_floor,
-    render_loss,
-    render_unit_ids,
-    residual_maps,
-    split_render,
-)
+from analysis.gap.engine import Diagnosis, GapError, catalogue, diagnose_losses
 
-__all__ = ["diagnose_all_files", "diagnose_display", "diagnose_display_files", "diagnose_files", "diagnose_observer",
-           "diagnose_observer_files", "diagnose_render", "diagnose_render_files"]
+__all__ = ["LAYERS", "diagnose"]
 
 
-def diagnose_observer(real, sim, design, *, rng: np.random.Generator, seed: int,
-                      n_boot: int = 1000) -> tuple[Diagnosis, object]:
-    """Observer layer on data frames (session-CSV format). ``sim`` fixes the ideal's noise."""
-    real_u = observer_frame(real, design)
-    sim_u = observer_frame(sim, design)
-    train, test = split_observer(real_u, rng)
-    diag = diagnose_losses("observer", OBSERVER_CANDIDATES, train, test, observer_loss(train),
-                           lambda d: observer_floor(d, sim_u), rng=rng, seed=seed,
-                           n_boot=n_boot, unit_ids=observer_unit_ids,
-                           min_gain=OBSERVER_MIN_GAIN)
-    return diag, localise_observer(real_u, design, rng, n_boot=min(n_boot, 500))
+def _same_path(real, sim) -> None:
+    if (isinstance(real, (str, Path)) and isinstance(sim, (str, Path))
+            and Path(real).resolve() == Path(sim).resolve()):
+        raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
 
 
-def diagnose_observer_files(real_path: str | Path, sim_path: str | Path, design, *, seed: int,
-                            n_boot: int = 1000):
-    """Read session CSVs under ``real_path`` and ``sim_path`` and diagnose the observer layer."""
-    if Path(real_path).resolve() == Path(sim_path).resolve():
-        raise GapError(f"--real and --sim are the same path ({real_path}); pass the simulation")
-    return diagnose_observer(load_sessions(real_path), load_sessions(sim_path), design,
-                             rng=np.random.default_rng(seed), seed=seed, n_boot=n_boot)
+def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None = None,
+              k_folds: int = 5):
+    """Observer layer: session CSVs (or a session frame) against the simulated observer
+    (``sim``: an observers TOML, simulated session CSVs or a frame; see
+    :func:`analysis.gap.observer.load_sim`)."""
+    from analysis.gap.observer import (
+        OBSERVER_MIN_GAIN,
+        adapt_base,
+        ceiling_floor,
+        ceiling_loss,
+        check_sim,
+        fit_ceiling,
+        load_sessions,
+        load_sim,
+        localise_observer,
+        observer_folds,
+        observer_frame,
+        observer_loss,
+        observer_unit_ids,
+        observer_where,
+    )
+
+    _same_path(real, sim)
+    frame = real if not isinstance(real, (str, Path)) else load_sessions(real)
+    base = load_sim(sim, design, kind=sim_kind)
+    notes = check_sim(frame, base)
+    data = observer_frame(frame, design, base)
+    folds, text = observer_folds(data, k_folds)
+    rng = np.random.default_rng(seed)
+    ceil, floor = {}, {}
+    for tr, te in folds:
+        shared = bool(set(tr["participant"]) & set(te["participant"]))
+        adapt_base(tr, te, base)
+        model = fit_ceiling(tr, by_participant=shared)
+        ceil[id(te)] = ceiling_loss(model, te)
+        floor[id(te)] = ceiling_floor(model, te, rng)
+    diag = diagnose_losses(
+        "observer", catalogue("observer"), None, None, observer_loss,
+        lambda te: floor[id(te)], rng=rng, seed=seed, n_boot=n_boot,
+        unit_ids=observer_unit_ids, min_gain=OBSERVER_MIN_GAIN,
+        ceiling=lambda tr, te: ceil[id(te)], folds=folds, where=observer_where, split=text,
+        warnings=notes,
+        loss_info={"base": {"kind": base.kind, "source": base.source,
+                            "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
+                   "floor": "the ceiling model's own loss on data it draws (data-driven)"})
+    return diag, localise_observer(data, design, rng, n_boot=min(n_boot, 500))
 
 
-def diagnose_display(readings, cal, *, rng: np.random.Generator, seed: int,
-                     n_boot: int = 1000) -> tuple[Diagnosis, object]:
-    """Display layer on a readings frame (``readings.csv`` format) and a Calibration."""
+def _display(real, sim, design, *, seed: int, n_boot: int, **_):
+    """Display layer: photometer readings (``readings.csv``, its folder or a frame) against
+    the calibration (``calibration.json``, its folder or a Calibration)."""
+    from analysis.gap.display import (
+        DISPLAY_MIN_SHARE,
+        display_ceiling,
+        display_floor,
+        display_frame,
+        display_loss,
+        display_loss_info,
+        display_unit_ids,
+        load_display,
+        localise_display,
+        split_display,
+    )
+
+    readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
+    rng = np.random.default_rng(seed)
     data = display_frame(readings, cal)
     train, test = split_display(data, rng)
-    diag = diagnose_losses("display", DISPLAY_CANDIDATES, train, test, display_loss,
+    diag = diagnose_losses("display", catalogue("display"), train, test, display_loss,
                            display_floor, rng=rng, seed=seed, n_boot=n_boot,
                            unit_ids=display_unit_ids, min_share=DISPLAY_MIN_SHARE,
                            loss_info=display_loss_info(data), ceiling=display_ceiling)
     return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
 
 
-def diagnose_display_files(real_path: str | Path, sim_path: str | Path, *, seed: int,
-                           n_boot: int = 1000):
-    """Read ``readings.csv`` (REAL) and ``calibration.json`` (SIM); diagnose the display."""
-    readings, cal = load_display(real_path, sim_path)
-    return diagnose_display(readings, cal, rng=np.random.default_rng(seed), seed=seed,
-                            n_boot=n_boot)
+def _render(real, sim, design, *, seed: int, n_boot: int, **_):
+    """Render layer: photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss
+    fit's output folder, usually the same), or loaded residual files."""
+    from analysis.gap.render import (
+        RENDER_MIN_SHARE,
+        load_render,
+        localise_render,
+        render_ceiling,
+        render_floor,
+        render_loss,
+        render_unit_ids,
+        residual_maps,
+        split_render,
+    )
 
-
-def diagnose_render(data, *, rng: np.random.Generator, seed: int,
-                    n_boot: int = 1000) -> tuple[Diagnosis, object]:
-    """Render layer on loaded residual files (:func:`analysis.gap.render.load_render`)."""
+    data = load_render(real, sim if sim is not None else real) if isinstance(
+        real, (str, Path)) else real
+    rng = np.random.default_rng(seed)
     train, test = split_render(data, rng)
-    diag = diagnose_losses("render", RENDER_CANDIDATES, train, test, render_loss, render_floor,
+    diag = diagnose_losses("render", catalogue("render"), train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
                            min_share=RENDER_MIN_SHARE, ceiling=render_ceiling,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
@@ -104,30 +122,50 @@ def diagnose_render(data, *, rng: np.random.Generator, seed: int,
     return diag, local
 
 
-def diagnose_render_files(real_path: str | Path, sim_path: str | Path, *, seed: int,
-                          n_boot: int = 1000):
-    """Photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss fit's output
-    folder; usually the same folder)."""
-    return diagnose_render(load_render(real_path, sim_path), rng=np.random.default_rng(seed),
-                           seed=seed, n_boot=n_boot)
+#: The layers :func:`diagnose` knows, each ``fn(real, sim, design, *, seed, n_boot, **options)
+#: -> (Diagnosis, localisation)``.
+LAYERS = {"observer": _observer, "display": _display, "render": _render}
 
 
-def diagnose_all_files(real: dict, sim: dict, design, *, seed: int, n_boot: int = 1000) -> dict:
-    """Diagnose every layer given ({layer: path} for REAL and SIM; a render layer without a SIM
-    path uses its REAL folder). Returns {layer: (Diagnosis, localisation)}."""
-    missing = [n for n in real if n not in sim and n != "render"]
-    if missing:
-        raise GapError(f"--sim lacks {missing}; give LAYER=PATH for every layer in --real")
-    return {n: diagnose_files(n, real[n], sim.get(n, real[n]), design, seed=seed,
-                              n_boot=n_boot) for n in real}
+def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
+             **options) -> tuple[Diagnosis, object] | dict:
+    """Diagnose the sim-to-real gap of one layer, or of several (``layer='all'``).
 
+    Parameters
+    ----------
+    layer : {"observer", "display", "render", "all"}
+    real, sim
+        observer: session CSVs (folder, file or frame) and the simulated observer (an
+        observers TOML, simulated session CSVs or a frame); display: readings and calibration
+        (paths or loaded); render: the gloss fit's output folders (SIM may be None: REAL's).
+        ``all``: dicts ``{layer: real}`` and ``{layer: sim}`` (render may be missing from SIM).
+    design : StudyDesign
+    seed : int
+        The bootstrap's random seed (held-out folds do not depend on it in the observer layer).
+    n_boot : int
+        Bootstrap resamples.
+    **options
+        Passed to the layer: observer ``sim_kind`` ('humanlike' or 'ideal', the table of an
+        observers TOML), ``k_folds``.
 
-def diagnose_files(layer: str, real_path, sim_path, design, *, seed: int, n_boot: int = 1000):
-    """Diagnose one layer from its files (see ``python -m analysis.gap diagnose --help``)."""
-    if layer == "observer":
-        return diagnose_observer_files(real_path, sim_path, design, seed=seed, n_boot=n_boot)
-    if layer == "display":
-        return diagnose_display_files(real_path, sim_path, seed=seed, n_boot=n_boot)
-    if layer == "render":
-        return diagnose_render_files(real_path, sim_path, seed=seed, n_boot=n_boot)
-    raise GapError(f"unknown layer {layer!r}; use observer, display or render")
+    Returns
+    -------
+    (Diagnosis, localisation) or, for ``all``, ``{layer: (Diagnosis, localisation)}``.
+
+    Raises
+    ------
+    GapError
+        Unknown layer, bad input files, or ``all`` with a real layer missing its SIM.
+    """
+    if layer == "all":
+        if not isinstance(real, dict) or not isinstance(sim, dict):
+            raise GapError("layer 'all' needs {layer: path} for real and sim")
+        missing = [n for n in real if n not in sim and n != "render"]
+        if missing:
+            raise GapError(f"--sim lacks {missing}; give LAYER=PATH for every layer in --real")
+        return {n: diagnose(n, real[n], sim.get(n, real[n]), design, seed=seed, n_boot=n_boot,
+                            **options) for n in real}
+    if layer not in LAYERS:
+        raise GapError(f"unknown layer {layer!r}; use {', '.join(LAYERS)} or all")
+    opts = options if layer == "observer" else {}
+    return LAYERS[layer](real, sim, design, seed=seed, n_boot=n_boot, **opts)

@@ -23,6 +23,7 @@ __all__ = [
     "display_truth",
     "ideal_noise_sd",
     "lab_names",
+    "observer_injector",
     "simulate_readings",
     "simulate_sessions",
     "write_calibration",
@@ -35,6 +36,8 @@ OBSERVER_EFFECTS = ("crosstalk", "central_tendency", "illumination_gain", "label
                     "lapses", "serial_dependence")
 # Out of catalogue: heteroscedastic noise growing with depth, and a gloss bias on odd stimuli.
 OUT_OF_CATALOGUE = ("depth_noise_scaling", "stimulus_bias")
+#: Moderate strength of the out-of-catalogue observer effects (catalogue effects carry theirs).
+OUT_OF_CATALOGUE_STRENGTH = {"depth_noise_scaling": 0.3, "stimulus_bias": 0.3}
 
 
 def ideal_noise_sd(design) -> dict:
@@ -51,21 +54,52 @@ def lab_names(design) -> dict:
     return {i.name: f"lab_probe_{k + 1}" for k, i in enumerate(design.illuminations)}
 
 
+def _depth_noise_scaling(ctx, s, rng):
+    """Noise SD growing with depth: x (1 + 3 s (depth - mid) / mid), at least 0.1."""
+    scale = np.maximum(1 + s * 3 * (ctx["truth"]["depth"] - ctx["mid"]) / ctx["mid"], 0.1)
+    return {r: np.clip(ctx["mu"][r] + scale * ctx["noise"][r], ctx["lo"], ctx["hi"])
+            for r in ("gloss", "depth")}
+
+
+def _stimulus_bias(ctx, s, rng):
+    """A gloss bias of +-3 s slider units alternating between stimuli (a checkerboard)."""
+    sign = np.where((ctx["gloss_level"] * 7 + ctx["depth_level"] * 3) % 2 == 1, 1.0, -1.0)
+    mu = dict(ctx["mu"])
+    mu["gloss"] = mu["gloss"] + s * 3 * sign
+    return {r: np.clip(mu[r] + ctx["noise"][r], ctx["lo"], ctx["hi"]) for r in ("gloss", "depth")}
+
+
+_OUT_INJECTORS = {"depth_noise_scaling": _depth_noise_scaling, "stimulus_bias": _stimulus_bias}
+
+
+def observer_injector(effect: str):
+    """The injector of an observer effect: the catalogue candidate's own (engine registry) or
+    one of the out-of-catalogue ones here. Raises GapError for an unknown name."""
+    from analysis.gap.engine import candidate
+
+    if effect in _OUT_INJECTORS:
+        return _OUT_INJECTORS[effect]
+    return candidate("observer", effect).inject
+
+
 def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
                       effect: str = "none", strength: float = 0.0, *,
                       lab_files: bool = False) -> pd.DataFrame:
     """Session rows (experiment.SESSION_COLUMNS) of the experiment's ``ideal`` observers
     (experiment.make_observer / simulate_dataset: the app's plans, noise and file format),
-    with one effect added in slider units before the slider's clipping.
+    with one effect added in slider units before the slider's clipping by the effect's
+    injector (:func:`observer_injector`).
 
     ``lab_files``: rename illuminations (:func:`lab_names`) and stimulus ids as a lab's own
     files might, so the diagnosis cannot rely on the design's names.
     """
+    from analysis.gap.observer import to_slider_units
     from experiment import make_observer, simulate_dataset
 
     s = design.slider
     mid = 0.5 * (s.min + s.max)
-    ills = [i.name for i in design.illuminations]
+    inject = None if effect == "none" else observer_injector(effect)
+    names = lab_names(design) if lab_files else {i.name: i.name for i in design.illuminations}
     frames = []
     for p in range(n_participants):
         obs = make_observer("ideal", f"B{p:02d}", rng, design=design)
@@ -74,45 +108,22 @@ def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
         tg = frame["true_gloss_pct"].to_numpy(float)
         td = frame["true_depth_cm"].to_numpy(float)
         eg, ed = obs.estimate(tg, td, rng)
-        g0 = float(s.to_gloss_pct(s.min))
-        truth = {"gloss": s.min + (tg - g0) / s.gloss_pct_per_unit,
-                 "depth": td / s.depth_cm_per_unit}
-        noise = {"gloss": s.min + (eg - g0) / s.gloss_pct_per_unit - truth["gloss"],
-                 "depth": ed / s.depth_cm_per_unit - truth["depth"]}
-        ill = frame["illumination"].astype(str).to_numpy()
-        gl = frame["gloss_level"].to_numpy(int)
-        dl = frame["depth_level"].to_numpy(int)
-        ses = frame["session"].to_numpy(int)
-        resp = {"gloss": np.empty(len(frame)), "depth": np.empty(len(frame))}
-        prev = None
-        for k in range(len(frame)):
-            if k and ses[k] != ses[k - 1]:
-                prev = None
-            t = {r: truth[r][k] for r in resp}
-            mu = dict(t)
-            scale = 1.0
-            if effect == "crosstalk":
-                mu["gloss"] += strength * (t["depth"] - mid)
-            elif effect == "central_tendency":
-                mu = {r: v - strength * (v - mid) for r, v in mu.items()}
-            elif effect == "illumination_gain":
-                mu["gloss"] += (1 if ill[k] == ills[0] else -1) * strength * (t["gloss"] - mid)
-            elif effect == "serial_dependence" and prev is not None:
-                mu = {r: v + strength * (prev[r] - v) for r, v in mu.items()}
-            elif effect == "depth_noise_scaling":
-                scale = max(1 + strength * 3 * (t["depth"] - mid) / mid, 0.1)
-            elif effect == "stimulus_bias":
-                mu["gloss"] += strength * 3 * (1 if (gl[k] * 7 + dl[k] * 3) % 2 else -1)
-            out = {}
-            for r, column in resp.items():
-                v = mu[r] + scale * noise[r][k]
-                if effect == "label_rounding" and rng.random() < strength:
-                    v = float(np.round(v))
-                if effect == "lapses" and rng.random() < strength:
-                    v = rng.uniform(s.min, s.max)
-                out[r] = float(np.clip(v, s.min, s.max))
-                column[k] = out[r]
-            prev = out
+        tgu, tdu = to_slider_units(s, tg, td)
+        egu, edu = to_slider_units(s, eg, ed)
+        truth = {"gloss": tgu, "depth": tdu}
+        if inject is None:
+            resp = {"gloss": np.clip(egu, s.min, s.max), "depth": np.clip(edu, s.min, s.max)}
+        else:
+            ses = frame["session"].to_numpy(int)
+            ctx = {"truth": truth, "mu": dict(truth),
+                   "noise": {"gloss": egu - tgu, "depth": edu - tdu},
+                   "mid": mid, "lo": float(s.min), "hi": float(s.max),
+                   "illumination": frame["illumination"].map(names).to_numpy(str),
+                   "illuminations": [names[i.name] for i in design.illuminations],
+                   "session_start": np.r_[True, ses[1:] != ses[:-1]],
+                   "gloss_level": frame["gloss_level"].to_numpy(int),
+                   "depth_level": frame["depth_level"].to_numpy(int)}
+            resp = inject(ctx, float(strength), rng)
         frame["gloss_match"] = resp["gloss"]
         frame["depth_match"] = resp["depth"]
         frames.append(frame)
@@ -124,11 +135,16 @@ def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
 
 
 def write_sessions(frame: pd.DataFrame, folder: Path) -> None:
-    """One CSV per participant and session, ``folder/<P>_s<N>.csv`` (the app's naming)."""
+    """One CSV per participant and session, ``folder/<P>_s<N>.csv`` (the app's naming and
+    columns, experiment.SESSION_COLUMNS); an existing file is never replaced."""
+    from experiment import SESSION_COLUMNS
+    from labfiles import write_new_file
+
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for (p, ses), grp in frame.groupby(["participant", "session"]):
-        grp.to_csv(folder / f"{p}_s{ses}.csv", index=False)
+        write_new_file(folder / f"{p}_s{ses}.csv",
+                       grp[list(SESSION_COLUMNS)].to_csv(index=False))
 
 
 # --- display layer ------------------------------------------------------------------------

@@ -1,133 +1,438 @@
-"""Observer layer: session-CSV responses vs the ``ideal`` simulated observer (truth + noise).
+"""Observer layer: session-CSV responses vs a simulated observer (fitted or ideal).
 
-Both responses are modelled in raw slider units. The plain simulation predicts the true value
-(``true_gloss_pct``/``true_depth_cm`` mapped through the design's slider) with Gaussian noise;
-each catalogue candidate extends that model; the per-trial loss is the negative log-likelihood
-of both responses (nats).
+Both responses are modelled in raw slider units (the design's slider spec maps physical units
+to slider positions). The *base* model is the simulation: the observer a lab fitted to its own
+pilot (``python -m experiment fit-observer``, the ``humanlike`` model's population means), an
+observers TOML table, or the observer that generated simulated session CSVs (its mean response
+fitted in the humanlike model's form). Each catalogue candidate (one :class:`Candidate` per
+effect, registered here) extends the base; the per-trial loss is the negative log-likelihood
+of both responses (nats), Gaussian noise censored at the slider ends. The noise SDs are fitted
+on the training data for every model, so a uniformly noisier lab is no gap; noise that changes
+with the stimulus is (the ceiling models it).
+
+The *ceiling* (:func:`fit_ceiling`) is a flexible model fitted to the real data alone: per
+response a quadratic surface in gloss x depth with illumination-specific terms and the previous
+response, cross-validated per-cell means (stimulus gloss x depth x illumination) shrunk toward
+that surface across participants (empirical Bayes), a smooth noise SD and lapse and
+label-rounding shares. The noise *floor* is the loss the ceiling model has on data it generates
+itself (its own noise, estimated from the data), not an assumed noise of an ideal observer.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import optimize, stats
+from scipy import optimize
+from scipy.special import ndtr
 
-from analysis.gap.engine import Candidate, GapError, split_held_out
+from analysis.gap.engine import Candidate, GapError, candidate, register
 
 __all__ = [
     "OBSERVER_CANDIDATES",
     "OBSERVER_MIN_GAIN",
+    "ObserverBase",
+    "adapt_base",
+    "base_from_params",
+    "base_from_sessions",
+    "check_sim",
+    "fit_ceiling",
     "load_sessions",
+    "load_sim",
     "localise_observer",
-    "observer_floor",
+    "observer_folds",
     "observer_frame",
     "observer_loss",
     "observer_nll",
     "observer_unit_ids",
-    "split_observer",
+    "observer_where",
+    "predict",
+    "to_slider_units",
 ]
 
-SESSION_COLUMNS = ("participant", "session", "trial", "order", "stimulus_id", "illumination",
-                   "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm",
-                   "gloss_match", "depth_match")
 RESP = ("gloss", "depth")
-#: A candidate must remove >= 0.02 nats per held-out trial (the tolerance below which
-#: analysis.gap.layers treats a gap as none): with thousands of trials a gain of a few
-#: thousandths of a nat is significant, and one such was attributed on effect-free data.
+#: A candidate, a step or a remaining gap must be >= 0.02 nats per held-out trial (the
+#: tolerance below which analysis.gap.layers treats a gap as none): with thousands of trials a
+#: gain of a few thousandths of a nat is significant, and one such was attributed on
+#: effect-free data.
 OBSERVER_MIN_GAIN = 0.02
 _LABEL_HALF_WIDTH = 0.025  # slider units: a response this close to a tick label counts as on it
+_FLOOR_DRAWS = 20  # Monte-Carlo draws per held-out trial for the ceiling's own loss
 
+
+# --- reading ------------------------------------------------------------------------------
 
 def load_sessions(path: str | Path) -> pd.DataFrame:
-    """Read every ``*.csv`` session file under ``path`` (a folder or one file; recursive)."""
+    """Read every ``*.csv`` session file under ``path`` (a folder searched recursively, or one
+    file) with the experiment's own reader (:func:`experiment.read_session`)."""
+    from experiment import DataFileError, read_session
+
     path = Path(path)
+    if not path.exists():
+        raise GapError(f"{path} does not exist; pass a folder holding <P>_s<N>.csv session files")
     files = [path] if path.is_file() else sorted(path.rglob("*.csv"))
     if not files:
         raise GapError(f"no session CSVs found at {path}; pass a folder holding <P>_s<N>.csv files")
     frames = []
     for f in files:
-        df = pd.read_csv(f)
-        missing = [c for c in SESSION_COLUMNS if c not in df.columns]
+        try:
+            frames.append(read_session(f))
+        except DataFileError as exc:
+            raise GapError(f"{exc} (session CSVs need the experiment's SESSION_COLUMNS)") from exc
+    out = pd.concat([f for f in frames if len(f)], ignore_index=True) if frames else None
+    if out is None or not len(out):
+        raise GapError(f"the session CSVs at {path} hold no trials")
+    return out
+
+
+def to_slider_units(slider, gloss_pct, depth_cm) -> tuple[np.ndarray, np.ndarray]:
+    """Physical gloss (%) and depth (cm) -> slider positions, the inverse of the design's
+    ``slider.to_gloss_pct`` / ``slider.to_depth_cm`` (linear maps, read off at the slider's
+    ``min`` and one unit above it); not clipped."""
+    lo = float(slider.min)
+    g0, g1 = (float(slider.to_gloss_pct(v)) for v in (lo, lo + 1.0))
+    d0, d1 = (float(slider.to_depth_cm(v)) for v in (lo, lo + 1.0))
+    return (lo + (np.asarray(gloss_pct, float) - g0) / (g1 - g0),
+            lo + (np.asarray(depth_cm, float) - d0) / (d1 - d0))
+
+
+# --- the simulation (base model) ----------------------------------------------------------
+
+@dataclass(frozen=True)
+class ObserverBase:
+    """The simulated observer's mean response in slider units, ``mid`` the slider's middle::
+
+        depth = mid + a_d + b_d (depth_true - mid)
+        gloss = mid + a_g + b_g (gloss_true - mid) + c (depth_true - mid)
+                + k (gloss_true - mid)(depth_true - mid)
+
+    (the experiment's humanlike form; the ideal observer is a = c = k = 0, b = 1).
+
+    Attributes
+    ----------
+    kind : str
+        'ideal', 'humanlike' or 'fitted' (a table written by ``experiment fit-observer``).
+    source : str
+        Where it came from (a path or 'sessions').
+    coef : dict
+        ``{"gloss": (a_g, b_g, c, k), "depth": (a_d, b_d)}``, slider units.
+    participants : tuple of str
+        Participant ids of the simulated sessions (or of the fit), if known.
+    stimuli : tuple
+        Sorted (true_gloss_pct, true_depth_cm) levels of the simulated sessions, if known.
+    n_illuminations : int or None
+    sd : dict or None
+        Between-observer SDs of ``coef`` (same layout, slider units), from a table's
+        ``{mean, sd}`` entries: how far one observer may depart from the population.
+    """
+
+    kind: str
+    source: str
+    coef: dict
+    participants: tuple = ()
+    stimuli: tuple = ()
+    n_illuminations: int | None = None
+    sd: dict | None = None
+
+    def mean(self, gloss_u, depth_u, mid: float) -> dict:
+        g, d = np.asarray(gloss_u, float) - mid, np.asarray(depth_u, float) - mid
+        ag, bg, c, k = self.coef["gloss"]
+        ad, bd = self.coef["depth"]
+        return {"gloss": mid + ag + bg * g + c * d + k * g * d, "depth": mid + ad + bd * d}
+
+
+def _table_means(table: Mapping) -> dict:
+    """A parameter table's population values: numbers as given, ``{mean, sd}`` -> mean."""
+    out = {}
+    for name, spec in table.items():
+        if isinstance(spec, Mapping) and "mean" in spec:
+            out[name] = float(spec["mean"])
+        elif isinstance(spec, (int, float)):
+            out[name] = float(spec)
+    return out
+
+
+def base_from_params(table: Mapping, kind: str, slider, *, source: str = "",
+                     fit_info: Mapping | None = None) -> ObserverBase:
+    """The base model of an observers-TOML table (``ideal`` or ``humanlike``, physical units),
+    at its population means, converted to slider units with the design's slider.
+
+    Raises
+    ------
+    GapError
+        Unknown kind, or a humanlike table missing a parameter.
+    """
+    p = _table_means(table)
+    sd = None
+    if kind == "ideal":
+        coef = {"gloss": (0.0, 1.0, 0.0, 0.0), "depth": (0.0, 1.0)}
+    elif kind in ("humanlike", "fitted"):
+        need = ("depth_slope", "depth_intercept_cm", "gloss_slope", "gloss_intercept_pct",
+                "crosstalk_pct_per_cm", "interaction_per_cm")
+        missing = [n for n in need if n not in p]
         if missing:
-            raise GapError(f"{f}: columns {missing} missing; session CSVs need {SESSION_COLUMNS}")
-        frames.append(df)
-    return pd.concat(frames, ignore_index=True)
+            raise GapError(f"observer table {source or ''} lacks {missing}; write it with "
+                           "python -m experiment fit-observer")
+        coef = _humanlike_coef(p, slider)
+        var = {r: np.zeros(len(v)) for r, v in coef.items()}
+        for name in need:
+            spec = table.get(name)
+            if isinstance(spec, Mapping) and float(spec.get("sd", 0.0)) > 0:
+                moved = _humanlike_coef({**p, name: p[name] + float(spec["sd"])}, slider)
+                for r in var:
+                    var[r] += (np.asarray(moved[r]) - np.asarray(coef[r])) ** 2
+        sd = {r: tuple(float(v) for v in np.sqrt(var[r])) for r in var}
+    else:
+        raise GapError(f"unknown observer kind {kind!r}; use ideal or humanlike")
+    info = dict(fit_info or {})
+    parts = tuple(str(v) for v in info.get("participants", ()))
+    return ObserverBase(kind=kind, source=source, coef=coef, participants=parts, sd=sd)
 
 
-def observer_frame(frame: pd.DataFrame, design) -> pd.DataFrame:
-    """Add truth in slider units (``gloss_u``, ``depth_u``) and the previous response."""
+def _humanlike_coef(p: Mapping, slider) -> dict:
+    """Slider-unit coefficients of the humanlike model at parameters ``p`` (physical units):
+    the physical model evaluated on a grid and read off (exact: both the model and the
+    slider map are linear in each variable)."""
+    mid = 0.5 * (slider.min + slider.max)
+    m_g, m_d = float(slider.to_gloss_pct(mid)), float(slider.to_depth_cm(mid))
+    gu = np.array([mid - 1, mid + 1, mid - 1, mid + 1, mid])
+    du = np.array([mid - 1, mid - 1, mid + 1, mid + 1, mid])
+    g_pct = np.array([float(slider.to_gloss_pct(v)) for v in gu])
+    d_cm = np.array([float(slider.to_depth_cm(v)) for v in du])
+    dh = m_d + p["depth_slope"] * (d_cm - m_d) + p["depth_intercept_cm"]
+    gh = (m_g + p["gloss_slope"] * (g_pct - m_g) + p["crosstalk_pct_per_cm"] * (d_cm - m_d)
+          + p["interaction_per_cm"] * (g_pct - m_g) * (d_cm - m_d) + p["gloss_intercept_pct"])
+    ghu, dhu = to_slider_units(slider, gh, dh)
+    x = np.c_[np.ones(5), gu - mid, du - mid, (gu - mid) * (du - mid)]
+    cg = np.linalg.lstsq(x, ghu - mid, rcond=None)[0]
+    cd = np.linalg.lstsq(x[:, [0, 2]], dhu - mid, rcond=None)[0]
+    return {"gloss": tuple(float(v) for v in cg), "depth": tuple(float(v) for v in cd)}
+
+
+def _base_x(data: pd.DataFrame, r: str) -> np.ndarray:
+    """The base model's regressors of response ``r`` (centred at the slider's middle)."""
+    mid = data.attrs["mid"]
+    g = data["gloss_u"].to_numpy(float) - mid
+    d = data["depth_u"].to_numpy(float) - mid
+    return np.c_[np.ones(len(g)), g, d, g * d] if r == "gloss" else np.c_[np.ones(len(g)), d]
+
+
+def adapt_base(train: pd.DataFrame, test: pd.DataFrame, base: ObserverBase) -> None:
+    """Each participant's own base, in place: where a participant is in both parts (folds by
+    trial), their coefficients are the posterior mean given their training trials, with the
+    simulation's population values as the prior mean and its between-observer SDs as the
+    prior SDs (a random-effects model's best linear unbiased predictor): the simulated
+    observer allows each observer that much individual departure, so it is no gap. Without
+    SDs (the ideal observer, simulated sessions) nothing changes."""
+    if not base.sd or not any(any(v > 0 for v in sd) for sd in base.sd.values()):
+        return
+    lo, hi = train.attrs["range"]
+    shared = set(train["participant"]) & set(test["participant"])
+    for r in RESP:
+        prior_var = np.maximum(np.asarray(base.sd[r], float) ** 2, 1e-10)
+        x_tr, x_te = _base_x(train, r), _base_x(test, r)
+        y = train[f"{r}_match"].to_numpy(float)
+        res = y - train[f"{r}_base"].to_numpy(float)
+        inside = (y > lo + 1e-9) & (y < hi - 1e-9)
+        noise = float(np.var(res[inside]))
+        add_tr, add_te = np.zeros(len(train)), np.zeros(len(test))
+        for pid in shared:
+            m_tr = (train["participant"] == pid).to_numpy() & inside
+            xx = x_tr[m_tr]
+            prec = xx.T @ xx / noise + np.diag(1 / prior_var)
+            delta = np.linalg.solve(prec, xx.T @ res[m_tr] / noise)
+            add_tr[(train["participant"] == pid).to_numpy()] = (
+                x_tr[(train["participant"] == pid).to_numpy()] @ delta)
+            m_te = (test["participant"] == pid).to_numpy()
+            add_te[m_te] = x_te[m_te] @ delta
+        train[f"{r}_base"] = train[f"{r}_base"].to_numpy(float) + add_tr
+        test[f"{r}_base"] = test[f"{r}_base"].to_numpy(float) + add_te
+
+
+def base_from_sessions(frame: pd.DataFrame, design, *, source: str = "sessions") -> ObserverBase:
+    """The base model of simulated session CSVs: their mean response fitted (least squares,
+    slider units) in the humanlike form; the kind is read from the files' ``app_version``
+    ('simulate_dataset:<kind>') where it says."""
     s = design.slider
+    mid = 0.5 * (s.min + s.max)
+    gu, du = to_slider_units(s, frame["true_gloss_pct"], frame["true_depth_cm"])
+    g, d = gu - mid, du - mid
+    yg = frame["gloss_match"].to_numpy(float) - mid
+    yd = frame["depth_match"].to_numpy(float) - mid
+    x = np.c_[np.ones(len(g)), g, d, g * d]
+    cg = np.linalg.lstsq(x, yg, rcond=None)[0]
+    cd = np.linalg.lstsq(x[:, [0, 2]], yd, rcond=None)[0]
+    kinds = {str(v).rsplit(":", 1)[1] for v in frame.get("app_version", pd.Series(dtype=str))
+             .dropna().astype(str) if ":" in str(v)}
+    kind = kinds.pop() if len(kinds) == 1 else "unknown"
+    return ObserverBase(kind=kind, source=source,
+                        coef={"gloss": tuple(float(v) for v in cg),
+                              "depth": tuple(float(v) for v in cd)},
+                        participants=tuple(sorted(frame["participant"].astype(str).unique())),
+                        stimuli=_stimuli(frame),
+                        n_illuminations=int(frame["illumination"].nunique()))
+
+
+def _stimuli(frame: pd.DataFrame) -> tuple:
+    pairs = {(round(float(g), 6), round(float(d), 6))
+             for g, d in zip(frame["true_gloss_pct"], frame["true_depth_cm"])}
+    return tuple(sorted(pairs))
+
+
+def load_sim(sim, design, *, kind: str | None = None) -> ObserverBase:
+    """The base model from ``--sim``: an observers TOML (``.toml``: the ``humanlike`` table, or
+    ``kind``), a folder or file of simulated session CSVs, a session frame, or an
+    ``ObserverBase``.
+
+    Raises
+    ------
+    GapError
+        A missing or unreadable file, or a kind the file lacks.
+    """
+    if isinstance(sim, ObserverBase):
+        return sim
+    if isinstance(sim, pd.DataFrame):
+        return base_from_sessions(sim, design)
+    path = Path(sim)
+    if path.suffix.lower() == ".toml":
+        from experiment import load_observer_params
+
+        try:
+            params = load_observer_params(path)
+        except (ValueError, TypeError) as exc:
+            raise GapError(f"--sim {path}: {exc}") from exc
+        kind = kind or "humanlike"
+        if kind not in params:
+            raise GapError(f"--sim {path} has no [{kind}] table; it has {sorted(params)}")
+        fit = params.get("fit") if isinstance(params.get("fit"), Mapping) else None
+        return base_from_params(params[kind], kind if fit is None or kind == "ideal"
+                                else "fitted", design.slider, source=str(path), fit_info=fit)
+    return base_from_sessions(load_sessions(path), design, source=str(path))
+
+
+def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:
+    """Warnings where the simulation does not match the real data: participant ids, stimuli
+    or illuminations that differ, or a simulation of the ideal observer (truth + noise),
+    which is not an observer fitted to the lab's data."""
+    out = []
+    real_ids = tuple(sorted(real["participant"].astype(str).unique()))
+    if base.participants:
+        shared = sorted(set(base.participants) & set(real_ids))
+        if base.kind == "fitted" and shared:
+            out.append(f"the observer was fitted to participants {list(base.participants)}, "
+                       f"of whom {shared} are in the data diagnosed: the diagnosis is then "
+                       "in-sample for them; fit to a pilot or to other sessions")
+        elif base.kind != "fitted" and set(base.participants) != set(real_ids):
+            out.append(f"the simulated participants {list(base.participants)} are not the real "
+                       f"ones {list(real_ids)}: their plans (stimulus orders) differ; simulate "
+                       "with the same participant ids")
+    if base.stimuli and base.stimuli != _stimuli(real):
+        out.append(f"the simulated sessions show other stimuli ({len(base.stimuli)} gloss x depth "
+                   f"levels) than the real ones ({len(_stimuli(real))}); simulate with the "
+                   "real data's study design")
+    if base.n_illuminations is not None and base.n_illuminations != real["illumination"].nunique():
+        out.append(f"the simulation has {base.n_illuminations} illuminations, the real data "
+                   f"{real['illumination'].nunique()}")
+    if base.kind == "ideal":
+        out.append("the simulation is the ideal observer (truth + noise), not an observer fitted "
+                   "to your data: the diagnosis names every way your observers differ from "
+                   "the truth; to compare with the humanlike simulation, fit one with python -m "
+                   "experiment fit-observer PILOT_SESSIONS --out observers.toml and pass --sim "
+                   "observers.toml")
+    elif base.kind == "humanlike" and base.source.endswith(".toml"):
+        out.append(f"the simulation is the humanlike table of {base.source}, which was not "
+                   "fitted to a pilot (no [fit] table): fit one with python -m experiment "
+                   "fit-observer PILOT_SESSIONS --out observers.toml")
+    elif base.kind == "unknown":
+        out.append("the simulated sessions do not say which observer made them (app_version)")
+    return out
+
+
+def observer_frame(frame: pd.DataFrame, design, base: ObserverBase | None = None) -> pd.DataFrame:
+    """Add truth in slider units (``gloss_u``, ``depth_u``), the previous response of the same
+    session (``*_prev``, NaN on a session's first trial) and the base model's mean
+    (``*_base``; the ideal observer's without ``base``)."""
+    s = design.slider
+    need = ("participant", "session", "order", "illumination", "gloss_level", "depth_level",
+            "true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match")
+    missing = [c for c in need if c not in frame.columns]
+    if missing:
+        raise GapError(f"session rows lack the columns {missing}")
     out = frame.copy()
-    out["gloss_u"] = out["true_gloss_pct"] / s.gloss_pct_per_unit + s.min
-    out["depth_u"] = out["true_depth_cm"] / s.depth_cm_per_unit
+    bad = ~np.isfinite(out[["gloss_match", "depth_match"]].apply(
+        pd.to_numeric, errors="coerce").to_numpy(float)).all(axis=1)
+    if bad.any():
+        raise GapError(f"{int(bad.sum())} rows have non-numeric matches; drop or fix them")
+    out["participant"] = out["participant"].astype(str)
+    out["gloss_u"], out["depth_u"] = to_slider_units(s, out["true_gloss_pct"],
+                                                     out["true_depth_cm"])
     out["illumination"] = out["illumination"].astype(str)
     out = out.sort_values(["participant", "session", "order"]).reset_index(drop=True)
     for r in RESP:
-        prev = out.groupby(["participant", "session"])[f"{r}_match"].shift(1)
-        out[f"{r}_prev"] = prev.fillna(out[f"{r}_u"]).to_numpy()
-    bad = ~np.isfinite(out[["gloss_match", "depth_match"]].to_numpy(float)).all(axis=1)
-    if bad.any():
-        raise GapError(f"{int(bad.sum())} rows have non-numeric matches; drop or fix them")
-    out.attrs["mid"] = 0.5 * (s.min + s.max)
-    out.attrs["range"] = (s.min, s.max)
+        out[f"{r}_match"] = out[f"{r}_match"].astype(float)
+        out[f"{r}_prev"] = out.groupby(["participant", "session"])[f"{r}_match"].shift(1)
+    mid = 0.5 * (s.min + s.max)
+    base = base or base_from_params({}, "ideal", s)
+    mu = base.mean(out["gloss_u"], out["depth_u"], mid)
+    for r in RESP:
+        out[f"{r}_base"] = mu[r]
+    out.attrs["mid"] = mid
+    out.attrs["range"] = (float(s.min), float(s.max))
     return out
 
 
 # --- the extended model -------------------------------------------------------------------
 
-def _means(data: pd.DataFrame, fitted: list) -> dict:
-    mid = data.attrs["mid"]
-    mu = {r: data[f"{r}_u"].to_numpy(float).copy() for r in RESP}
-    truth = {r: data[f"{r}_u"].to_numpy(float) for r in RESP}
+def predict(data: pd.DataFrame, fitted: list) -> dict:
+    """The base model extended by ``fitted`` (``[(candidate name, params), ...]``, applied in
+    order): ``{"mu": {response: mean}, "sd": {response: 1}, "lapse": rate, "label": weight}``
+    (``sd`` a multiplier of the fitted noise SD)."""
+    pred = {"mu": {r: data[f"{r}_base"].to_numpy(float).copy() for r in RESP},
+            "sd": {r: 1.0 for r in RESP}, "lapse": 0.0, "label": 0.0}
     for name, p in fitted:
-        if name == "crosstalk":
-            mu["gloss"] += p["c"] * (truth["depth"] - mid)
-        elif name == "central_tendency":
-            for r in RESP:
-                mu[r] -= p[r] * (truth[r] - mid)
-        elif name == "illumination_gain":
-            g = data["illumination"].map(p["gain"]).fillna(0.0).to_numpy(float)
-            mu["gloss"] += g * (truth["gloss"] - mid)
-        elif name == "serial_dependence":
-            for r in RESP:
-                mu[r] += p[r] * (data[f"{r}_prev"].to_numpy(float) - truth[r])
-    return mu
+        pred = candidate("observer", name).apply(data, pred, p)
+    return pred
 
 
-def _nll(data: pd.DataFrame, fitted: list, sigma: dict | None = None) -> np.ndarray:
-    mu = _means(data, fitted)
-    extra = dict(fitted)
-    lam = extra.get("lapses", {}).get("rate", 0.0)
-    w = extra.get("label_rounding", {}).get("weight", 0.0)
+def _nll_parts(data: pd.DataFrame, pred: dict, sigma: dict) -> dict:
+    """Per-trial NLL (nats) of each response."""
+    lam, w = pred["lapse"], pred["label"]
     lo, hi = data.attrs["range"]
-    total = np.zeros(len(data))
+    out = {}
     for r in RESP:
         x = data[f"{r}_match"].to_numpy(float)
-        sd = (sigma or _sigma(data, fitted))[r]
-        dens = stats.norm.pdf(x, mu[r], sd)
+        mu = pred["mu"][r]
+        sd = np.maximum(np.asarray(sigma[r], float) * pred["sd"][r], 1e-6)
+        z = (x - mu) / sd
+        dens = np.exp(-0.5 * z * z) / (sd * np.sqrt(2 * np.pi))
         # The slider stops at its ends: a response there is a censored draw, whose probability
         # is the Gaussian tail, spread over the label window so the measure matches rounding.
         at_lo, at_hi = x <= lo + 1e-9, x >= hi - 1e-9
-        dens = np.where(at_lo, stats.norm.cdf(lo, mu[r], sd) / _LABEL_HALF_WIDTH, dens)
-        dens = np.where(at_hi, stats.norm.sf(hi, mu[r], sd) / _LABEL_HALF_WIDTH, dens)
+        dens = np.where(at_lo, ndtr((lo - mu) / sd) / _LABEL_HALF_WIDTH, dens)
+        dens = np.where(at_hi, ndtr((mu - hi) / sd) / _LABEL_HALF_WIDTH, dens)
         if w > 0:
             k = np.clip(np.round(x), lo, hi)
             on_label = np.abs(x - k) <= _LABEL_HALF_WIDTH
-            p_k = stats.norm.cdf(k + 0.5, mu[r], sd) - stats.norm.cdf(k - 0.5, mu[r], sd)
+            p_k = ndtr((k + 0.5 - mu) / sd) - ndtr((k - 0.5 - mu) / sd)
             dens = (1 - w) * dens + w * on_label * p_k / (2 * _LABEL_HALF_WIDTH)
         if lam > 0:
             dens = (1 - lam) * dens + lam / (hi - lo)
-        total += -np.log(np.maximum(dens, 1e-300))
-    return total
+        out[r] = -np.log(np.maximum(dens, 1e-300))
+    return out
+
+
+def _nll(data, pred, sigma) -> np.ndarray:
+    parts = _nll_parts(data, pred, sigma)
+    return parts["gloss"] + parts["depth"]
 
 
 def observer_nll(data: pd.DataFrame, fitted: list, sigma: dict) -> np.ndarray:
-    """Per-trial NLL (nats) of the simulation extended by ``fitted`` (a list of
-    ``(candidate name, params)``) at fixed noise SDs ``sigma`` ({'gloss', 'depth'}, slider
-    units), on a frame from :func:`observer_frame`."""
-    return _nll(data, fitted, sigma)
+    """Per-trial NLL (nats) of the base extended by ``fitted`` at noise SDs ``sigma``
+    ({'gloss', 'depth'}, slider units), on a frame from :func:`observer_frame`."""
+    return _nll(data, predict(data, fitted), sigma)
 
 
 def observer_unit_ids(data: pd.DataFrame) -> list[str]:
@@ -136,51 +441,368 @@ def observer_unit_ids(data: pd.DataFrame) -> list[str]:
             zip(data["participant"], data["session"], data["order"])]
 
 
-def _sigma(data: pd.DataFrame, fitted: list) -> dict:
-    mu = _means(data, fitted)
-    return {r: float(np.std(data[f"{r}_match"].to_numpy(float) - mu[r])) for r in RESP}
-
-
-def _fit_sigma(train, fitted):
-    """Maximum-likelihood noise SD per response given the other fitted parameters."""
-    sig = _sigma(train, fitted)
+def _fit_sigma(train: pd.DataFrame, pred: dict) -> dict:
+    """Maximum-likelihood noise SD per response given the prediction (closed form for a plain
+    Gaussian; a bounded search when lapses, label rounding or censored responses count)."""
+    lo, hi = train.attrs["range"]
+    sig, mads, refine = {}, {}, pred["lapse"] > 0 or pred["label"] > 0
     for r in RESP:
-        def f(log_s, r=r):
-            s = dict(sig)
-            s[r] = float(np.exp(log_s))
-            return _nll(train, fitted, s).sum()
-        res = optimize.minimize_scalar(f, bounds=(np.log(0.02), np.log(5.0)), method="bounded",
-                                       options={"xatol": 1e-3})
-        sig[r] = float(np.exp(res.x))
+        x = train[f"{r}_match"].to_numpy(float)
+        res = (x - pred["mu"][r]) / pred["sd"][r]
+        inside = (x > lo + 1e-9) & (x < hi - 1e-9)
+        if not inside.any():
+            raise GapError(f"every {r} response lies at a slider end; nothing to fit")
+        sig[r] = max(float(np.sqrt(np.mean(res[inside] ** 2))), 1e-3)
+        mads[r] = max(1.4826 * float(np.median(np.abs(res[inside] - np.median(res[inside])))),
+                      1e-2)
+        refine = refine or inside.mean() < 0.98
+    if refine:
+        for r in RESP:
+            def f(log_s, r=r):
+                return _nll_parts(train, pred, {**sig, r: float(np.exp(log_s))})[r].sum()
+            opt = optimize.minimize_scalar(
+                f, bounds=(np.log(mads[r] / 3), np.log(3 * max(mads[r], sig[r]))),
+                method="bounded", options={"xatol": 2e-3})
+            sig[r] = float(np.exp(opt.x))
     return sig
 
 
 def observer_loss(train: pd.DataFrame):
-    """Loss for the engine: noise SDs fitted on ``train``, per-trial NLL (nats) on the data."""
+    """Loss for the engine: noise SDs fitted on ``train`` for each model, per-trial NLL
+    (nats) on the data."""
     cache = {}
 
     def loss(data: pd.DataFrame, fitted: list) -> np.ndarray:
         key = repr(fitted)
         if key not in cache:
-            cache[key] = _fit_sigma(train, fitted)
-        return _nll(data, fitted, cache[key])
+            cache[key] = _fit_sigma(train, predict(train, fitted))
+        return observer_nll(data, fitted, cache[key])
     return loss
 
 
-def split_observer(data: pd.DataFrame, rng: np.random.Generator):
-    """Held-out split: by participant when there are >= 4, else half the trials at random."""
-    parts = data["participant"].unique()
-    mask = None
-    if parts.size >= 4:
-        test_p = rng.choice(parts, size=parts.size // 2, replace=False)
-        mask = data["participant"].isin(test_p).to_numpy()
-    return split_held_out(data, mask, rng)
+def observer_folds(data: pd.DataFrame, k: int = 5) -> tuple[list, str]:
+    """Deterministic K-fold held-out scheme (no random split, so the seed cannot change it):
+    by participant (sorted ids, id i in fold i mod K, K = min(k, participants)) when there are
+    >= 4 participants, else by trial (presentation order mod K within each session).
 
+    Returns
+    -------
+    (folds, description)
+        ``folds`` a list of (train, test) frames that keep ``data.attrs``.
+    """
+    parts = sorted(data["participant"].unique())
+    if len(parts) >= 4:
+        kk = min(k, len(parts))
+        fold_of = {p: i % kk for i, p in enumerate(parts)}
+        fold = data["participant"].map(fold_of).to_numpy(int)
+        text = f"{kk}-fold by participant ({len(parts)} participants)"
+    else:
+        kk = k
+        rank = data.groupby(["participant", "session"])["order"].rank(method="first")
+        fold = (rank.to_numpy(int) - 1) % kk
+        text = (f"{kk}-fold by trial within each session ({len(parts)} participant(s); >= 4 "
+                "allow held-out participants)")
+    folds = []
+    for f in range(kk):
+        m = fold == f
+        tr, te = data[~m].copy(), data[m].copy()
+        tr.attrs, te.attrs = dict(data.attrs), dict(data.attrs)
+        folds.append((tr, te))
+    return folds, text
+
+
+# --- the ceiling: a flexible model of the data alone --------------------------------------
+
+@dataclass(frozen=True)
+class Ceiling:
+    """A fitted ceiling model (see :func:`fit_ceiling`)."""
+
+    coef: dict
+    var_coef: dict
+    cells: dict
+    ills: tuple
+    lapse: float
+    label: float
+    mid: float
+    span: float
+    parts: tuple = ()
+
+
+def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
+              parts: tuple = ()):
+    g = (data["gloss_u"].to_numpy(float) - mid) / span
+    d = (data["depth_u"].to_numpy(float) - mid) / span
+    prev = data[f"{r}_prev"].to_numpy(float)
+    truth = data[f"{r}_u"].to_numpy(float)
+    x_prev = np.where(np.isnan(prev), 0.0, prev - truth)
+    ill = data["illumination"].to_numpy(str)
+    dummies = [(ill == name).astype(float) for name in ills[1:]]
+    who = data["participant"].to_numpy(str)
+    # Each participant's own intercept and slopes (effect coding: the population is their
+    # average), where the same participants are in the training and the held-out part.
+    own = [(who == q).astype(float) - (who == parts[-1]) for q in parts[:-1]]
+    mean_x = np.c_[np.ones(len(g)), g, d, g * d, g * g, d * d, x_prev,
+                   *[u * v for u in dummies for v in (np.ones(len(g)), g)],
+                   *[u * v for u in own for v in (np.ones(len(g)), g, d)]]
+    var_x = np.c_[np.ones(len(g)), g, d, *dummies]
+    return mean_x, var_x
+
+
+def _stimulus_keys(data: pd.DataFrame) -> np.ndarray:
+    return (data["gloss_level"].astype(str) + "|" + data["depth_level"].astype(str)).to_numpy()
+
+
+def _cell_keys(data: pd.DataFrame) -> np.ndarray:
+    return (data["gloss_level"].astype(str) + "|" + data["depth_level"].astype(str) + "|"
+            + data["illumination"].astype(str)).to_numpy()
+
+
+def _tobit_fill(y: np.ndarray, x: np.ndarray, lo: float, hi: float,
+                n_iter: int = 6) -> np.ndarray:
+    """Responses at the slider ends replaced by their expected value beyond the end under the
+    current linear fit (EM for censored regression, Tobin 1958), so the surface is not pulled
+    in at the ends."""
+    at_lo, at_hi = y <= lo + 1e-9, y >= hi - 1e-9
+    inside = ~(at_lo | at_hi)
+    if inside.all():
+        return y
+    b = np.linalg.lstsq(x[inside], y[inside], rcond=None)[0]
+    out = y.copy()
+    for _ in range(n_iter):
+        mu = x @ b
+        sd = max(float(np.sqrt(np.mean((y[inside] - mu[inside]) ** 2))), 1e-3)
+        a_hi, a_lo = (hi - mu[at_hi]) / sd, (lo - mu[at_lo]) / sd
+        out[at_hi] = mu[at_hi] + sd * _phi(a_hi) / np.maximum(1 - ndtr(a_hi), 1e-12)
+        out[at_lo] = mu[at_lo] - sd * _phi(a_lo) / np.maximum(ndtr(a_lo), 1e-12)
+        b = np.linalg.lstsq(x, out, rcond=None)[0]
+    return out
+
+
+def _fit_log_variance(res: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Maximum-likelihood log-linear variance, log s^2 = x b, of zero-mean Gaussian residuals
+    (Fisher scoring of the gamma GLM with log link on the squared residuals)."""
+    r2 = res ** 2
+    b = np.zeros(x.shape[1])
+    b[0] = np.log(max(float(np.mean(r2)), 1e-8))
+    for _ in range(25):
+        w = r2 / np.exp(x @ b) - 1.0
+        step = np.linalg.lstsq(x, w, rcond=None)[0]
+        b = b + step
+        if np.max(np.abs(step)) < 1e-6:
+            break
+    return b
+
+
+def _phi(z):
+    return np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
+
+
+def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray) -> dict:
+    """Per-cell mean residuals shrunk across participants (empirical Bayes): the between-cell
+    variance is the part that replicates *across* participants (the mean product of two
+    different participants' residuals in the same cell), so one participant's own pattern is
+    not taken as the population's; each cell mean is shrunk by tau^2 / (tau^2 + s_w^2 / n)."""
+    frame = pd.DataFrame({"cell": keys, "p": participants, "res": res})
+    per = frame.groupby(["cell", "p"])["res"].mean().reset_index()
+    by_cell = per.groupby("cell")["res"]
+    s_c, q_c, n_c = by_cell.sum(), (per["res"] ** 2).groupby(per["cell"]).sum(), by_cell.size()
+    pairs = float((n_c * (n_c - 1)).sum())
+    if pairs == 0:
+        return {}
+    tau2 = max(0.0, float((s_c ** 2 - q_c).sum()) / pairs)
+    if tau2 == 0:
+        return {}
+    s_w2 = max(float(np.mean(res ** 2)) - tau2, 1e-6)
+    m_c = s_c / n_c
+    return (m_c * tau2 / (tau2 + s_w2 / n_c)).to_dict()
+
+
+def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False) -> Ceiling:
+    """Fit the flexible model to ``train`` (a frame from :func:`observer_frame`).
+
+    Per response: least squares on a quadratic surface in gloss and depth (with their product),
+    illumination-specific intercept and slopes, and the pull of the previous response; then
+    per-cell mean residuals (stimulus gloss level x depth level x illumination) shrunk toward
+    the surface by their reliability across participants (empirical Bayes, method of
+    moments); then a log-linear noise SD (gloss, depth, their squares, illumination), scaled
+    so the standardised residuals have unit variance (degrees of freedom corrected); finally
+    lapse rate and label-rounding weight on a grid (maximum likelihood).
+
+    Responses at the slider ends enter the surface at their expected value beyond the end
+    (censored regression). The cell means come in two levels, the stimulus (gloss x depth
+    level, pooled over illuminations) and then the cell, each shrunk by how far it replicates
+    across participants. ``by_participant`` (folds by trial: the held-out trials' participants
+    are in ``train``): each participant's own intercept and gloss and depth slopes as well.
+    """
+    mid = train.attrs["mid"]
+    lo, hi = train.attrs["range"]
+    span = 0.5 * (hi - lo)
+    ills = tuple(sorted(train["illumination"].unique()))
+    keys, stim = _cell_keys(train), _stimulus_keys(train)
+    parts = tuple(sorted(train["participant"].unique())) if by_participant else ()
+    coef, var_coef, cells = {}, {}, {}
+    mu, sd = {}, {}
+    for r in RESP:
+        mx, vx = _features(train, ills, mid, span, r, parts)
+        y = _tobit_fill(train[f"{r}_match"].to_numpy(float), mx, lo, hi)
+        b = np.linalg.lstsq(mx, y, rcond=None)[0]
+        res = y - mx @ b
+        # Two levels: the stimulus (gloss x depth, over illuminations), then the cell.
+        who = train["participant"].to_numpy(str)
+        stim_off = _cell_offsets(res, stim, who)
+        off = pd.Series(stim).map(stim_off).fillna(0.0).to_numpy(float)
+        cell_off = _cell_offsets(res - off, keys, who)
+        off = off + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float)
+        cells[r] = {"stimulus": stim_off, "cell": cell_off}
+        res = res - off
+        lv = _fit_log_variance(res, vx)
+        lv[0] += np.log(len(y) / max(len(y) - mx.shape[1], 1))  # degrees of freedom
+        coef[r], var_coef[r] = b, lv
+        mu[r] = mx @ b + off
+        sd[r] = np.sqrt(np.exp(vx @ lv))
+    best = (np.inf, 0.0, 0.0)
+    for lam in (0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3):
+        for w in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6):
+            pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": w}
+            v = float(_nll(train, pred, sd).sum())
+            if v < best[0]:
+                best = (v, lam, w)
+    return Ceiling(coef=coef, var_coef=var_coef, cells=cells, ills=ills, lapse=best[1],
+                   label=best[2], mid=mid, span=span, parts=parts)
+
+
+def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
+    keys, stim = pd.Series(_cell_keys(data)), pd.Series(_stimulus_keys(data))
+    mu, sd = {}, {}
+    for r in RESP:
+        mx, vx = _features(data, model.ills, model.mid, model.span, r, model.parts)
+        off = (stim.map(model.cells[r]["stimulus"]).fillna(0.0).to_numpy(float)
+               + keys.map(model.cells[r]["cell"]).fillna(0.0).to_numpy(float))
+        mu[r] = mx @ model.coef[r] + off
+        sd[r] = np.sqrt(np.exp(vx @ model.var_coef[r]))
+    return ({"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": model.lapse,
+             "label": model.label}, sd)
+
+
+def ceiling_loss(model: Ceiling, data: pd.DataFrame) -> np.ndarray:
+    """Per-trial NLL (nats) of the ceiling model on ``data``."""
+    pred, sd = _ceiling_pred(model, data)
+    return _nll(data, pred, sd)
+
+
+def ceiling_floor(model: Ceiling, data: pd.DataFrame, rng: np.random.Generator,
+                  n_draws: int = _FLOOR_DRAWS) -> np.ndarray:
+    """The noise floor per trial: the mean NLL the ceiling model has on responses it draws
+    itself for these trials (its own noise, lapses, rounding and slider ends)."""
+    pred, sd = _ceiling_pred(model, data)
+    lo, hi = data.attrs["range"]
+    total = np.zeros(len(data))
+    sim = data[[f"{r}_match" for r in RESP]].copy()
+    sim.attrs = dict(data.attrs)
+    for _ in range(n_draws):
+        for r in RESP:
+            v = pred["mu"][r] + sd[r] * rng.standard_normal(len(data))
+            v = np.where(rng.random(len(data)) < model.label, np.round(v), v)
+            v = np.where(rng.random(len(data)) < model.lapse, rng.uniform(lo, hi, len(data)), v)
+            sim[f"{r}_match"] = np.clip(v, lo, hi)
+        total += _nll(sim, pred, sd)
+    return total / n_draws
+
+
+# --- where the remaining gap lies ---------------------------------------------------------
+
+_TRENDS = ("gloss", "depth", "gloss x depth", "the previous response")
+
+
+def observer_where(fits: list) -> str:
+    """Words for where the chosen model falls short of the ceiling: which response, its mean or
+    its spread, and the trend (rising or falling with gloss, depth, their product, the previous
+    response, or differing between illuminations) that best describes the shortfall.
+
+    ``fits``: ``[(train, test, fitted), ...]`` per fold (see engine.diagnose_losses)."""
+    rows = []
+    for train, test, fitted in fits:
+        model = fit_ceiling(train, by_participant=bool(
+            set(train["participant"]) & set(test["participant"])))
+        chosen = predict(test, fitted)
+        sig = _fit_sigma(train, predict(train, fitted))
+        c_pred, c_sd = _ceiling_pred(model, test)
+        own = _nll_parts(test, chosen, sig)
+        ceil = _nll_parts(test, c_pred, c_sd)
+        for r in RESP:
+            rows.append(pd.DataFrame({
+                "response": r, "excess": own[r] - ceil[r],
+                "d_mu": c_pred["mu"][r] - chosen["mu"][r],
+                "log_sd": np.log(c_sd[r] / (sig[r] * chosen["sd"][r])),
+                "sd": sig[r] * chosen["sd"][r],
+                "gloss": test["gloss_u"].to_numpy(float),
+                "depth": test["depth_u"].to_numpy(float),
+                "prev": (test[f"{r}_prev"] - test[f"{r}_u"]).fillna(0.0).to_numpy(float),
+                "illumination": test["illumination"].to_numpy(str),
+                "participant": test["participant"].to_numpy(str)}))
+    frame = pd.concat(rows, ignore_index=True)
+    r = frame.groupby("response")["excess"].mean().idxmax()
+    sub = frame[frame["response"] == r]
+    mean_part = float(np.mean(sub["d_mu"] ** 2 / (2 * sub["sd"] ** 2)))
+    ratio2 = np.exp(2 * sub["log_sd"])
+    spread_part = float(np.mean(0.5 * (ratio2 - 1 - np.log(ratio2))))
+    target, what = ((sub["d_mu"], f"in the {r} response") if mean_part >= spread_part
+                    else (sub["log_sd"], f"in the spread of the {r} response"))
+    t = target.to_numpy(float)
+    g = sub["gloss"].to_numpy(float) - sub["gloss"].mean()
+    d = sub["depth"].to_numpy(float) - sub["depth"].mean()
+    feats = {"gloss": g, "depth": d, "gloss x depth": g * d,
+             "the previous response": sub["prev"].to_numpy(float)}
+    corr = {n: _corr(t, v) for n, v in feats.items()}
+    # A shortfall that lives in single stimuli, not in a smooth trend: the stimulus means of
+    # the shortfall hold far more of its variance than the smooth features together.
+    smooth = np.c_[np.ones(t.size), *feats.values(),
+                   *[(sub["illumination"] == i).to_numpy(float) for i in _ill_levels(sub)]]
+    r2_smooth = 1 - np.var(t - smooth @ np.linalg.lstsq(smooth, t, rcond=None)[0]) / max(
+        np.var(t), 1e-12)
+    stim_key = sub["gloss"].round(6).astype(str) + "|" + sub["depth"].round(6).astype(str)
+    r2_stim = float(np.var(pd.Series(t).groupby(stim_key.to_numpy()).transform("mean"))
+                    / max(np.var(t), 1e-12))
+    # Shortfalls of single participants (their own intercepts and slopes), where the same
+    # participants were trained on: a participant-specific linear fit explains far more.
+    parts = sorted(sub["participant"].unique())
+    if len(parts) > 1:
+        who = sub["participant"].to_numpy(str)
+        own = np.c_[*[(who == q) * v for q in parts for v in (np.ones(t.size), g, d)]]
+        r2_own = 1 - np.var(t - own @ np.linalg.lstsq(own, t, rcond=None)[0]) / max(
+            np.var(t), 1e-12)
+        if r2_own > 0.3 and r2_own > 2 * r2_smooth:
+            return (f"{what}, differing between participants (their own intercepts and "
+                    "slopes; the simulation has no such individual differences)")
+    ill_means = sub.assign(t=t).groupby("illumination")["t"].mean()
+    ill_spread = float(ill_means.max() - ill_means.min()) if ill_means.size > 1 else 0.0
+    name = max(corr, key=lambda n: abs(corr[n]))
+    if ill_spread > 2 * np.std(t) * 0.5 and abs(corr[name]) < 0.5:
+        hi_ill = ill_means.idxmax()
+        return f"{what}, differing between illuminations (highest under {hi_ill})"
+    if abs(corr[name]) < 0.3 or r2_smooth < 0.5 * r2_stim:
+        return f"{what}, varying from stimulus to stimulus without a smooth trend"
+    return f"{what}, {'rising' if corr[name] > 0 else 'falling'} with {name}"
+
+
+def _ill_levels(frame: pd.DataFrame) -> list:
+    """Illumination names but the first (dummy coding)."""
+    return sorted(frame["illumination"].unique())[1:]
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    if np.std(a) == 0 or np.std(b) == 0:
+        return 0.0
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+# --- localisation table -------------------------------------------------------------------
 
 def localise_observer(data: pd.DataFrame, design, rng: np.random.Generator,
                       n_boot: int = 1000) -> pd.DataFrame:
-    """Mean residual (response - truth, slider units) per gloss x depth x illumination cell and
-    response, with a 95 % bootstrap CI; cells use the design's analysis bins."""
+    """Mean residual (response - the simulation's mean, slider units) per gloss x depth x
+    illumination cell and response, with a 95 % bootstrap CI; cells use the design's analysis
+    bins."""
     def bin_of(values, bins):
         out = np.full(len(values), "other", dtype=object)
         for name, members in bins.items():
@@ -190,7 +812,7 @@ def localise_observer(data: pd.DataFrame, design, rng: np.random.Generator,
     d = bin_of(data["true_depth_cm"].to_numpy(float), design.analysis.depth_bins_cm)
     rows = []
     for r in RESP:
-        res = data[f"{r}_match"].to_numpy(float) - data[f"{r}_u"].to_numpy(float)
+        res = data[f"{r}_match"].to_numpy(float) - data[f"{r}_base"].to_numpy(float)
         frame = pd.DataFrame({"gloss_bin": g, "depth_bin": d,
                               "illumination": data["illumination"].to_numpy(), "res": res})
         for key, grp in frame.groupby(["gloss_bin", "depth_bin", "illumination"]):
@@ -203,67 +825,203 @@ def localise_observer(data: pd.DataFrame, design, rng: np.random.Generator,
     return pd.DataFrame(rows)
 
 
-def observer_floor(data: pd.DataFrame, sim: pd.DataFrame) -> np.ndarray:
-    """Per-trial NLL the ideal observer reaches on data it generated itself (``sim``): the
-    mean over ``sim`` of its own plain model's NLL, noise SDs fitted on ``sim``."""
-    c = float(_nll(sim, [], _fit_sigma(sim, [])).mean())
-    return np.full(len(data), c)
+# --- the catalogue ------------------------------------------------------------------------
+# Each effect: fit (least squares on the current residual, or a grid for the mixtures), apply
+# (its term in the prediction), inject (the blind benchmark's generator of the effect on top of
+# the base observer's mean and noise; never called by the diagnosis), truth (the parameters
+# an injected strength should give back).
+
+def _resid(train: pd.DataFrame, chosen: list) -> tuple[dict, dict]:
+    pred = predict(train, chosen)
+    return pred, {r: train[f"{r}_match"].to_numpy(float) - pred["mu"][r] for r in RESP}
 
 
-def _resid(train, fitted):
-    mu = _means(train, fitted)
-    return {r: train[f"{r}_match"].to_numpy(float) - mu[r] for r in RESP}
-
-
-def _ls(y, x):
+def _ls(y, x) -> float:
     return float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
 
 
-def _fit_shift(name):
-    def fit(train, chosen):
-        res = _resid(train, chosen)
-        mid = train.attrs["mid"]
-        t = {r: train[f"{r}_u"].to_numpy(float) for r in RESP}
-        if name == "crosstalk":
-            return {"c": _ls(res["gloss"], t["depth"] - mid)}
-        if name == "central_tendency":
-            return {r: _ls(res[r], -(t[r] - mid)) for r in RESP}
-        if name == "serial_dependence":
-            return {r: _ls(res[r], train[f"{r}_prev"].to_numpy(float) - t[r]) for r in RESP}
-        if name == "illumination_gain":
-            gain = {}
-            for ill, idx in train.groupby("illumination").indices.items():
-                gain[ill] = _ls(res["gloss"][idx], t["gloss"][idx] - mid)
-            return {"gain": gain}
-        raise GapError(name)
-    return fit
+def _inside(train: pd.DataFrame, r: str) -> np.ndarray:
+    lo, hi = train.attrs["range"]
+    x = train[f"{r}_match"].to_numpy(float)
+    return (x > lo + 1e-9) & (x < hi - 1e-9)
 
 
-def _fit_mixture(name, key, grid):
+def _with_mu(pred: dict, mu: dict) -> dict:
+    return {**pred, "mu": {**pred["mu"], **mu}}
+
+
+def _respond(ctx: dict, mu: dict, rng: np.random.Generator | None = None) -> dict:
+    """Responses of the injected observer: mean + noise, clipped to the slider."""
+    return {r: np.clip(mu[r] + ctx["noise"][r], ctx["lo"], ctx["hi"]) for r in RESP}
+
+
+# crosstalk: deeper arrays look glossier (gloss slider units per depth slider unit).
+def _fit_crosstalk(train, chosen):
+    _, res = _resid(train, chosen)
+    keep = _inside(train, "gloss")
+    x = train["depth_u"].to_numpy(float) - train.attrs["mid"]
+    return {"c": _ls(res["gloss"][keep], x[keep])}
+
+
+def _apply_crosstalk(data, pred, p):
+    x = data["depth_u"].to_numpy(float) - data.attrs["mid"]
+    return _with_mu(pred, {"gloss": pred["mu"]["gloss"] + p["c"] * x})
+
+
+def _inject_crosstalk(ctx, s, rng):
+    mu = dict(ctx["mu"])
+    mu["gloss"] = mu["gloss"] + s * (ctx["truth"]["depth"] - ctx["mid"])
+    return _respond(ctx, mu)
+
+
+# central tendency: responses compressed toward the slider middle (share per response).
+def _fit_central(train, chosen):
+    pred, res = _resid(train, chosen)
+    out = {}
+    for r in RESP:
+        keep = _inside(train, r)
+        out[r] = _ls(res[r][keep], -(pred["mu"][r] - train.attrs["mid"])[keep])
+    return out
+
+
+def _apply_central(data, pred, p):
+    mid = data.attrs["mid"]
+    return _with_mu(pred, {r: pred["mu"][r] - p[r] * (pred["mu"][r] - mid) for r in RESP})
+
+
+def _inject_central(ctx, s, rng):
+    return _respond(ctx, {r: ctx["mu"][r] - s * (ctx["mu"][r] - ctx["mid"]) for r in RESP})
+
+
+# illumination gain: the gloss gain differs by illumination (one gain per illumination name).
+def _fit_illumination(train, chosen):
+    _, res = _resid(train, chosen)
+    keep = _inside(train, "gloss")
+    x = train["gloss_u"].to_numpy(float) - train.attrs["mid"]
+    gain = {}
+    for ill, idx in train.groupby("illumination").indices.items():
+        idx = idx[keep[idx]]
+        gain[str(ill)] = _ls(res["gloss"][idx], x[idx]) if idx.size else 0.0
+    return {"gain": gain}
+
+
+def _apply_illumination(data, pred, p):
+    g = data["illumination"].map(p["gain"]).fillna(0.0).to_numpy(float)
+    x = data["gloss_u"].to_numpy(float) - data.attrs["mid"]
+    return _with_mu(pred, {"gloss": pred["mu"]["gloss"] + g * x})
+
+
+def _inject_illumination(ctx, s, rng):
+    sign = np.where(ctx["illumination"] == ctx["illuminations"][0], 1.0, -1.0)
+    mu = dict(ctx["mu"])
+    mu["gloss"] = mu["gloss"] + sign * s * (ctx["truth"]["gloss"] - ctx["mid"])
+    return _respond(ctx, mu)
+
+
+def _truth_illumination(s, *, illuminations=(), **_):
+    return [("illumination_gain",
+             {"gain": {i: (s if k == 0 else -s) for k, i in enumerate(illuminations)}})]
+
+
+# serial dependence: a pull toward the previous trial's response (share per response).
+def _prev_x(data, pred, r):
+    prev = data[f"{r}_prev"].to_numpy(float)
+    return np.where(np.isnan(prev), 0.0, prev - pred["mu"][r])
+
+
+def _fit_serial(train, chosen):
+    pred, res = _resid(train, chosen)
+    out = {}
+    for r in RESP:
+        keep = _inside(train, r)
+        out[r] = _ls(res[r][keep], _prev_x(train, pred, r)[keep])
+    return out
+
+
+def _apply_serial(data, pred, p):
+    return _with_mu(pred, {r: pred["mu"][r] + p[r] * _prev_x(data, pred, r) for r in RESP})
+
+
+def _inject_serial(ctx, s, rng):
+    n = len(ctx["noise"]["gloss"])
+    out = {r: np.empty(n) for r in RESP}
+    for k in range(n):
+        for r in RESP:
+            m = ctx["mu"][r][k]
+            if not ctx["session_start"][k]:
+                m = m + s * (out[r][k - 1] - m)
+            out[r][k] = np.clip(m + ctx["noise"][r][k], ctx["lo"], ctx["hi"])
+    return out
+
+
+# label rounding and lapses: mixtures in the likelihood (weight, rate in [0, 1]).
+def _fit_mixture(name: str, key: str, grid):
     def fit(train, chosen):
-        base = list(chosen)
         best = None
         for v in grid:
-            fitted = base + [(name, {key: v})]
-            sig = _fit_sigma(train, fitted)
-            nll = _nll(train, fitted, sig).sum()
+            fitted = list(chosen) + [(name, {key: float(v)})]
+            pred = predict(train, fitted)
+            nll = _nll(train, pred, _fit_sigma(train, pred)).sum()
             if best is None or nll < best[0]:
-                best = (nll, v)
-        return {key: float(best[1])}
+                best = (nll, float(v))
+        return {key: best[1]}
     return fit
 
 
-OBSERVER_CANDIDATES = [
-    Candidate("crosstalk", _fit_shift("crosstalk"), "deeper arrays look glossier"),
-    Candidate("central_tendency", _fit_shift("central_tendency"),
-              "responses compressed toward the slider middle"),
-    Candidate("illumination_gain", _fit_shift("illumination_gain"),
-              "gloss gain differs by illumination"),
+def _apply_label(data, pred, p):
+    return {**pred, "label": 1 - (1 - pred["label"]) * (1 - p["weight"])}
+
+
+def _inject_label(ctx, s, rng):
+    out = {}
+    for r in RESP:
+        v = ctx["mu"][r] + ctx["noise"][r]
+        v = np.where(rng.random(v.size) < s, np.round(v), v)
+        out[r] = np.clip(v, ctx["lo"], ctx["hi"])
+    return out
+
+
+def _apply_lapses(data, pred, p):
+    return {**pred, "lapse": 1 - (1 - pred["lapse"]) * (1 - p["rate"])}
+
+
+def _inject_lapses(ctx, s, rng):
+    out = {}
+    for r in RESP:
+        v = ctx["mu"][r] + ctx["noise"][r]
+        v = np.where(rng.random(v.size) < s, rng.uniform(ctx["lo"], ctx["hi"], v.size), v)
+        out[r] = np.clip(v, ctx["lo"], ctx["hi"])
+    return out
+
+
+def _per_response(name):
+    return lambda s, **_: [(name, {r: float(s) for r in RESP})]
+
+
+OBSERVER_CANDIDATES = [register("observer", c) for c in (
+    Candidate("crosstalk", _fit_crosstalk, "deeper arrays look glossier",
+              apply=_apply_crosstalk, inject=_inject_crosstalk, default_strength=0.3,
+              units="gloss slider units per depth slider unit",
+              truth=lambda s, **_: [("crosstalk", {"c": float(s)})]),
+    Candidate("central_tendency", _fit_central, "responses compressed toward the slider middle",
+              apply=_apply_central, inject=_inject_central, default_strength=0.3,
+              units="share of the distance to the middle",
+              truth=_per_response("central_tendency")),
+    Candidate("illumination_gain", _fit_illumination, "gloss gain differs by illumination",
+              apply=_apply_illumination, inject=_inject_illumination, default_strength=0.3,
+              units="gloss gain change per illumination (+ first, - others)",
+              truth=_truth_illumination),
     Candidate("label_rounding", _fit_mixture("label_rounding", "weight",
                                              np.linspace(0.0, 0.6, 13)),
-              "responses snap to tick labels"),
+              "responses snap to tick labels", apply=_apply_label, inject=_inject_label,
+              default_strength=0.4, units="share of responses on a label",
+              truth=lambda s, **_: [("label_rounding", {"weight": float(s)})]),
     Candidate("lapses", _fit_mixture("lapses", "rate", np.linspace(0.0, 0.3, 16)),
-              "random responses anywhere on the slider"),
-    Candidate("serial_dependence", _fit_shift("serial_dependence"),
-              "pull toward the previous trial's response"),
-]
+              "random responses anywhere on the slider", apply=_apply_lapses,
+              inject=_inject_lapses, default_strength=0.15, units="lapse rate",
+              truth=lambda s, **_: [("lapses", {"rate": float(s)})]),
+    Candidate("serial_dependence", _fit_serial, "pull toward the previous trial's response",
+              apply=_apply_serial, inject=_inject_serial, default_strength=0.3,
+              units="share of the distance to the previous response",
+              truth=_per_response("serial_dependence")),
+)]

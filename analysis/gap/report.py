@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import html
 import json
-import os
-import tempfile
+import math
 from pathlib import Path
 
 import matplotlib
@@ -14,42 +13,43 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
 from analysis.gap.engine import Diagnosis, GapError
+from labfiles import atomic_open, atomic_write_text, write_new_file
 
 __all__ = ["no_significant_gap", "verdict_text", "write_multi_report", "write_report"]
 
 
 def no_significant_gap(d: Diagnosis) -> bool:
-    """True when nothing was attributed and the held-out gap's 95 % CI reaches 0."""
-    return not d.steps and bool(d.gap_before_ci) and d.gap_before_ci[0] <= 0
+    """True when nothing was attributed, the floor is sound, and either (with a ceiling) the
+    simulation falls short of the ceiling by nothing significant, or (without) the held-out
+    gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none)."""
+    if d.steps or d.floor_status != "ok":
+        return False
+    if d.remaining is not None:  # with a ceiling: the simulation does as well as it
+        return not d.remaining.get("significant")
+    return bool(d.gap_before_ci) and d.gap_before_ci[0] <= max(d.min_gain, 0.0)
 
 
 def verdict_text(d: Diagnosis) -> str:
-    """Plain-language verdict (HTML)."""
-    if no_significant_gap(d):
-        lo, hi = d.gap_before_ci
-        return (f"The simulation matches the data: the held-out gap ({d.gap_before:.3f} nats per "
-                f"unit, 95 % CI {lo:.3f} to {hi:.3f}) is not significantly above the data's own "
-                "noise floor, so there is <b>no significant gap</b> to explain.")
-    if not d.steps:
-        least = (f" by at least {d.min_gain:g} nats per unit" if d.min_gain > 0 else "")
-        return ("No candidate in the catalogue reduces the held-out gap significantly "
-                f"(Holm-corrected, alpha 0.05){least}: the gap is <b>unexplained</b> by the "
-                "catalogue.")
-    if d.verdict == "unexplained":
-        names = " + ".join(s["added"] for s in d.steps)
-        return (f"{html.escape(names)} reduce(s) the held-out gap significantly but remove(s) "
-                f"only {100 * d.explained_share:.0f} % of it (an attribution needs "
-                f"{100 * d.min_share:.0f} %): the gap is <b>unexplained</b> by the catalogue; "
-                "something outside it dominates.")
-    text = (f"The gap is best explained by <b>{html.escape(d.verdict)}</b>; adding it shrinks "
-            f"the held-out gap by {d.shrink_abs:.3f} nats per held-out unit "
-            f"({d.shrink_pct:.0f} %, 95 % CI {d.shrink_pct_ci[0]:.0f} to "
-            f"{d.shrink_pct_ci[1]:.0f} %).")
-    if d.gap_after < 0 or d.gap_before <= 0:
-        text += (" The loss fell below the simulation's own noise floor: the effect changes the "
-                 "data's own spread (e.g. rounding, lapses), so the % is not meaningful here; the "
-                 "absolute shrinkage is the measure.")
+    """Plain-language verdict (HTML): the diagnosis's summary, the remaining gap, warnings."""
+    text = html.escape(d.summary or d.verdict)
+    if d.steps and d.verdict != "unexplained":
+        text = text.replace(html.escape(d.steps[0]["added"].replace("_", " ")),
+                            f"<b>{html.escape(d.steps[0]['added'].replace('_', ' '))}</b>", 1)
+    if d.split:
+        text += f" <i>Held out: {html.escape(d.split)}.</i>"
+    rem = d.remaining
+    if rem:
+        text += (f"<br>Chosen model vs a flexible model of the data (ceiling): "
+                 f"{rem['gap']:.3f} nats per unit above it (95 % CI {rem['ci'][0]:.3f} to "
+                 f"{rem['ci'][1]:.3f}, one-sided p {rem['p']:.4f}); the catalogue explains "
+                 f"{_pct(d.explained_share)} of the gap, the ceiling {_pct(d.ceiling_share)}.")
+    for w in d.warnings:
+        text += f"<br><b>Warning:</b> {html.escape(w)}"
     return text
+
+
+def _pct(x: float) -> str:
+    return f"{100 * x:.0f} %" if math.isfinite(x) else "n/a"
 
 
 def _errorbars(ax, sub, labels):
@@ -148,14 +148,16 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
 
 
 def _atomic_page(out: Path, page: str) -> Path:
-    fd, tmp = tempfile.mkstemp(dir=out, suffix=".html")
-    with os.fdopen(fd, "w") as fh:
-        fh.write(page)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.link(tmp, out / "index.html")  # never replaces an existing report
-    os.unlink(tmp)
-    return out / "index.html"
+    try:
+        return write_new_file(out / "index.html", page)  # never replaces an existing report
+    except FileExistsError as exc:
+        raise GapError(f"report {out / 'index.html'} exists; pass a new --out folder") from exc
+
+
+def _write_parts(folder: Path, diag: Diagnosis, local) -> None:
+    atomic_write_text(folder / "diagnosis.json", json.dumps(diag.to_dict(), indent=1))
+    with atomic_open(folder / "localisation.csv", "w", newline="") as fh:
+        local.to_csv(fh, index=False)
 
 
 def _check_new(out: Path) -> None:
@@ -175,8 +177,7 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
 <h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
 {diagnosis_html(diag, maps=maps)}
 <p>seed {diag.seed}</p></body></html>"""
-    (out / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
-    local.to_csv(out / "localisation.csv", index=False)
+    _write_parts(out, diag, local)
     return _atomic_page(out, page)
 
 
@@ -190,8 +191,7 @@ def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
         sub = out / name
         sub.mkdir(exist_ok=True)
         maps = _figures(local, sub)
-        (sub / "diagnosis.json").write_text(json.dumps(diag.to_dict(), indent=1))
-        local.to_csv(sub / "localisation.csv", index=False)
+        _write_parts(sub, diag, local)
         sections.append(f"<h2>{html.escape(name)} layer</h2>"
                         + diagnosis_html(diag, f"{name}/localisation.png",
                                          f"{name}/{maps}" if maps else ""))

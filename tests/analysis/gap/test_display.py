@@ -5,10 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, inject
+from analysis.gap import GapError, diagnose, inject
 from analysis.gap.__main__ import main
 from analysis.gap.benchmark import run_benchmark
-from analysis.gap.diagnose import diagnose_display_files
 from studydesign import load_design
 
 
@@ -16,7 +15,7 @@ def _diag(tmp_path, effect, strength, seed):
     rng = np.random.default_rng(seed)
     inject.write_calibration(rng, tmp_path / "sim")
     inject.write_readings(inject.simulate_readings(rng, effect, strength), tmp_path / "real")
-    return diagnose_display_files(tmp_path / "real", tmp_path / "sim", seed=seed, n_boot=300)
+    return diagnose("display", tmp_path / "real", tmp_path / "sim", load_design(), seed=seed, n_boot=300)
 
 
 @pytest.mark.parametrize("effect", inject.DISPLAY_EFFECTS)
@@ -56,9 +55,9 @@ def test_display_needs_repeats(tmp_path):
     inject.write_calibration(rng, tmp_path / "cal")
     inject.write_readings(inject.simulate_readings(rng, repeats=1), tmp_path / "r")
     with pytest.raises(GapError, match="repeat"):
-        diagnose_display_files(tmp_path / "r", tmp_path / "cal", seed=0)
+        diagnose("display", tmp_path / "r", tmp_path / "cal", load_design(), seed=0)
     with pytest.raises(GapError, match="calibration.json"):
-        diagnose_display_files(tmp_path / "r", tmp_path / "nothing", seed=0)
+        diagnose("display", tmp_path / "r", tmp_path / "nothing", load_design(), seed=0)
 
 
 def test_display_benchmark_small():

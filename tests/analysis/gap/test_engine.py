@@ -54,3 +54,142 @@ def test_benchmark_schedule_scores_every_effect_equally_often():
     counts = {e: sum(r == (e, "in") for r in runs) for e in effects}
     assert set(counts.values()) <= {3, 4} and sum(counts.values()) == 20
     assert all(sum(r == (e, "out") for r in runs) == 5 for e in out)
+
+
+def test_greedy_re_tests_candidates_that_were_not_significant_at_first():
+    """'b' helps only once 'a' is in the model (it was never retried before)."""
+    rng = np.random.default_rng(0)
+    base = rng.normal(1.0, 0.1, N_UNITS)
+
+    def loss(_data, fitted):
+        names = [n for n, _ in fitted]
+        out = base - (0.2 if "a" in names else 0.0) + rng.normal(0, 1e-6, N_UNITS) * 0
+        if "b" in names:
+            out = out - (0.1 if "a" in names else -0.05)
+        return out
+    cands = [Candidate(n, lambda _train, _chosen: {}) for n in ("a", "b")]
+    diag = diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
+                           rng=np.random.default_rng(1), seed=1, n_boot=400)
+    assert not next(s for s in diag.ranking if s["name"] == "b")["significant"]
+    assert [s["added"] for s in diag.steps] == ["a", "b"]
+
+
+def _with_ceiling(ceiling_drop: float, floor_shift: float = 0.0):
+    cands, loss = _problem({"a": 0.3})
+    return diagnose_losses("test", cands, None, None, loss,
+                           lambda _d: np.full(N_UNITS, floor_shift), rng=np.random.default_rng(1),
+                           seed=1, n_boot=400, min_gain=0.02,
+                           ceiling=lambda _tr, _te: loss(None, []) - ceiling_drop,
+                           where=lambda fits: "in the depth response, rising with gloss")
+
+
+def test_a_gap_beyond_the_catalogue_is_reported_with_where_it_lies():
+    diag = _with_ceiling(0.5)  # a flexible model removes 0.5 nats, the catalogue 0.3
+    assert diag.verdict == "a" and diag.unexplained_remains
+    assert diag.remaining["gap"] == pytest.approx(0.2, abs=0.01)
+    assert diag.explained_share == pytest.approx(0.6, abs=0.02)
+    assert ("a explain 60 % of the gap a flexible model of the data removes; a further gap "
+            "remains, unexplained by the catalogue, in the depth response, rising with gloss"
+            in diag.summary)
+
+
+def test_a_catalogue_that_beats_the_ceiling_explains_at_most_everything():
+    diag = _with_ceiling(0.2)
+    assert not diag.unexplained_remains
+    assert diag.explained_share == 1.0 and diag.shrink_pct <= 100.0
+    assert "nothing significant remains" in diag.summary
+
+
+def test_a_floor_above_the_loss_is_reported_as_misestimated_never_as_no_gap():
+    diag = _with_ceiling(0.3, floor_shift=5.0)  # every loss far below the floor
+    assert diag.floor_status == "misestimated"
+    assert "mis-estimated" in diag.summary and "No significant gap" not in diag.summary
+
+
+def test_cross_fitting_averages_each_unit_over_repeats():
+    """Two repeats of a 2-fold split: every unit's loss is the mean of its two held-out
+    values, in sorted unit order."""
+    import pandas as pd
+
+    units = pd.DataFrame({"u": [f"u{k:02d}" for k in range(8)], "x": np.arange(8.0)})
+    folds = []
+    for rep in range(2):
+        m = (np.arange(8) + rep) % 2 == 0
+        folds.append((units[~m], units[m]))
+
+    def loss_for(_train):
+        return lambda data, fitted: data["x"].to_numpy() + (0 if not fitted else -1.0)
+    diag = diagnose_losses("test", [Candidate("c", lambda _t, _c: {})], None, None, loss_for,
+                           lambda d: np.zeros(len(d)), rng=np.random.default_rng(0), seed=0,
+                           n_boot=200, folds=folds, unit_ids=lambda d: list(d["u"]))
+    assert diag.heldout == tuple(units["u"])
+    assert diag.loss_before == pytest.approx(3.5)
+    assert diag.loss_after == pytest.approx(2.5)
+
+
+def test_registry_knows_every_observer_candidate_and_refuses_unknown_names():
+    from analysis.gap.engine import GapError, candidate, catalogue, register
+
+    names = [c.name for c in catalogue("observer")]
+    assert names == ["crosstalk", "central_tendency", "illumination_gain", "label_rounding",
+                     "lapses", "serial_dependence"]
+    for c in catalogue("observer"):
+        assert callable(c.apply) and callable(c.inject) and callable(c.truth)
+        assert c.default_strength > 0 and c.units
+    with pytest.raises(GapError, match="unknown candidate 'glare'.*known: crosstalk"):
+        candidate("observer", "glare")
+    with pytest.raises(GapError, match="already has a candidate"):
+        register("observer", Candidate("crosstalk", lambda _t, _c: {}))
+    with pytest.raises(GapError, match="no candidates registered"):
+        catalogue("no-such-layer")
+
+
+def test_a_new_candidate_is_one_object():
+    """Registering one object adds an effect to the observer model's prediction."""
+    from analysis.gap.engine import register
+    from analysis.gap.observer import observer_frame, predict
+    from studydesign import load_design
+
+    def apply(data, pred, p):
+        return {**pred, "mu": {**pred["mu"], "depth": pred["mu"]["depth"] + p["shift"]}}
+    register("observer", Candidate("depth_shift_for_test", lambda _t, _c: {"shift": 0.5},
+                                   apply=apply))
+    try:
+        import pandas as pd
+
+        design = load_design()
+        frame = pd.DataFrame({"participant": ["A"], "session": [1], "order": [1],
+                              "illumination": ["x"], "gloss_level": [1], "depth_level": [1],
+                              "true_gloss_pct": [50.0], "true_depth_cm": [2.4],
+                              "gloss_match": [6.0], "depth_match": [6.0]})
+        data = observer_frame(frame, design)
+        mu = predict(data, [("depth_shift_for_test", {"shift": 0.5})])["mu"]
+        assert mu["depth"][0] == pytest.approx(6.5)
+    finally:
+        from analysis.gap import engine
+
+        engine._REGISTRY["observer"].pop("depth_shift_for_test")
+
+
+def test_harder_benchmark_scores_remaining_gaps_and_seed_agreement():
+    from analysis.gap.bench_observer import format_harder, score_harder
+
+    def rec(case, added, chosen, remains, agree=True):
+        return {"case": case, "added": added, "chosen": chosen, "remains": remains,
+                "verdict": " + ".join(chosen) or "unexplained", "agree": agree,
+                "expected": sorted({"central_tendency", "crosstalk"}
+                                   | {n for n in added if n == "lapses"}
+                                   if case != "null" else set()),
+                "pred_shrink": 0.5, "true_shrink": 0.55}
+    base = ["central_tendency", "crosstalk"]
+    r = score_harder([rec("null", {}, [], True), rec("null", {}, [], False),
+                      rec("base", {}, base, False), rec("catalogue", {"lapses": 0.1},
+                                                        [*base, "lapses"], False),
+                      rec("out", {"interaction": 0.06}, base, True),
+                      rec("both", {"lapses": 0.1, "interaction": 0.06}, base, False, False)])
+    assert r["false_attribution"] == (0.5, 2)  # a flagged remaining gap counts as attribution
+    assert r["unexplained_out"] == (0.5, 2) and r["unexplained_out_with_catalogue"] == (0.0, 1)
+    assert r["top1"] == (0.5, 2) and r["exact"] == (1.0, 2)
+    assert r["seed_agreement"][0] == pytest.approx(5 / 6)
+    assert r["shrink_error"][0] == pytest.approx(0.05 / 0.55)
+    assert "NOT met" in format_harder(r)

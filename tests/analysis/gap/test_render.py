@@ -5,17 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, inject
+from analysis.gap import GapError, diagnose, inject
 from analysis.gap.__main__ import main
 from analysis.gap.benchmark import run_benchmark
-from analysis.gap.diagnose import diagnose_render_files
 from studydesign import load_design
 
 
 def _diag(tmp_path, effect, seed):
     rng = np.random.default_rng(seed)
     inject.write_render_fit(tmp_path / "fit", rng, effect, inject.RENDER_STRENGTH.get(effect, 0))
-    return diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=seed, n_boot=300)
+    return diagnose("render", tmp_path / "fit", tmp_path / "fit", load_design(), seed=seed, n_boot=300)
 
 
 @pytest.mark.parametrize("effect", inject.RENDER_EFFECTS)
@@ -52,11 +51,11 @@ def test_noise_model_refuses_a_photo_without_noise():
 
 def test_render_bad_input(tmp_path):
     with pytest.raises(GapError, match="residuals"):
-        diagnose_render_files(tmp_path, tmp_path, seed=0)
+        diagnose("render", tmp_path, tmp_path, load_design(), seed=0)
     (tmp_path / "residuals").mkdir()
     np.savez(tmp_path / "residuals" / "gloss_010.npz", photo=np.zeros((8, 8, 3)))
     with pytest.raises(GapError, match="missing"):
-        diagnose_render_files(tmp_path, tmp_path, seed=0)
+        diagnose("render", tmp_path, tmp_path, load_design(), seed=0)
 
 
 def test_cli_render_report(tmp_path):
@@ -90,7 +89,7 @@ def test_render_layer_reads_the_gloss_fit_output(tmp_path):
                  "--spp", "16"]):
         subprocess.run([sys.executable, "-m", "stimuli", *cmd], check=True, env=env,
                        capture_output=True)
-    diag, local = diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=0, n_boot=300)
+    diag, local = diagnose("render", tmp_path / "fit", tmp_path / "fit", load_design(), seed=0, n_boot=300)
     assert len(diag.heldout) > 500 and diag.gap_before > 0
     assert {c.split(": ")[0] for c in local["cell"]} == {"gloss_020", "gloss_060"}
 
@@ -119,7 +118,7 @@ def test_misregistration_model_explains_a_rendered_shift(tmp_path):
     interpolating the step, matters (interpolation alone left 8-13 % of this gap)."""
     rng = np.random.default_rng(1)
     inject.write_render_fit(tmp_path / "fit", rng, "misregistration", 0.5)
-    diag, _ = diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=1, n_boot=300)
+    diag, _ = diagnose("render", tmp_path / "fit", tmp_path / "fit", load_design(), seed=1, n_boot=300)
     assert diag.steps[0]["added"] == "misregistration"
     assert diag.explained_share >= 0.95
     for dy, dx in diag.steps[0]["params"]["shift_px"].values():
