@@ -215,9 +215,19 @@ class LightProbe:
         return luminance(self.rgb)
 
     def emitter(self) -> dict:
-        """A Mitsuba ``envmap`` emitter dict built from the in-memory bitmap (needs a variant set)."""
+        """A Mitsuba ``envmap`` emitter dict built from the in-memory bitmap (needs a variant set).
+
+        Under a monochrome variant (``*_mono``) the map is given as its CIE Y (:attr:`luminance`,
+        converted once here), which is what a grey scene reflects: the render is then the
+        luminance of the colour render, exactly (protocol.md, section 4). RGB and spectral
+        variants get the RGB map (spectral ones upsample each texel to a spectrum).
+        """
         import mitsuba as mi
 
+        from stimuli.mitsuba_env import is_monochrome
+
+        if is_monochrome(mi.variant()):
+            return {"type": "envmap", "bitmap": mi.Bitmap(self.luminance[..., None])}
         return {"type": "envmap", "bitmap": mi.Bitmap(self.rgb)}
 
 
