@@ -170,6 +170,9 @@ class StimulusRenderer:
         Another Mitsuba BSDF dict instead of ``ward`` (benchmarks compare with ``roughplastic``);
         :meth:`render` then only re-renders (pass ``None`` parameters). A chromatic one
         (:func:`bsdf_is_achromatic` False) is refused under a monochrome variant.
+    integrator : dict, optional
+        Another Mitsuba integrator dict (tests compare ``direct`` sampling strategies); default
+        ``{"type": "path", "max_depth": max_depth}``.
 
     Attributes
     ----------
@@ -178,8 +181,9 @@ class StimulusRenderer:
     """
 
     def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5,
-                 bsdf: dict | None = None):
+                 bsdf: dict | None = None, integrator: dict | None = None):
         self.bsdf = bsdf
+        self.integrator = integrator
         if size_px < 8 or spp < 1:
             raise ValueError(f"size_px must be >= 8 and spp >= 1, got {size_px}, {spp}")
         self.camera = camera
@@ -226,7 +230,7 @@ class StimulusRenderer:
         film_format = "luminance"
         self.scene = mi.load_dict({
             "type": "scene",
-            "integrator": {"type": "path", "max_depth": self.max_depth},
+            "integrator": self.integrator or {"type": "path", "max_depth": self.max_depth},
             "sensor": {
                 "type": "perspective",
                 "fov": cam.fov_deg,
