@@ -10,9 +10,12 @@ unbiased estimate of one render's variance, so
     e(n) = sqrt(mean over pixels of var_k(v)) / v_max                                        (1)
 
 is the expected RMS displayed error of one n-spp render, as a fraction of the display range
-(0-255). Noise variance falls as 1/n, so e(n') = e(n) sqrt(n / n'), and the spp that reaches a
-target e* is n' = ceil(n (e(n) / e*)^2), rounded up to a count the multijitter sampler takes
-(stratification makes real errors fall at least as fast, so the rule errs on the safe side).
+(0-255). Independent samples make the variance fall as 1/n, e(n') = e(n) sqrt(n / n'), so the spp
+that reaches a target e* is n' = ceil(n (e(n) / e*)^2), rounded up to a count the multijitter
+sampler takes. Stratification makes smooth (matte) images converge faster than that and
+highlights of sharp lobes slower, so :func:`plan_spp` does not trust one extrapolation: it fits
+e(n) = c n^-b through its last two measurements, predicts the spp, renders again at it, and
+keeps a count only once a measurement there meets the target.
 
 Matte arrays (low gloss) are nearly noise-free at a few spp; the glossiest ones, with small,
 bright highlights of the probe's light sources, need the most. :func:`plan_spp` measures each
@@ -174,6 +177,9 @@ class SppPlan:
         Samples per pixel per level (max over the probes), multijitter counts.
     error_at_pilot : tuple of float
         Displayed error per level at the pilot spp (max over the probes, fraction of range).
+    error_at_spp : tuple of float
+        Displayed error measured at the chosen spp (max over the probes); each <= ``target``
+        unless ``max_spp`` stopped the search (then the level's spp is ``max_spp``).
     pilot_spp, repeats, size_px : int
         The measurement: renders of ``size_px`` px at ``pilot_spp``, ``repeats`` seeds each.
     target : float
@@ -185,6 +191,7 @@ class SppPlan:
     gloss_levels: tuple[int, ...]
     spp: tuple[int, ...]
     error_at_pilot: tuple[float, ...]
+    error_at_spp: tuple[float, ...]
     pilot_spp: int
     repeats: int
     size_px: int
@@ -198,14 +205,16 @@ class SppPlan:
 
 
 def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int = 4,
-             target: float | None = None, gloss_table=None, probes=None, progress=None) -> SppPlan:
+             target: float | None = None, gloss_table=None, probes=None, max_spp: int = 1024,
+             max_rounds: int = 5, gloss_levels=None, progress=None) -> SppPlan:
     """Measure the displayed error of every physical gloss level and the spp each one needs.
 
     For each probe of the design, the deepest rendered array at every physical gloss level is
     rendered ``repeats`` times at ``pilot_spp`` (independent seeds). The tone curve is the
-    probe's, from the mean images of all levels (as the per-condition L_max of a real run). The
-    error (eq. 1) and the spp that reaches ``target`` are taken per level, the larger over the
-    probes. Needs :func:`stimuli.setup_mitsuba` (the variant measured is the active one).
+    probe's, from the mean images of the pilot renders of all levels (as the per-condition L_max
+    of a real run). Then, per level and probe, the spp is searched as the module docstring says
+    (fit, predict, render, until a measured error meets ``target``); a level takes the larger spp
+    over the probes. Needs :func:`stimuli.setup_mitsuba` (the variant measured is the active one).
 
     Parameters
     ----------
@@ -224,6 +233,13 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
         Gloss % -> Ward parameters; default the shipped table.
     probes : sequence of LightProbe, optional
         Default: the design's illuminations' probes.
+    max_spp : int
+        Upper bound of the search.
+    max_rounds : int
+        Renders at predicted counts per level and probe before giving up (then the last count
+        that met the target, or ``max_spp``).
+    gloss_levels : sequence of int, optional
+        Physical gloss level labels to plan (default all).
     progress : callable, optional
         Called with a message after each probe.
 
@@ -243,7 +259,7 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
         raise ValueError(f"repeats={repeats}: the displayed error needs >= 2 renders per stimulus")
     target = design.render.displayed_error_pct / 100.0 if target is None else float(target)
     table = default_gloss_table() if gloss_table is None else gloss_table
-    levels = tuple(design.gloss.labels)
+    levels = tuple(design.gloss.labels if gloss_levels is None else (int(v) for v in gloss_levels))
     materials = list(zip(*ward_params_for_gloss(table, design.gloss.pct(np.asarray(levels))),
                          strict=True))
     depth = design.depth.rendered_levels[-1]
@@ -251,19 +267,53 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
     if probes is None:
         probes = [load_light_probe(il.envmap) for il in design.illuminations]
     renderer = StimulusRenderer(camera, size_px=size_px, spp=pilot_spp)
-    errors = np.zeros((len(probes), len(levels)))
+    n0 = renderer.spp
+    pilot = np.zeros((len(probes), len(levels)))
+    chosen = np.zeros((len(probes), len(levels)), dtype=int)
+    chosen_err = np.zeros((len(probes), len(levels)))
+    seed = iter(range(1, 1 << 30))
     for p, probe in enumerate(probes):
         renderer.load(geometry, probe)
-        stacks = [np.stack([renderer.render(*m, seed=1000 * g + k) for k in range(repeats)])
-                  for g, m in enumerate(materials)]
+
+        def measure(material, n, curve):
+            return displayed_error([renderer.render(*material, seed=next(seed), spp=n)
+                                    for _ in range(repeats)], curve)
+
+        stacks = [np.stack([renderer.render(*m, seed=next(seed)) for _ in range(repeats)])
+                  for m in materials]
         curve = tone_curve(design.tonemap, luminance_range([s.mean(axis=0) for s in stacks]))
-        errors[p] = [displayed_error(s, curve) for s in stacks]
+        for g, m in enumerate(materials):
+            e0 = displayed_error(stacks[g], curve)
+            pilot[p, g] = e0
+            best = (n0, e0) if e0 <= target else None
+            points = [(n0, e0)]
+            n = spp_for_displayed_error(e0, n0, target)
+            for _ in range(max_rounds):
+                n = int(min(max(n, 1), max_spp))
+                if any(n == q for q, _ in points):
+                    break
+                e = measure(m, n, curve)
+                points.append((n, e))
+                if e <= target and (best is None or n < best[0]):
+                    best = (n, e)
+                (na, ea), (nb, eb) = sorted(points[-2:])
+                slope = np.log(ea / eb) / np.log(nb / na) if ea > 0 and eb > 0 else 0.5
+                slope = float(np.clip(slope, 0.25, 1.5))  # guard a noisy fit
+                pred = renderer.spp_for(int(np.ceil(n * (e / target) ** (1.0 / slope))))
+                if best is not None and pred >= best[0]:
+                    break
+                n = pred
+            if best is None:
+                best = (max_spp, points[-1][1])
+            chosen[p, g], chosen_err[p, g] = best
         if progress is not None:
-            progress(f"{probe.name}: displayed error at {renderer.spp} spp "
-                     + ", ".join(f"g{lv} {100 * e:.2f} %" for lv, e in zip(levels, errors[p],
-                                                                           strict=True)))
-    worst = errors.max(axis=0)
-    spp = tuple(spp_for_displayed_error(e, renderer.spp, target) for e in worst)
-    return SppPlan(gloss_levels=levels, spp=spp, error_at_pilot=tuple(float(e) for e in worst),
-                   pilot_spp=renderer.spp, repeats=int(repeats), size_px=int(size_px),
-                   target=target, variant=mi.variant())
+            progress(f"{probe.name}: " + ", ".join(
+                f"g{lv} {100 * e0:.2f} % at {n0} -> {n} spp ({100 * e:.2f} %)"
+                for lv, e0, n, e in zip(levels, pilot[p], chosen[p], chosen_err[p], strict=True)))
+    worst = chosen.argmax(axis=0)
+    cols = np.arange(len(levels))
+    return SppPlan(gloss_levels=levels, spp=tuple(int(v) for v in chosen[worst, cols]),
+                   error_at_pilot=tuple(float(e) for e in pilot.max(axis=0)),
+                   error_at_spp=tuple(float(e) for e in chosen_err[worst, cols]),
+                   pilot_spp=n0, repeats=int(repeats), size_px=int(size_px), target=target,
+                   variant=mi.variant())
