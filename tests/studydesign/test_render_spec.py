@@ -26,10 +26,10 @@ def test_shipped_render_spec(design):
 
 @pytest.mark.parametrize("old, new, message", [
     ('variant = "auto"', 'variant = "llvm_ad_mono_polarized"', r"render\.variant .* is not one of"),
-    ("displayed_error_pct = 0.75", "displayed_error_pct = 0", r"displayed_error_pct must lie in"),
+    ("displayed_error_pct = 1.3", "displayed_error_pct = 0", r"displayed_error_pct must lie in"),
     ("spp_by_gloss_level = [", "spp_by_gloss_level = [0, ", r"integers >= 1"),
     ("spp_by_gloss_level = [", "spp_by_gloss_level = [7, ", r"one per physical gloss level \(11"),
-    ("spp_planned_at_px = 256", "spp_planned_at_px = 2", r"spp_planned_at_px must be"),
+    ("spp_planned_at_px = 128", "spp_planned_at_px = 2", r"spp_planned_at_px must be"),
     ("[render]", "[rendering]", r"missing section \[render\]"),
 ])
 def test_bad_render_spec_is_rejected_with_the_fix(tmp_path, old, new, message):
