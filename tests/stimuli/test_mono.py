@@ -77,6 +77,8 @@ def test_mono_equals_spectral_luminance_within_mc_error(design, calibration, res
     wrong = _probe(_tinted_sky() * (TINT.mean() / float(TINT @ np.float32(REC709_Y))), "wrong")
     off = compare_renders(_renders("llvm_ad_mono", wrong, design, calibration, seeds=range(24)),
                           spectral)
+    print(f"RGB-mean probe vs spectral Y: chi2/df {off.chi2_per_df:.1f}, mean "
+          f"{100 * off.mean_rel_diff:+.2f} % ({off.mean_z:+.1f} SE)")
     assert off.chi2_per_df > 4.0 and abs(off.mean_z) > 5.0
 
 
