@@ -19,12 +19,13 @@ stimulus (100 % gloss) under each probe; after, on every gloss level under each 
 is "at equal displayed error" when the after-renders' largest error is no larger than the
 before-renders' (then the ratio is a lower bound: after is at most as noisy everywhere).
 
-Then, for the after configuration, throughput per core (images / hour / core) of: the in-process
-renderer (Dr.Jit threads = cores), one Dask worker with 1 thread, two Dask workers with 1 thread
-each, and one Dask worker with all cores as Dr.Jit threads; those are interleaved too (all
-clusters stay up; each round gives each configuration the same 22 images: gloss levels 1..11 of
-two arrays). From the best per-core figure: hours for the 58,564-image set on machines like this
-one, and machines for a 24-hour and an 8-hour run.
+Then, for the after configuration, throughput (images / hour, and per core) of: the in-process
+renderer (Dr.Jit threads = cores), one Dask worker with 1 thread, one Dask worker per core with 1
+thread each (today's default), and one Dask worker with all cores as Dr.Jit threads (the new
+default); those are interleaved too (all clusters stay up; each round gives each configuration
+the same 22 images: gloss levels 1..11 of two arrays; the first round is not timed). From the
+one-worker-per-machine figure: hours for the 58,564-image set on machines like this one, and
+machines for a 24-hour and an 8-hour run.
 
 All figures are ratios measured side by side on a machine that other jobs share (the load average
 is printed); absolute seconds are only indicative.
@@ -182,27 +183,33 @@ def main() -> None:
           f"({after_per_hour / cores:.0f} per core); ratio {ratio_render:.2f}")
 
     # -- workers ----------------------------------------------------------------------------------
-    per_core = {"in-process": after_per_hour / cores}
+    per_hour = {"in-process": after_per_hour}
     if not args.no_workers:
-        per_core = _workers(args, design, cam, after_variant, levels, after_spp, cores, per_core)
-    best_name, best = max(per_core.items(), key=lambda kv: kv[1])
+        per_hour = _workers(args, design, cam, after_variant, levels, after_spp, cores, per_hour)
+    # the recommended set-up: one worker per machine, Dr.Jit threads on all its cores
+    chosen = f"1 worker x {cores} threads" if f"1 worker x {cores} threads" in per_hour \
+        else "in-process"
     n_set = design.n_imagestats_images
-    hours_one = n_set / (best * cores)
-    print(f"plan: {n_set} images at {args.size} px with the best configuration ({best_name}, "
-          f"{best:.0f} images/hour/core): {hours_one:.1f} h on one {cores}-core machine like "
-          f"this; {int(np.ceil(hours_one / 24))} such machines for 24 h, "
-          f"{int(np.ceil(hours_one / 8))} for 8 h; {n_set / (best * 16):.1f} h on one 16-core "
-          "machine (Dr.Jit's threads scale with cores; one worker per machine)")
-    if "2 workers x 1 thread" in per_core and "1 worker x 1 thread" in per_core:
-        today = per_core["2 workers x 1 thread"]
-        print(f"one worker per machine instead of today's default (2 workers x 1 thread): "
-              f"{best / today:.2f}x per core; with the render ratio: "
-              f"{ratio_render * best / today:.1f}x (the product of two side-by-side ratios)")
+    hours_one = n_set / per_hour[chosen]
+    print(f"plan: {n_set} images at {args.size} px, one worker per machine ({chosen}, "
+          f"{per_hour[chosen]:.0f} images/hour = {per_hour[chosen] / cores:.0f} per core here): "
+          f"{hours_one:.1f} h on one {cores}-core machine like this one, "
+          f"{int(np.ceil(hours_one / 24))} such machines for 24 h, "
+          f"{int(np.ceil(hours_one / 8))} for 8 h; {n_set / (per_hour[chosen] / cores * 16):.1f} h "
+          "on one 16-core machine if Dr.Jit's threads scale with cores (measured here on a "
+          f"machine with load average {os.getloadavg()[0]:.1f}: on an idle one these are upper "
+          "bounds)")
+    today = f"{cores} workers x 1 thread"
+    if today in per_hour and chosen in per_hour and chosen != "in-process":
+        ratio_workers = per_hour[chosen] / per_hour[today]
+        print(f"one worker with {cores} Dr.Jit threads vs today's default ({today}), same cores: "
+              f"{ratio_workers:.2f}x; with the render ratio: {ratio_render * ratio_workers:.1f}x "
+              "(the product of two side-by-side ratios, an estimate)")
     print(f"speed-up vs spectral at equal displayed error: {ratio_render:.1f}x"
           + ("" if equal else " (NOT at equal displayed error, see above)"))
 
 
-def _workers(args, design, cam, variant, levels, spp, cores, per_core):
+def _workers(args, design, cam, variant, levels, spp, cores, per_hour):
     from dask.distributed import Client, LocalCluster
 
     table = default_gloss_table()
@@ -216,7 +223,7 @@ def _workers(args, design, cam, variant, levels, spp, cores, per_core):
                         "rho_d": float(rho[0][i]), "rho_s": float(rho[1][i]),
                         "alpha": float(rho[2][i]), "exr_path": f"exr/d{depth}_g{g:02d}.exr"}
                        for i, g in enumerate(levels)])
-    configs = {"1 worker x 1 thread": (1, 1), "2 workers x 1 thread": (2, 1),
+    configs = {"1 worker x 1 thread": (1, 1), f"{cores} workers x 1 thread": (cores, 1),
                f"1 worker x {cores} threads": (1, cores)}
     clusters, clients = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -226,7 +233,7 @@ def _workers(args, design, cam, variant, levels, spp, cores, per_core):
                                               dashboard_address=":0", silence_logs=logging.ERROR)
                 clients[name] = Client(clusters[name])
             elapsed = dict.fromkeys(configs, 0.0)
-            elapsed["in-process"] = 0.0
+            elapsed["in-process"] = 0.0  # the in-process renderer once more, beside the workers
             from stimuli.pipeline import render_group
 
             for rnd in range(args.rounds):
@@ -252,12 +259,14 @@ def _workers(args, design, cam, variant, levels, spp, cores, per_core):
                 c.close()
     n_images = sum(len(g) for g in groups) * max(1, args.rounds - 1)
     used = {name: n * threads for name, (n, threads) in configs.items()} | {"in-process": cores}
-    out = {}
+    out = dict(per_hour)
     for name, t in elapsed.items():
-        per_hour = 3600 * n_images / t
-        out[name] = per_hour / min(used[name], cores)
-        print(f"after, {name:>22}: {per_hour:7.0f} images/hour on {min(used[name], cores)} "
-              f"core(s) = {out[name]:6.0f} images/hour/core")
+        out[name] = 3600 * n_images / t
+        n_cores = min(used[name], cores)
+        print(f"after, {name:>22}: {out[name]:7.0f} images/hour on {n_cores} core(s) = "
+              f"{out[name] / n_cores:6.0f} images/hour/core")
+    print(f"(load average {os.getloadavg()[0]:.1f}: other jobs share these {cores} cores, so a "
+          "1-thread worker's per-core figure is inflated relative to the all-core ones)")
     return out
 
 
