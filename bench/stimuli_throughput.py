@@ -7,7 +7,7 @@ round renders every gloss level with one configuration, then with the other; the
 compiles the kernels and is not timed):
 
 * before: ``llvm_ad_spectral``, plain environment sampling, one spp for every gloss level
-  (``--baseline-spp``, 144: the count the issue measured as today's default);
+  (``--baseline-spp``, 144: the former default for 256 px renders);
 * after: the design's variant (``auto``: ``llvm_ad_mono``, exact for the grey stimuli), MIS
   compensation on the environment, the design's spp per gloss level
   (``design.render.spp_by_gloss_level``, from ``python -m stimuli plan-spp``).
