@@ -43,8 +43,9 @@ fresnel_f0        float  unset    Schlick Fresnel on the lobe, (0, 1]: the lobe 
                                   F(o . h) / F0, F = F0 + (1 - F0)(1 - o . h)^5 (h normalised),
                                   so rho_s keeps its meaning at normal incidence and the lobe
                                   brightens towards grazing (0.04: varnish, IOR 1.5). Unset: no
-                                  Fresnel term (the source study's model). Fixed at load (not traversed);
-                                  with it the albedo can exceed rho_s at grazing incidence
+                                  Fresnel term (the source study's model). Fixed at load (not
+                                  traversed); with it the albedo can exceed rho_s at grazing
+                                  incidence
 ================  =====  =======  ==============================================================
 
 All three are exposed through ``traverse`` (``mi.traverse(scene)["<id>.rho_s"]``) so a loaded scene
