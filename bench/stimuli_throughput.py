@@ -2,9 +2,9 @@
 source study's way of rendering (spectral, one spp for every image) on the same 2 cores, and the
 image-statistics set (58,564 images) is planned in hours and machines from measured throughput.
 
-Compared side by side in this process, both with Dr.Jit's threads on all cores, interleaved (each
-round renders every gloss level with one configuration, then with the other; the first round
-compiles the kernels and is not timed):
+Compared side by side in this process, both with Dr.Jit's threads on all cores, interleaved image
+by image (each round renders every gloss level, alternating the two configurations; the first
+round compiles the kernels and is not timed):
 
 * before: ``llvm_ad_spectral``, plain environment sampling, one spp for every gloss level
   (``--baseline-spp``, 144: the former default for 256 px renders);
@@ -158,16 +158,16 @@ def main() -> None:
     # -- render cost, side by side, in process ----------------------------------------------------
     t_before = t_after = 0.0
     for rnd in range(args.rounds):
-        setup_mitsuba(before_variant, smoke_test=False)
-        t = time.perf_counter()
-        for g, m in enumerate(materials):
+        tb = ta = 0.0
+        for g, m in enumerate(materials):  # alternate image by image: load changes hit both
+            setup_mitsuba(before_variant, smoke_test=False)
+            t = time.perf_counter()
             before[0].render(*m, seed=10_000 * rnd + g)
-        tb = time.perf_counter() - t
-        setup_mitsuba(after_variant, smoke_test=False)
-        t = time.perf_counter()
-        for g, m in enumerate(materials):
+            tb += time.perf_counter() - t
+            setup_mitsuba(after_variant, smoke_test=False)
+            t = time.perf_counter()
             after[0].render(*m, seed=10_000 * rnd + g, spp=after_spp[g])
-        ta = time.perf_counter() - t
+            ta += time.perf_counter() - t
         timed = rnd > 0 or args.rounds == 1
         print(f"round {rnd}{'' if timed else ' (compiles kernels, not timed)'}: before "
               f"{tb:.1f} s, after {ta:.1f} s for {len(levels)} images each, load average "
