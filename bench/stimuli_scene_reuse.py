@@ -3,8 +3,10 @@
 
 Side by side, the 9 gloss levels of one experiment array under the indoor probe: (a) reuse: one
 ``load`` then 9 renders with parameter updates; (b) reload: for each image a fresh renderer
-(mesh + scene + probe upload) and one render. Same size, spp, variant. Printed: total seconds of
-each and the ratio reload / reuse.
+(mesh + scene + probe upload) and one render; (c) reuse with the render frozen
+(``dr.freeze``: Dr.Jit replays the recorded kernels instead of tracing the Python Ward BSDF
+again). Same size, spp, variant; (a) and (c) interleaved image by image. Printed: total seconds
+of each and the ratios reload / reuse and reuse / frozen.
 
 Usage: ``.venv/bin/python bench/stimuli_scene_reuse.py [--size 128] [--spp 16]``
 """
@@ -15,10 +17,13 @@ import argparse
 import os
 import sys
 import time
+import zlib
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+
+import numpy as np
 
 from calibration import default_calibration
 from stimuli import (
@@ -67,6 +72,41 @@ def main() -> None:
     print(f"reuse (1 load + traverse updates): {reuse:.2f} s  ({reuse / len(materials):.3f} s/img)")
     print(f"reload (load per image):           {reload:.2f} s  ({reload / len(materials):.3f} s/img)")
     print(f"ratio reload / reuse: {reload / reuse:.2f}")
+
+    import drjit as dr
+    import mitsuba as mi
+
+    r = StimulusRenderer(cam, size_px=args.size, spp=args.spp)
+    r.load(geometry, probe)
+
+    @dr.freeze
+    def frozen(scene, seed):
+        return mi.render(scene, spp=r.spp, seed=seed)
+
+    def set_material(m):
+        for name, v in zip(("rho_d", "rho_s", "alpha"), m, strict=True):
+            r.params[r._keys[name]] = mi.Float(float(v))
+        r.params.update()
+
+    for i, m in enumerate(materials[:3]):  # record, and compile both paths
+        set_material(m)
+        frozen(r.scene, mi.UInt32(i))
+        r.render(*m, seed=i)
+    t_plain = t_frozen = 0.0
+    same = True
+    for i, m in enumerate(materials):
+        seed = zlib.crc32(str(i).encode()) & 0x7FFFFFFF
+        t = time.perf_counter()
+        plain = r.render(*m, seed=seed)
+        t_plain += time.perf_counter() - t
+        t = time.perf_counter()
+        set_material(m)
+        img = np.asarray(frozen(r.scene, mi.UInt32(seed)))
+        t_frozen += time.perf_counter() - t
+        same &= bool(np.allclose(img.reshape(plain.shape), plain, rtol=1e-5, atol=1e-6))
+    print(f"reuse, traced per image: {t_plain:.2f} s; reuse, frozen: {t_frozen:.2f} s "
+          f"(images {'identical' if same else 'DIFFERENT'})")
+    print(f"ratio reuse / frozen: {t_plain / t_frozen:.2f}")
 
 
 if __name__ == "__main__":

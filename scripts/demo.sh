@@ -78,9 +78,10 @@ STIM_OPTS=()
   --workers 0 --no-progress ${STIM_OPTS[@]+"${STIM_OPTS[@]}"} >"$RUN/stimuli/preview-summary.json"
 "$PY" -m stimuli contact-sheet "$RUN/stimuli/preview" "$RUN/stimuli/preview/contact_sheet.png"
 # All 162 experiment stimuli, small and few samples so the demo stays near a minute or two
-# (a lab run: --size at the native width and --spp 64 or more; see bench/stimuli_throughput.py).
+# (a lab run: --size at the native width and no --spp, i.e. the design's spp per gloss level; see
+# bench/stimuli_throughput.py). One worker: its Dr.Jit threads use all cores.
 "$PY" -m stimuli render --set experiment --out "$RUN/stimuli/experiment" --size 96 --spp 8 \
-  --workers 2 --no-progress ${STIM_OPTS[@]+"${STIM_OPTS[@]}"} >"$RUN/stimuli/experiment-summary.json"
+  --workers 1 --no-progress ${STIM_OPTS[@]+"${STIM_OPTS[@]}"} >"$RUN/stimuli/experiment-summary.json"
 "$PY" -m stimuli verify "$RUN/stimuli/experiment"
 "$PY" -m stimuli export-print --depth-level 5 --spacing-cm 0.05 "$RUN/stimuli/print_depth05.stl"
 # --- end stimuli ---
@@ -134,7 +135,7 @@ step "image statistics: a stratified subset of the imagestats set, statistics on
 IS="$RUN/imagestats"
 "$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
   --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
-  --size 192 --spp 16 --workers 2 --out "$IS/renders" --no-progress
+  --size 192 --spp 16 --workers 1 --out "$IS/renders" --no-progress
 "$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \
   --batch-size 3 --quiet
 "$PY" -m analysis imagestats relate "$IS/stats.parquet" --sessions "$RUN/data" \

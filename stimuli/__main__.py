@@ -53,22 +53,36 @@ def _cmd_render(args) -> int:
     design, table = _select(args)
     gloss, gloss_name = _load_gloss(args.gloss_table)
     cal = _load_calibration(design, args.calibration)
-    variant = setup_mitsuba(args.variant)  # fails here, with the fix, before any worker starts
+    # fails here, with the fix, before any worker starts
+    variant = setup_mitsuba(args.variant or design.render.variant)
     from stimuli.render import multijitter_spp
 
-    spp = multijitter_spp(args.spp)
-    if spp != args.spp:
-        print(f"note: the multijitter sampler takes {spp} samples per pixel for --spp {args.spp} "
-              "(an a x b grid); recording and using that", file=sys.stderr)
     camera = camera_geometry(design, cal)
     size = args.size or camera.native_px
+    if args.spp is not None:
+        spp, by_level = multijitter_spp(args.spp), ()
+        if spp != args.spp:
+            print(f"note: the multijitter sampler takes {spp} samples per pixel for --spp "
+                  f"{args.spp} (an a x b grid); recording and using that", file=sys.stderr)
+        spp_text = f"{spp} spp"
+    else:
+        by_level = tuple(multijitter_spp(v) for v in design.render.spp_by_gloss_level)
+        spp = max(by_level)
+        spp_text = (f"spp per gloss level {list(by_level)} (displayed error "
+                    f"{design.render.displayed_error_pct:g} %)")
+        if size != design.render.spp_planned_at_px:
+            print(f"note: the design's spp per gloss level were planned at "
+                  f"{design.render.spp_planned_at_px} px and this run is {size} px; run "
+                  f"`python -m stimuli plan-spp --size {size}` for counts measured at this size",
+                  file=sys.stderr)
     cores = os.cpu_count() or 1
     client = cluster = None
-    workers = args.workers if args.workers is not None else min(cores, 4)
+    workers = args.workers if args.workers is not None else 1
     threads = max(1, cores // max(workers, 1)) if not args.scheduler else 0
     job = RenderJob(camera=camera, size_px=size, spp=spp, variant=variant,
-                    design_path=str(design.source), threads=threads)
-    print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {spp} spp, "
+                    design_path=str(design.source), threads=threads,
+                    spp_by_gloss_level=by_level)
+    print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {spp_text}, "
           f"variant {variant}, image width {camera.image_width_cm:.3f} cm at "
           f"{camera.distance_cm:g} cm, gloss table {gloss_name}, calibration "
           f"{cal.calibration_id} -> {args.out}", file=sys.stderr)
@@ -146,6 +160,31 @@ def _cmd_check_env(args) -> int:
     return 0
 
 
+def _cmd_plan_spp(args) -> int:
+    from stimuli.mitsuba_env import setup_mitsuba
+    from stimuli.noise import plan_spp
+    from stimuli.render import camera_geometry
+
+    design = load_design(args.design)
+    gloss, gloss_name = _load_gloss(args.gloss_table)
+    variant = setup_mitsuba(args.variant or design.render.variant)
+    camera = camera_geometry(design, _load_calibration(design, args.calibration))
+    target = design.render.displayed_error_pct if args.target_pct is None else args.target_pct
+    print(f"stimuli plan-spp: {variant}, {args.size} px, target {target:g} % of the display "
+          f"range, pilot {args.pilot_spp} spp x {args.repeats} seeds, gloss table {gloss_name}",
+          file=sys.stderr)
+    plan = plan_spp(design, camera, size_px=args.size, pilot_spp=args.pilot_spp,
+                    repeats=args.repeats, target=target / 100.0, gloss_table=gloss,
+                    max_spp=args.max_spp, progress=lambda m: print(m, file=sys.stderr))
+    print(json.dumps({"variant": plan.variant, "size_px": plan.size_px, "target_pct": target,
+                      "gloss_levels": plan.gloss_levels, "spp": plan.spp,
+                      "error_at_spp_pct": [round(100 * e, 3) for e in plan.error_at_spp],
+                      "pilot_spp": plan.pilot_spp,
+                      "error_at_pilot_pct": [round(100 * e, 3) for e in plan.error_at_pilot]}))
+    print(f"# paste into [render] of {design.source}:\n{plan.toml()}", file=sys.stderr)
+    return 0
+
+
 def _add_selection(p) -> None:
     p.add_argument("--set", default="experiment",
                    help="set name: experiment, imagestats or preview (default: experiment)")
@@ -169,15 +208,19 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="output folder")
     p.add_argument("--size", type=int, help="image width = height in px (default: the native "
                    "size at the display's pixel pitch)")
-    p.add_argument("--spp", type=int, default=64, help="samples per pixel (default: 64)")
+    p.add_argument("--spp", type=int, help="samples per pixel of every image (default: the "
+                   "design's render.spp_by_gloss_level, the counts that reach its displayed-error "
+                   "target)")
     p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
     p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--workers", type=int, help="Dask LocalCluster worker processes (default: "
-                   "min(cores, 4)); 0 renders in this process")
+    g.add_argument("--workers", type=int, help="Dask LocalCluster worker processes (default 1, "
+                   "whose Dr.Jit threads use all cores: faster than several processes on one "
+                   "machine); 0 renders in this process")
     g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786); "
                    "its workers must see --out at the same path (shared file system)")
-    p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_spectral, else llvm_ad_rgb)")
+    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant; "
+                   "'auto' = llvm_ad_mono, or cuda_ad_mono on a GPU: exact for the grey stimuli)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 
@@ -201,6 +244,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="length unit in the file (default mm: slicers read STL as mm)")
     p.add_argument("out", type=Path, help="output .stl or .ply")
     p.set_defaults(func=_cmd_export_print)
+
+    p = sub.add_parser("plan-spp", help="measure the spp each gloss level needs for the design's "
+                       "displayed-error target (prints the [render] lines for design.toml)")
+    p.add_argument("--size", type=int, default=256, help="image width = height in px (256)")
+    p.add_argument("--pilot-spp", type=int, default=16, help="first measurement's spp (16)")
+    p.add_argument("--repeats", type=int, default=4, help="renders per measurement (4)")
+    p.add_argument("--max-spp", type=int, default=1024, help="upper bound of the search (1024)")
+    p.add_argument("--target-pct", type=float, help="displayed-error target in %% of the display "
+                   "range (default: the design's render.displayed_error_pct)")
+    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant)")
+    p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
+    p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
+    p.set_defaults(func=_cmd_plan_spp)
 
     p = sub.add_parser("check-env", help="select the Mitsuba variant and smoke-test a render")
     p.add_argument("--variant")

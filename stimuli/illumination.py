@@ -212,10 +212,30 @@ class LightProbe:
         return luminance(self.rgb)
 
     def emitter(self) -> dict:
-        """A Mitsuba ``envmap`` emitter dict built from the in-memory bitmap (needs a variant set)."""
+        """A Mitsuba ``envmap`` emitter dict built from the in-memory bitmap (needs a variant set).
+
+        Under a monochrome variant (``*_mono``) the map is given as its CIE Y (:attr:`luminance`,
+        converted once here), which is what a grey scene reflects: the render is then the
+        luminance of the colour render, exactly (protocol.md, section 4). RGB and spectral
+        variants get the RGB map (spectral ones upsample each texel to a spectrum).
+
+        References
+        ----------
+        Karlik, O., Sik, M., Vevoda, P., Skrivan, T. & Krivanek, J. (2019). MIS compensation:
+        optimizing sampling techniques in multiple importance sampling. ACM TOG 38(6), 151.
+        """
         import mitsuba as mi
 
-        return {"type": "envmap", "bitmap": mi.Bitmap(self.rgb)}
+        from stimuli.mitsuba_env import is_monochrome
+
+        # MIS compensation (Karlik et al. 2019): the path tracer combines emitter sampling with
+        # the BSDF's own sampling by multiple importance sampling, so the emitter's sampling
+        # density is sharpened towards the bright texels (mean subtracted) while BSDF sampling
+        # covers the rest. Unbiased; on the indoor probe it lowered the displayed error by
+        # 13-17 % at equal spp (protocol.md, section 4).
+        image = self.luminance[..., None] if is_monochrome(mi.variant()) else self.rgb
+        return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(image)),
+                "mis_compensation": True}
 
 
 def load_light_probe(

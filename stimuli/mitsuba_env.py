@@ -1,7 +1,13 @@
-"""Mitsuba 3 set-up: the LLVM variant, the libLLVM it needs, and a smoke-test render.
+"""Mitsuba 3 set-up: the variant, the libLLVM it needs, and a smoke-test render.
 
-Mitsuba's LLVM variants JIT-compile every render into one vectorised CPU kernel; the Python Ward
-BSDF (:mod:`stimuli.ward`) is traced into that kernel, so it runs as fast as the built-in C++ BSDFs.
+Variants (:data:`SUPPORTED_VARIANTS`): ``llvm_ad_*`` on the CPU, ``cuda_ad_*`` on an NVIDIA GPU, each
+in ``mono`` (one luminance channel), ``rgb`` or ``spectral``. The stimuli are achromatic (grey Ward
+materials): light transport is linear in the emitted radiance and a grey BSDF treats every
+wavelength alike, so the luminance of a render under a coloured probe equals the render under the
+probe's luminance. Monochrome rendering is therefore exact for them and the default
+(:func:`default_variant`); spectral is kept for chromatic materials. Mitsuba's JIT variants compile
+every render into one vectorised kernel; the Python Ward BSDF (:mod:`stimuli.ward`) is traced into
+that kernel, so it runs as fast as the built-in C++ BSDFs.
 Dr.Jit loads libLLVM at run time. libLLVM 15 and 16 let the variant load and then abort the whole
 process at the first kernel that uses ``dr.maximum`` ("LLVM ERROR: Cannot select: fmaximum"), which
 no ``try`` can catch. So :func:`setup_mitsuba` checks the library's version *before* Dr.Jit loads it
@@ -21,13 +27,22 @@ from stimuli.errors import MitsubaSetupError
 __all__ = [
     "LLVM_VARIANTS",
     "MIN_LLVM_MAJOR",
+    "SUPPORTED_VARIANTS",
+    "cuda_available",
+    "default_variant",
     "find_libllvm",
+    "is_monochrome",
     "libllvm_major",
     "setup_mitsuba",
 ]
 
-#: Variants tried in order: spectral (as the seed rendered), then RGB.
-LLVM_VARIANTS = ("llvm_ad_spectral", "llvm_ad_rgb")
+#: CPU variants tried in order when none is named: monochrome (exact for the achromatic stimuli),
+#: spectral (as the source study rendered), RGB.
+LLVM_VARIANTS = ("llvm_ad_mono", "llvm_ad_spectral", "llvm_ad_rgb")
+#: GPU variants (the same three colour modes on CUDA).
+CUDA_VARIANTS = ("cuda_ad_mono", "cuda_ad_spectral", "cuda_ad_rgb")
+#: Variants the renderer and the Ward plugin support (scalar ones for small tests only).
+SUPPORTED_VARIANTS = LLVM_VARIANTS + CUDA_VARIANTS + ("scalar_rgb", "scalar_spectral")
 #: Oldest libLLVM that compiles Dr.Jit's kernels (15 and 16 abort at ``dr.maximum``).
 MIN_LLVM_MAJOR = 17
 _LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
@@ -88,8 +103,53 @@ def _check_llvm_path() -> str:
     return str(found)
 
 
+def is_monochrome(variant: str) -> bool:
+    """True for Mitsuba's one-channel variants (``*_mono``): they render luminance only."""
+    return variant.split("_")[-1] == "mono"
+
+
+def cuda_available() -> bool:
+    """Whether Dr.Jit finds a CUDA GPU (the ``cuda_ad_*`` variants can run)."""
+    try:
+        import drjit as dr
+
+        return bool(dr.has_backend(dr.JitBackend.CUDA))
+    except (ImportError, AttributeError, RuntimeError):  # no driver, or a build without CUDA
+        return False
+
+
+def default_variant(*, achromatic: bool, backend: str = "auto") -> str:
+    """The variant a stimulus set should be rendered with.
+
+    Parameters
+    ----------
+    achromatic : bool
+        True when every material is grey (the Ward stimuli): monochrome is exact and the cheapest.
+        False keeps spectral rendering for chromatic materials.
+    backend : {"auto", "llvm", "cuda"}
+        "auto": CUDA when a GPU is found (:func:`cuda_available`), else the LLVM CPU back end.
+
+    Returns
+    -------
+    str
+        e.g. ``"llvm_ad_mono"``.
+    """
+    if backend not in ("auto", "llvm", "cuda"):
+        raise ValueError(f"backend={backend!r}; choose 'auto', 'llvm' or 'cuda'")
+    if backend == "auto":
+        backend = "cuda" if cuda_available() else "llvm"
+    return f"{backend}_ad_{'mono' if achromatic else 'spectral'}"
+
+
+def _fix_for(variant: str) -> str:
+    if variant.startswith("cuda"):
+        return ("check that an NVIDIA GPU and driver are visible (`nvidia-smi`), or render on the "
+                "CPU with the matching llvm_ad_* variant")
+    return _FIX
+
+
 def _smoke_test() -> None:
-    """Render an 8 x 8 image of a Ward sphere under a constant sky; it must be finite and > 0."""
+    """Render an 8 x 8 luminance image of a Ward sphere under a constant sky (finite and > 0)."""
     import drjit as dr
     import mitsuba as mi
     import numpy as np
@@ -100,7 +160,8 @@ def _smoke_test() -> None:
         "sensor": {"type": "perspective", "fov": 30.0,
                    "to_world": mi.ScalarTransform4f().look_at(origin=[0, 0, 5], target=[0, 0, 0],
                                                                up=[0, 1, 0]),
-                   "film": {"type": "hdrfilm", "width": 8, "height": 8, "pixel_format": "rgb"},
+                   "film": {"type": "hdrfilm", "width": 8, "height": 8,
+                            "pixel_format": "luminance"},
                    "sampler": {"type": "multijitter", "sample_count": 4}},
         "emitter": {"type": "constant", "radiance": {"type": "rgb", "value": 1.0}},
         "shape": {"type": "sphere", "bsdf": {"type": "ward", "rho_d": 0.3, "rho_s": 0.2,
@@ -108,11 +169,16 @@ def _smoke_test() -> None:
     })
     img = np.asarray(mi.render(scene))
     dr.sync_thread()
-    if img.shape != (8, 8, 3) or not np.all(np.isfinite(img)) or not img.max() > 0:
+    variant = mi.variant()
+    if img.shape[:2] != (8, 8) or img.size != 64:
         raise MitsubaSetupError(
-            f"Mitsuba smoke-test render gave an image of shape {img.shape}, max "
-            f"{np.nanmax(img) if img.size else 'n/a'} (expected finite, > 0); {_FIX}"
-        )
+            f"Mitsuba smoke-test render under {variant} gave an image of shape {img.shape} "
+            "(expected 8 x 8 luminance); this Mitsuba build's film does not output luminance: "
+            f"use one of {list(SUPPORTED_VARIANTS)} with mitsuba >= 3.6")
+    if not np.all(np.isfinite(img)) or not img.max() > 0:
+        raise MitsubaSetupError(
+            f"Mitsuba smoke-test render under {variant} gave non-finite or black pixels (max "
+            f"{np.nanmax(img)}; expected finite, > 0); {_fix_for(variant)}")
 
 
 def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str:
@@ -123,8 +189,8 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
     Parameters
     ----------
     variant : str, optional
-        One of :data:`LLVM_VARIANTS` (or any Mitsuba variant, e.g. ``"scalar_rgb"`` for tests);
-        default: the first of :data:`LLVM_VARIANTS` that this Mitsuba build has.
+        One of :data:`SUPPORTED_VARIANTS` (``"auto"``: :func:`default_variant` for achromatic
+        stimuli); default: the first of :data:`LLVM_VARIANTS` that this Mitsuba build has.
     smoke_test : bool
         Render an 8 x 8 test image the first time (about a second).
 
@@ -136,14 +202,29 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
     Raises
     ------
     MitsubaSetupError
-        If Mitsuba is not installed, libLLVM is older than 17 or absent, the variant is missing, or
-        the smoke-test render fails; the message names the fix.
+        If Mitsuba is not installed, libLLVM is older than 17 or absent, the variant is not one
+        the renderer supports or missing from this build, CUDA is asked for without a GPU, or the
+        smoke-test render fails; the message names the fix.
     """
+    if variant == "auto":
+        variant = default_variant(achromatic=True)
+    if variant is not None and variant not in SUPPORTED_VARIANTS:
+        raise MitsubaSetupError(
+            f"Mitsuba variant {variant!r} is not supported by the stimulus renderer (the Ward "
+            f"plugin and the luminance film); use one of {list(SUPPORTED_VARIANTS)} or 'auto'")
     if _state.get("variant") and (variant is None or variant == _state["variant"]):
+        import mitsuba as mi
+
+        if mi.variant() != _state["variant"]:  # another module (the gloss fit) switched it
+            mi.set_variant(_state["variant"])
         if smoke_test and not _state.get("smoke_tested"):
             _smoke_test()
             _state["smoke_tested"] = True
         return _state["variant"]
+    if variant is not None and variant.startswith("cuda") and not cuda_available():
+        raise MitsubaSetupError(
+            f"Mitsuba variant {variant} needs a CUDA GPU and Dr.Jit finds none; "
+            f"{_fix_for(variant)}")
     try:
         import mitsuba as mi
     except ImportError as exc:
@@ -162,7 +243,8 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
     try:
         mi.set_variant(chosen)
     except Exception as exc:  # Dr.Jit raises a plain RuntimeError when libLLVM will not load
-        raise MitsubaSetupError(f"Mitsuba variant {chosen} failed to load: {exc}; {_FIX}") from exc
+        raise MitsubaSetupError(
+            f"Mitsuba variant {chosen} failed to load: {exc}; {_fix_for(chosen)}") from exc
     from stimuli.ward import register_ward
 
     register_ward()
@@ -174,6 +256,8 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
         except MitsubaSetupError:
             raise
         except Exception as exc:
-            raise MitsubaSetupError(f"Mitsuba smoke-test render failed: {exc}; {_FIX}") from exc
+            raise MitsubaSetupError(
+                f"Mitsuba smoke-test render under {chosen} failed: {exc}; {_fix_for(chosen)}"
+            ) from exc
         _state["smoke_tested"] = True
     return chosen

@@ -8,7 +8,10 @@ Folder layout (paths in the manifest are relative to it)::
     OUT/png/<light_field>/<stimulus_id>.png   8-bit grey, tone-mapped and gamma-corrected
 
 Pass 1 renders EXRs. Stimuli are grouped by (light field, array) so a worker builds each scene once
-and renders all gloss levels of the group by updating the Ward parameters in place. Pass 2 waits
+and renders all gloss levels of the group by updating the Ward parameters in place, each at its
+gloss level's samples per pixel (``RenderJob.spp_by_gloss_level``, from the design's displayed-error
+target). A worker is one process per machine whose Dr.Jit threads use all its cores
+(``RenderJob.threads``); more machines, not more processes, give more throughput. Pass 2 waits
 for every EXR of a light field (its tone-mapping condition), computes the condition's L_max, and
 writes PNGs and manifest rows. Every file is written to a hidden temporary name and renamed, so an
 interrupted run (Ctrl-C, kill, disk full) leaves no half-written file under a real name; re-running
@@ -52,7 +55,24 @@ RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px"
 
 @dataclass(frozen=True)
 class RenderJob:
-    """Settings shared by every image of a run (shipped to the workers)."""
+    """Settings shared by every image of a run (shipped to the workers).
+
+    Attributes
+    ----------
+    camera : CameraGeometry
+    size_px : int
+        Image width = height, px.
+    spp : int
+        Samples per pixel of every image when ``spp_by_gloss_level`` is empty (multijitter count).
+    variant : str
+        Mitsuba variant (recorded per EXR).
+    design_path : str
+        The design the workers load.
+    threads : int
+        Dr.Jit threads per worker process (0: Dr.Jit's default, all cores).
+    spp_by_gloss_level : tuple of int
+        Samples per pixel per physical gloss level label (1..n), multijitter counts; empty: ``spp``.
+    """
 
     camera: CameraGeometry
     size_px: int
@@ -60,6 +80,13 @@ class RenderJob:
     variant: str
     design_path: str
     threads: int = 0
+    spp_by_gloss_level: tuple[int, ...] = ()
+
+    def spp_for(self, gloss_level: int) -> int:
+        """Samples per pixel of a stimulus of this gloss level label."""
+        if not self.spp_by_gloss_level:
+            return self.spp
+        return int(self.spp_by_gloss_level[int(gloss_level) - 1])
 
 
 # --- worker side ---------------------------------------------------------------------------------
@@ -100,14 +127,15 @@ def render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
     records = []
     for row in rows:
         t0 = time.perf_counter()
-        img = renderer.render(row["rho_d"], row["rho_s"], row["alpha"],
+        spp = renderer.spp_for(job.spp_for(row["gloss_level"]))
+        img = renderer.render(row["rho_d"], row["rho_s"], row["alpha"], spp=spp,
                               seed=zlib.crc32(row["stimulus_id"].encode()))
         path = Path(out_dir) / row["exr_path"]
         path.parent.mkdir(parents=True, exist_ok=True)
         write_exr(path, img)
         records.append({
             "stimulus_id": row["stimulus_id"], "exr_path": row["exr_path"],
-            "exr_sha256": sha256_file(path), "spp": job.spp, "width_px": job.size_px,
+            "exr_sha256": sha256_file(path), "spp": spp, "width_px": job.size_px,
             "rho_d": row["rho_d"], "rho_s": row["rho_s"], "alpha": row["alpha"],
             "seed": int(row["seed"]), "variant": variant, "envmap_sha256": probe.sha256,
             "rotation_deg": row["rotation_deg"], "render_s": round(time.perf_counter() - t0, 4),
@@ -136,8 +164,9 @@ def _remove_stale_temporaries(out: Path) -> int:
     return n
 
 
-def _plan_rows(table: pd.DataFrame, gloss_table: pd.DataFrame) -> pd.DataFrame:
+def _plan_rows(table: pd.DataFrame, gloss_table: pd.DataFrame, job: RenderJob) -> pd.DataFrame:
     t = table.copy()
+    t["spp"] = [job.spp_for(g) for g in t["gloss_level"]]
     rho_d, rho_s, alpha = ward_params_for_gloss(gloss_table, t["true_gloss_pct"].to_numpy())
     t["rho_d"], t["rho_s"], t["alpha"] = rho_d, rho_s, alpha
     t["exr_path"] = [f"exr/{lf}/{sid}.exr" for lf, sid in zip(t["light_field"], t["stimulus_id"])]
@@ -161,7 +190,7 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
         if row.stimulus_id not in done.index:
             continue
         rec = done.loc[row.stimulus_id]
-        same = (int(rec["spp"]) == job.spp and int(rec["width_px"]) == job.size_px
+        same = (int(rec["spp"]) == int(row.spp) and int(rec["width_px"]) == job.size_px
                 and np.isclose(rec["rho_d"], row.rho_d) and np.isclose(rec["rho_s"], row.rho_s)
                 and np.isclose(rec["alpha"], row.alpha) and int(rec["seed"]) == int(row.seed))
         f = out / row.exr_path
@@ -221,7 +250,7 @@ def render_set(
     for sub in ("exr", "png"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     stale = _remove_stale_temporaries(out)
-    plan = _plan_rows(table, gloss_table)
+    plan = _plan_rows(table, gloss_table, job)
     for env in plan["envmap"].unique():
         probe_path(env)  # fail early, naming the file, before any worker starts
     t0 = time.perf_counter()
@@ -298,7 +327,7 @@ def render_set(
                     "true_gloss_pct": row.true_gloss_pct, "true_depth_cm": row.true_depth_cm,
                     "light_field": row.light_field, "array_index": int(row.array_index),
                     "seed": int(row.seed), "rho_d": row.rho_d, "rho_s": row.rho_s,
-                    "alpha": row.alpha, "spp": job.spp, "width_px": job.size_px,
+                    "alpha": row.alpha, "spp": int(rec["spp"]), "width_px": job.size_px,
                     "height_px": job.size_px, "image_width_cm": job.camera.image_width_cm,
                     "variant": rec["variant"], "envmap": row.envmap,
                     "calibration_id": calibration.calibration_id, "exr_path": row.exr_path,

@@ -13,9 +13,13 @@ physical size.
 
 The scene is built once per (array, light probe) and re-rendered for each gloss level by updating
 the Ward parameters in place with ``mi.traverse`` (no re-load, and the compiled kernel is reused
-because the parameters are opaque). Sampler: ``multijitter``. In the spectral variant the film
-integrates the spectrum against the CIE 1931 Y matching function (``pixel_format = "luminance"``);
-in the RGB variant Y is formed from linear RGB.
+because the parameters are opaque). Each render may take its own sample count (the spp of its
+gloss level, :mod:`stimuli.noise`). Sampler: ``multijitter``. The film stores CIE Y
+(``pixel_format = "luminance"``): in a monochrome variant (the default for the grey stimuli) the
+scene is lit by the probe's luminance and the render *is* Y, exactly; in the spectral variant the
+film integrates the spectrum against the CIE 1931 Y matching function; in the RGB variant Y is
+formed from linear RGB. Any variant of :data:`stimuli.mitsuba_env.SUPPORTED_VARIANTS` works,
+``cuda_ad_*`` included; the renderer records the one it loaded its scene under.
 """
 
 from __future__ import annotations
@@ -31,6 +35,7 @@ from stimuli.ward import check_ward_params
 __all__ = [
     "CameraGeometry",
     "StimulusRenderer",
+    "bsdf_is_achromatic",
     "camera_geometry",
     "multijitter_spp",
 ]
@@ -100,6 +105,37 @@ def multijitter_spp(spp: int) -> int:
     return int(mi.load_dict({"type": "multijitter", "sample_count": int(spp)}).sample_count())
 
 
+def bsdf_is_achromatic(bsdf: dict | None) -> bool:
+    """Whether a Mitsuba BSDF dict reflects every wavelength alike (grey).
+
+    ``None`` stands for the Ward BSDF, whose reflectances are scalars: grey. Otherwise every
+    nested value is inspected: a number is grey, an ``{"type": "rgb", "value": [r, g, b]}`` is grey
+    when r = g = b, and anything else that can carry colour (spectra, bitmaps, other textures)
+    counts as chromatic, so the caller keeps a colour variant.
+    """
+    if bsdf is None:
+        return True
+
+    def grey(value) -> bool:
+        if isinstance(value, bool | int | float | str):
+            return True
+        if isinstance(value, dict):
+            kind = value.get("type")
+            if kind == "rgb":
+                v = np.atleast_1d(np.asarray(value.get("value"), dtype=float))
+                return bool(np.all(v == v[0]))
+            if kind in ("spectrum", "bitmap", "irregular", "regular", "blackbody", "mesh_attribute",
+                        "volume", "checkerboard"):
+                return False
+            return all(grey(v) for k, v in value.items() if k != "type")
+        if isinstance(value, list | tuple):
+            v = np.asarray(value, dtype=float)
+            return v.ndim == 0 or bool(np.all(v == v.flat[0]))
+        return False  # a Mitsuba object (texture instance): colour unknown
+
+    return grey(bsdf)
+
+
 def _mitsuba_mesh(mesh, bsdf):
     import mitsuba as mi
 
@@ -132,12 +168,22 @@ class StimulusRenderer:
         Path length limit (5: light bounces between neighbouring bumps are kept).
     bsdf : dict, optional
         Another Mitsuba BSDF dict instead of ``ward`` (benchmarks compare with ``roughplastic``);
-        :meth:`render` then only re-renders (pass ``None`` parameters).
+        :meth:`render` then only re-renders (pass ``None`` parameters). A chromatic one
+        (:func:`bsdf_is_achromatic` False) is refused under a monochrome variant.
+    integrator : dict, optional
+        Another Mitsuba integrator dict (tests compare ``direct`` sampling strategies); default
+        ``{"type": "path", "max_depth": max_depth}``.
+
+    Attributes
+    ----------
+    variant : str or None
+        The Mitsuba variant the scene was loaded under (record it with the render).
     """
 
     def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5,
-                 bsdf: dict | None = None):
+                 bsdf: dict | None = None, integrator: dict | None = None):
         self.bsdf = bsdf
+        self.integrator = integrator
         if size_px < 8 or spp < 1:
             raise ValueError(f"size_px must be >= 8 and spp >= 1, got {size_px}, {spp}")
         self.camera = camera
@@ -146,24 +192,45 @@ class StimulusRenderer:
         self.max_depth = int(max_depth)
         self.scene = None
         self.params = None
+        self.variant = None
         self._key = None
         self._keys = {}
+        self._spp_cache = {int(spp): self.spp}
         self.n_loads = 0
+
+    def spp_for(self, spp: int | None) -> int:
+        """The multijitter sample count a render asked for ``spp`` takes (``None``: ``.spp``)."""
+        if spp is None:
+            return self.spp
+        if int(spp) not in self._spp_cache:
+            self._spp_cache[int(spp)] = multijitter_spp(int(spp))
+        return self._spp_cache[int(spp)]
 
     def load(self, geometry: ArrayGeometry, probe: LightProbe) -> None:
         """Build the scene for ``geometry`` lit by ``probe`` (skipped when already loaded)."""
         import mitsuba as mi
 
-        key = (geometry.seed, geometry.depth_cm, probe.sha256, probe.rotation_deg, probe.scale)
+        from stimuli.errors import MitsubaSetupError
+        from stimuli.mitsuba_env import is_monochrome
+
+        variant = mi.variant()
+        if variant is None:
+            raise MitsubaSetupError("no Mitsuba variant is set; call stimuli.setup_mitsuba() first")
+        key = (variant, geometry.seed, geometry.depth_cm, probe.sha256, probe.rotation_deg,
+               probe.scale)
         if key == self._key:
             return
+        if is_monochrome(variant) and not bsdf_is_achromatic(self.bsdf):
+            raise MitsubaSetupError(
+                f"the BSDF {self.bsdf} is chromatic, which the monochrome variant {variant} cannot "
+                "render; use a spectral variant (e.g. --variant llvm_ad_spectral)")
         cam = self.camera
         bsdf = mi.load_dict(self.bsdf or {"type": "ward", "id": "ward"})
         mesh = _mitsuba_mesh(render_mesh(geometry, backing_half_cm=cam.backing_half_cm), bsdf)
         film_format = "luminance"
         self.scene = mi.load_dict({
             "type": "scene",
-            "integrator": {"type": "path", "max_depth": self.max_depth},
+            "integrator": self.integrator or {"type": "path", "max_depth": self.max_depth},
             "sensor": {
                 "type": "perspective",
                 "fov": cam.fov_deg,
@@ -182,10 +249,22 @@ class StimulusRenderer:
         self._keys = {name: next((k for k in self.params.properties if k.endswith("." + name)),
                                  None) for name in ("rho_d", "rho_s", "alpha")}
         self._key = key
+        self.variant = variant
         self.n_loads += 1
 
-    def render(self, rho_d: float, rho_s: float, alpha: float, *, seed: int = 0) -> np.ndarray:
+    def render(self, rho_d: float, rho_s: float, alpha: float, *, seed: int = 0,
+               spp: int | None = None) -> np.ndarray:
         """Render the loaded scene with these Ward parameters.
+
+        Parameters
+        ----------
+        rho_d, rho_s, alpha : float
+            Ward diffuse and specular reflectance and lobe width (:mod:`stimuli.ward`).
+        seed : int
+            Sampler seed (renders with different seeds are independent).
+        spp : int, optional
+            Samples per pixel for this render (rounded as :func:`multijitter_spp`, see
+            :meth:`spp_for`); default: the renderer's ``spp``.
 
         Returns
         -------
@@ -201,13 +280,17 @@ class StimulusRenderer:
 
         if self.scene is None:
             raise RuntimeError("StimulusRenderer.render before load(geometry, probe)")
+        if mi.variant() != self.variant:
+            raise RuntimeError(f"the scene was loaded under {self.variant} but the active Mitsuba "
+                               f"variant is {mi.variant()}; call load() again after switching")
         if self.bsdf is None:
             check_ward_params(rho_d, rho_s, alpha)
             self.params[self._keys["rho_d"]] = mi.Float(float(rho_d))
             self.params[self._keys["rho_s"]] = mi.Float(float(rho_s))
             self.params[self._keys["alpha"]] = mi.Float(float(alpha))
             self.params.update()
-        img = np.asarray(mi.render(self.scene, spp=self.spp, seed=int(seed) & 0x7FFFFFFF))
+        n = self.spp_for(spp)
+        img = np.asarray(mi.render(self.scene, spp=n, seed=int(seed) & 0x7FFFFFFF))
         img = img[..., 0] if img.ndim == 3 else img
         if not np.all(np.isfinite(img)):
             raise ValueError("the render holds NaN/Inf luminance; check the light probe and mesh")

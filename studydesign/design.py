@@ -372,6 +372,51 @@ class ImageStatsSpec:
         _require(self.n_arrays >= 1, "imagestats.n_arrays must be >= 1")
 
 
+#: Mitsuba variants a render may name ("auto": monochrome for grey materials, CUDA when found).
+RENDER_VARIANTS = ("auto", "llvm_ad_mono", "llvm_ad_rgb", "llvm_ad_spectral", "cuda_ad_mono",
+                   "cuda_ad_rgb", "cuda_ad_spectral")
+
+
+@dataclass(frozen=True)
+class RenderSpec:
+    """How stimuli are rendered: variant, the displayed-error target and the spp it implies.
+
+    Attributes
+    ----------
+    variant : str
+        One of :data:`RENDER_VARIANTS`.
+    displayed_error_pct : float
+        Target RMS difference between a render and its noise-free expectation after the tone
+        map, in % of the display range (0-255), in (0, 10].
+    spp_by_gloss_level : tuple of int
+        Samples per pixel of each physical gloss level (labels 1..n), each >= 1: the smallest
+        that reaches ``displayed_error_pct`` (measured by ``python -m stimuli plan-spp``).
+    spp_planned_at_px : int
+        Image width (px) the spp were measured at.
+    """
+
+    variant: str
+    displayed_error_pct: float
+    spp_by_gloss_level: tuple[int, ...]
+    spp_planned_at_px: int
+
+    def __post_init__(self) -> None:
+        _require(self.variant in RENDER_VARIANTS,
+                 f"render.variant {self.variant!r} is not one of {list(RENDER_VARIANTS)}")
+        _require(0.0 < float(self.displayed_error_pct) <= 10.0,
+                 f"render.displayed_error_pct must lie in (0, 10] (% of the display range), got "
+                 f"{self.displayed_error_pct}")
+        _require(all(isinstance(v, int) and v >= 1 for v in self.spp_by_gloss_level),
+                 f"render.spp_by_gloss_level must hold integers >= 1, got "
+                 f"{list(self.spp_by_gloss_level)}")
+        _require(isinstance(self.spp_planned_at_px, int) and self.spp_planned_at_px >= 8,
+                 f"render.spp_planned_at_px must be an integer >= 8, got {self.spp_planned_at_px}")
+
+    def spp(self, gloss_level: int) -> int:
+        """Samples per pixel of a gloss level label (1..n)."""
+        return self.spp_by_gloss_level[int(gloss_level) - 1]
+
+
 @dataclass(frozen=True)
 class StudyDesign:
     """The whole study design. Build it with :func:`load_design`."""
@@ -386,9 +431,15 @@ class StudyDesign:
     slider: SliderSpec
     analysis: AnalysisSpec
     imagestats: ImageStatsSpec
+    render: RenderSpec
     source: str = ""
 
     def __post_init__(self) -> None:
+        _require(
+            len(self.render.spp_by_gloss_level) == self.gloss.n_levels,
+            f"render.spp_by_gloss_level has {len(self.render.spp_by_gloss_level)} values; give "
+            f"one per physical gloss level ({self.gloss.n_levels}, labels 1..{self.gloss.n_levels})",
+        )
         names = [il.name for il in self.illuminations]
         _require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
         _require(len(set(names)) == len(names), f"illumination names repeat: {names}")
@@ -598,6 +649,9 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         models=_models(an.get("models", {}), path),
     )
     imagestats = _build(ImageStatsSpec, _section(raw, "imagestats", path), "imagestats", path)
+    rd = _section(raw, "render", path)
+    render = _build(RenderSpec, rd, "render", path,
+                    spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
     return StudyDesign(
         gloss=gloss,
         depth=depth,
@@ -609,5 +663,6 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         slider=slider,
         analysis=analysis,
         imagestats=imagestats,
+        render=render,
         source=str(path),
     )

@@ -391,7 +391,7 @@ def _true_shrink(diag, folder: Path, display: GOGDisplay) -> float:
 def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> dict:
     import warnings
 
-    from analysis.gap.diagnose import diagnose_display_files
+    from analysis.gap.diagnose import diagnose
 
     cat = _catalogue()
     plan = _case_plan(case, rng, cat)
@@ -414,9 +414,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
         for _ in range(seeds):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
-                diags.append(diagnose_display_files(target, tmp / "cal",
-                                                    seed=int(rng.integers(2**31)),
-                                                    n_boot=n_boot)[0])
+                diags.append(diagnose("display", target, tmp / "cal", None,
+                                      seed=int(rng.integers(2**31)), n_boot=n_boot)[0])
         diag = diags[0]
         single = case == "single" or case == "drift_repeats"
         true_shrink = _true_shrink(diag, target, real) if single else float("nan")

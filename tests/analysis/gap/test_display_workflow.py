@@ -17,7 +17,7 @@ import pytest
 
 from analysis.gap import GapError, bench_display
 from analysis.gap.bench_display import GOGDisplay
-from analysis.gap.diagnose import diagnose_display_files
+from analysis.gap.diagnose import diagnose
 from analysis.gap.display import fit_noise_drift
 from analysis.gap.engine import candidate, catalogue
 from calibration import load_readings
@@ -49,7 +49,7 @@ def test_warmup_drift_between_repeats_is_modelled_in_time_not_counted_as_noise(t
     bright = read[read["level"] >= 0.5].groupby(["x_norm", "y_norm", "level"])
     spread = bright["luminance_cd_m2"].agg(lambda v: np.std(v, ddof=1) / np.mean(v))
     assert spread.mean() > 0.015
-    diag, _ = diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=1, n_boot=300)
+    diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=1, n_boot=300)
     assert 0.002 < diag.loss_info["noise_rel"] < 0.006
     assert diag.loss_info["drift_between_repeats_pct"] > 3
     assert diag.verdict.split(" + ")[0] == "warmup_drift"
@@ -75,7 +75,7 @@ def test_ambient_light_in_a_check_run_is_found(tmp_path):
     """+1.8 cd/m^2 of room light during a later check run: black_offset, c = 1.8 cd/m^2."""
     rng = _lab(tmp_path, 5)
     _check(tmp_path, rng, replace(DISPLAY, ambient_cd_m2=DISPLAY.ambient_cd_m2 + 1.8))
-    diag, _ = diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=2, n_boot=300)
+    diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=2, n_boot=300)
     assert diag.verdict.split(" + ")[0] == "black_offset"
     assert diag.steps[0]["params"]["c"] == pytest.approx(1.8, abs=0.05)
     assert diag.loss_info["source"]["kind"] == "check"
@@ -88,7 +88,7 @@ def test_the_calibrations_own_readings_are_not_diagnosed_in_sample(tmp_path):
     lit = replace(DISPLAY, ambient_cd_m2=DISPLAY.ambient_cd_m2 + 1.8)
     _lab(tmp_path, 6, cal_display=lit)
     with pytest.warns(UserWarning, match="fitted from"):
-        diag, _ = diagnose_display_files(tmp_path / "cal", tmp_path / "cal", seed=2,
+        diag, _ = diagnose("display", tmp_path / "cal", tmp_path / "cal", None, seed=2,
                                          n_boot=300)
     src = diag.loss_info["source"]
     assert src["kind"] == "validation" and src["in_sample_rows"] > 100
@@ -101,7 +101,7 @@ def test_the_calibrations_own_readings_are_not_diagnosed_in_sample(tmp_path):
 def test_in_sample_readings_without_enough_held_out_readings_are_refused(tmp_path, validation):
     _lab(tmp_path, 7, validation=validation)
     with pytest.raises(GapError, match="python -m calibration check --calibration"):
-        diagnose_display_files(tmp_path / "cal", tmp_path / "cal", seed=0)
+        diagnose("display", tmp_path / "cal", tmp_path / "cal", None, seed=0)
 
 
 def test_a_bad_check_record_is_refused(tmp_path):
@@ -109,7 +109,7 @@ def test_a_bad_check_record_is_refused(tmp_path):
     _check(tmp_path, rng, DISPLAY)
     (tmp_path / "check" / "check.json").write_text(json.dumps({"kind": "calibration"}))
     with pytest.raises(GapError, match="not a check record"):
-        diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=0)
+        diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=0)
 
 
 def test_a_check_of_another_calibration_is_flagged(tmp_path):
@@ -117,7 +117,7 @@ def test_a_check_of_another_calibration_is_flagged(tmp_path):
     bench_display.write_check_folder(tmp_path / "check", DISPLAY, rng,
                                      calibration=tmp_path / "cal", checked_id="other-cal")
     with pytest.warns(UserWarning, match="checked calibration 'other-cal'"):
-        diag, _ = diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=0,
+        diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=0,
                                          n_boot=200)
     assert diag.loss_info["source"]["notes"]
 
@@ -128,7 +128,7 @@ def test_out_of_catalogue_display_effect_leaves_a_gap_above_the_ceiling(tmp_path
     the catalogue's best model stays significantly above the flexible ceiling."""
     rng = _lab(tmp_path, 11)
     _check(tmp_path, rng, replace(DISPLAY, **{effect: bench_display.OUT_OF_CATALOGUE[effect]}))
-    diag, _ = diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=3, n_boot=300)
+    diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0 and diag.remaining["gap"] > 1
 
@@ -141,7 +141,7 @@ def test_nothing_remains_above_the_ceiling_when_the_catalogue_explains_it(tmp_pa
                                                                          strength)
     _check(tmp_path, rng, display, warmup=effect != "warmup_drift",
            start_s=30.0 if effect == "warmup_drift" else 1800.0)
-    diag, _ = diagnose_display_files(tmp_path / "check", tmp_path / "cal", seed=3, n_boot=300)
+    diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
     assert diag.verdict.split(" + ")[0] == ("unexplained" if effect == "none" else effect)
     assert diag.remaining["ci"][0] <= 0
 
@@ -151,7 +151,7 @@ def test_display_candidates_are_registered_objects():
     assert names == ["black_offset", "nonuniformity", "warmup_drift", "quantisation"]
     for c in catalogue("display"):
         assert c.apply and c.inject and c.truth and c.default_strength > 0 and c.units
-    with pytest.raises(GapError, match="no display candidate 'gain'"):
+    with pytest.raises(GapError, match="unknown candidate 'gain' for layer 'display'"):
         candidate("display", "gain")
 
 

@@ -57,7 +57,7 @@ def test_render_candidates_are_registered_objects_applied_in_order():
     for c in catalogue("render"):
         assert c.apply and c.inject and c.truth and c.default_strength > 0 and c.units
     assert candidate("render", "vignetting").truth(0.5) == {"c": 0.5}  # 2 s^2
-    with pytest.raises(GapError, match="no render candidate 'blur'"):
+    with pytest.raises(GapError, match="unknown candidate 'blur' for layer 'render'"):
         candidate("render", "blur")
 
 
@@ -82,11 +82,11 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
     """Mitsuba photos of a textured sphere (out of catalogue): nothing attributed, and the
     held-out loss stays significantly above the local smooth of the residual."""
     from analysis.gap import inject
-    from analysis.gap.diagnose import diagnose_render_files
+    from analysis.gap.diagnose import diagnose
 
     rng = np.random.default_rng(7)
     inject.write_render_fit(tmp_path / "fit", rng, "albedo_texture",
                             inject.RENDER_STRENGTH["albedo_texture"])
-    diag, _ = diagnose_render_files(tmp_path / "fit", tmp_path / "fit", seed=7, n_boot=300)
+    diag, _ = diagnose("render", tmp_path / "fit", tmp_path / "fit", None, seed=7, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0

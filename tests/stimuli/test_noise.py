@@ -1,0 +1,93 @@
+"""Displayed error (Monte-Carlo noise after the tone map) and the spp per gloss level."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from stimuli import camera_geometry, load_manifest, setup_mitsuba, tone_curve
+from stimuli.__main__ import main
+from stimuli.illumination import LightProbe
+from stimuli.noise import displayed_error, plan_spp, spp_for_displayed_error
+
+
+def test_displayed_error_recovers_known_noise(design, rng):
+    """Gaussian noise of SD s on the linear part of the tone curve shows as s * slope / 255."""
+    curve = tone_curve(design.tonemap, 10.0)
+    truth = rng.uniform(1.0, 5.0, (64, 64))  # below the knee (6.7): v = 171 L / 6.7
+    sd = 0.05
+    stack = truth + rng.normal(0.0, sd, (6, 64, 64))
+    expected = sd * design.tonemap.knee_value / (design.tonemap.linear_fraction * 10.0) / 255
+    assert displayed_error(stack, curve) == pytest.approx(expected, rel=0.02)
+    assert displayed_error(np.repeat(truth[None], 3, axis=0), curve) == pytest.approx(0.0, abs=1e-12)
+
+
+@pytest.mark.parametrize("bad", [np.zeros((1, 4, 4)), np.zeros((4, 4))])
+def test_displayed_error_needs_two_renders(design, bad):
+    with pytest.raises(ValueError, match="k >= 2"):
+        displayed_error(bad, tone_curve(design.tonemap, 1.0))
+
+
+def test_spp_for_displayed_error_follows_the_variance_law(mitsuba_variant):
+    assert spp_for_displayed_error(0.02, 16, 0.01) == 64
+    assert spp_for_displayed_error(0.005, 16, 0.01) == 4
+    assert spp_for_displayed_error(0.0, 16, 0.01) == 1
+    assert spp_for_displayed_error(0.011, 100, 0.01) == 121  # 11 x 11, a multijitter grid
+    assert spp_for_displayed_error(0.0113, 100, 0.01) == 132  # 128 -> 11 x 12
+    with pytest.raises(ValueError, match="target > 0"):
+        spp_for_displayed_error(0.01, 16, 0.0)
+
+
+def _sun_probe(h=32):
+    theta = (np.arange(h) + 0.5) / h * np.pi
+    phi = (np.arange(2 * h) + 0.5) / (2 * h) * 2 * np.pi
+    t, p = np.meshgrid(theta, phi, indexing="ij")
+    y = 0.3 + 0.5 * np.cos(t / 2) ** 2 + 30.0 * np.exp(-((t - np.radians(60)) ** 2
+                                                         + (p - np.pi) ** 2) / 0.02)
+    return LightProbe(name="sun", path="", sha256="sun", rgb=np.repeat(y[..., None], 3, axis=2)
+                      .astype(np.float32), rotation_deg=0.0, scale=1.0)
+
+
+@pytest.mark.slow
+def test_plan_spp_meets_the_target_by_measurement(design, mitsuba_variant):
+    """Real renders (24 px): each chosen count was rendered and met the target; a stricter
+    target needs more samples; the glossiest level needs more than the matte one."""
+    from calibration import default_calibration
+
+    setup_mitsuba("llvm_ad_mono", smoke_test=False)
+    cam = camera_geometry(design, default_calibration(design))
+    kw = {"size_px": 24, "pilot_spp": 4, "repeats": 3, "probes": [_sun_probe()],
+          "gloss_levels": [1, 11], "max_spp": 200}
+    loose = plan_spp(design, cam, target=0.03, **kw)
+    strict = plan_spp(design, cam, target=0.015, **kw)
+    setup_mitsuba(mitsuba_variant, smoke_test=False)
+    print(loose, strict, sep="\n")
+    for plan in (loose, strict):
+        assert all(e <= plan.target for e in plan.error_at_spp)
+        assert plan.gloss_levels == (1, 11) and plan.variant == "llvm_ad_mono"
+    assert all(s >= lo for s, lo in zip(strict.spp, loose.spp, strict=True))
+    assert sum(strict.spp) > sum(loose.spp)
+    assert strict.spp[1] > strict.spp[0]
+
+
+def test_render_takes_each_gloss_levels_spp(tmp_path, capsys, mitsuba_variant):
+    """Without --spp the design's spp per gloss level are used and recorded per image."""
+    from studydesign import load_design
+
+    text = Path(load_design().source).read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("spp_by_gloss_level"))
+    design_path = tmp_path / "design.toml"
+    design_path.write_text(text.replace(line, "spp_by_gloss_level = [1, 2, 4, 4, 4, 4, 4, 4, 4, 4, 9]"))
+    out = tmp_path / "r"
+    rc = main(["--design", str(design_path), "render", "--set", "preview", "--filter",
+               "illumination=indoor", "--filter", "depth_level=2", "--out", str(out),
+               "--workers", "0", "--size", "16", "--no-progress"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    assert "px and this run is 16 px" in captured.err
+    m = load_manifest(out).set_index("gloss_level")
+    assert json.loads(captured.out)["rendered"] == 2
+    assert m.loc[2, "spp"] == 2 and m.loc[10, "spp"] == 4

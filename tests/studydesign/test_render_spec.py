@@ -1,0 +1,37 @@
+"""The design's [render] section: variant, displayed-error target, spp per gloss level."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from studydesign import DesignError, load_design
+
+
+def _edited(tmp_path, old, new):
+    text = Path(load_design().source).read_text()
+    assert old in text, f"test set-up: {old!r} not in design.toml"
+    path = tmp_path / "design.toml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+def test_shipped_render_spec(design):
+    r = design.render
+    assert r.variant == "auto" and 0 < r.displayed_error_pct <= 10
+    assert len(r.spp_by_gloss_level) == design.gloss.n_levels
+    assert r.spp(1) == r.spp_by_gloss_level[0] and r.spp(11) == r.spp_by_gloss_level[-1]
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ('variant = "auto"', 'variant = "llvm_ad_mono_polarized"', r"render\.variant .* is not one of"),
+    ("displayed_error_pct = 1.3", "displayed_error_pct = 0", r"displayed_error_pct must lie in"),
+    ("spp_by_gloss_level = [", "spp_by_gloss_level = [0, ", r"integers >= 1"),
+    ("spp_by_gloss_level = [", "spp_by_gloss_level = [7, ", r"one per physical gloss level \(11"),
+    ("spp_planned_at_px = 128", "spp_planned_at_px = 2", r"spp_planned_at_px must be"),
+    ("[render]", "[rendering]", r"missing section \[render\]"),
+])
+def test_bad_render_spec_is_rejected_with_the_fix(tmp_path, old, new, message):
+    with pytest.raises(DesignError, match=message):
+        load_design(_edited(tmp_path, old, new))
