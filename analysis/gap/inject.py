@@ -353,7 +353,7 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False,
     env = ndi.gaussian_filter(room_panorama(), (1.5, 1.5, 0), mode="wrap")
     with warnings.catch_warnings():
         # Dr.Jit warns once a process has traced the Python Ward plugin 1,000 times (a
-        # benchmark loads hundreds of scenes); the cost is known (protocol, issue 3).
+        # benchmark loads hundreds of scenes); the cost is known (protocol.md, section 4).
         warnings.filterwarnings("ignore", message="The AST-transforming decorator",
                                 category=RuntimeWarning)
         with SphereScene(env, _render_camera(shift), spp=spp, seed=seed,

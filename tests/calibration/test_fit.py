@@ -60,7 +60,7 @@ def test_fit_calibration_recovers_the_crt(rng):
 # Seed 20 gives the demo's failure under the unweighted fit (eq. 1 chosen, black 0.37 cd/m^2).
 @pytest.mark.parametrize("seed", [*range(8), 20])
 def test_fit_reproduces_black_and_curve_of_the_shipped_crt(seed):
-    # Sim-to-real issue 8: the demo's run (9 levels x 2 repeats, crt.toml) once chose eq. 1 with
+    # Found by the sim-to-real diagnosis: the demo's run (9 levels x 2 repeats, crt.toml) once chose eq. 1 with
     # black 0.38 cd/m^2 against 0.60 measured, because unweighted least squares let the noise at
     # white (0.3 cd/m^2 SD) outweigh the black level. Tolerances: black within 3 % (about 5 s.e.
     # of the mean of its 2 readings), drive 0.125 within 3 %, drive >= 0.25 within 0.6 % (the
