@@ -86,6 +86,8 @@ def _interrupted(out, what: str) -> int:
     kept = []
     for name in ("warmup.csv", "readings.csv", "validation.csv"):
         path = Path(out) / name
+        if not path.is_file():  # a file this command never writes, or nothing measured yet
+            continue
         try:
             kept.append(f"{read_readings(path, own_file=False).n_rows} readings in {path}")
         except (ValueError, OSError):
