@@ -57,6 +57,28 @@ def test_fit_of_another_tools_file_writes_every_output(tmp_path, rng, cli):
     assert load_calibration(out).gamma_params == cal.gamma_params
 
 
+def test_report_states_white_fitted_and_measured_noise_and_misfit(tmp_path, rng, cli):
+    """What a user checks first: the fitted white against the measured one, the held-out error
+    in % of white, the noise model and floor used, and which models were flagged."""
+    src = _tool_file(tmp_path / "lab.csv", rng=rng)
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc", T0])
+    assert res.returncode == 0, res.stderr
+    cal = load_calibration(out)
+    fit = cal.chosen_fit
+    white = np.mean([y for x, y in zip(fit.levels, fit.luminance_cd_m2) if x == 1.0])
+    report = (out / "report.txt").read_text()
+    assert (f"white (drive 1): fitted {cal.max_luminance_cd_m2:.3f} cd/m^2, measured "
+            f"{white:.3f} cd/m^2") in report
+    assert f"= {100 * fit.heldout_rmse_cd_m2 / white:.3f} % of white" in report
+    assert "(fitted to repeated readings); meter floor" in report
+    assert "readings at or below it, fitted as censored" in report
+    rows = {line.split()[1 if line.startswith(" *") else 0]: line
+            for line in report.splitlines() if line.startswith(("   ", " *"))}
+    assert "FLAGGED" in rows["power"]  # the simulated CRT has a threshold power cannot fit
+    assert "FLAGGED" not in rows[cal.gamma_model]
+
+
 def test_wrong_level_scale_names_the_option(tmp_path, rng, cli):
     src = _tool_file(tmp_path / "lab.csv", rng=rng, scale=1023)
     res = cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
