@@ -10,7 +10,7 @@ import pandas as pd
 
 from calibration.errors import CalibrationError
 from calibration.gamma import choose_gamma_model, fit_gamma_models
-from calibration.readings import newest_timestamp
+from calibration.readings import at_centre, newest_timestamp
 from calibration.record import Calibration, utc_now_iso
 from calibration.uniformity import fit_uniformity
 
@@ -40,7 +40,7 @@ def centre_readings(readings: pd.DataFrame) -> pd.DataFrame:
     """
     if readings.empty:
         raise CalibrationError("no readings to fit")
-    c = readings[(readings["x_norm"].abs() < 1e-9) & (readings["y_norm"].abs() < 1e-9)]
+    c = readings[at_centre(readings)]
     if c.empty:
         raise CalibrationError(
             "no readings at the screen centre (x_norm = y_norm = 0); the readings are at "

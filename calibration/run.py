@@ -36,6 +36,7 @@ from calibration.readings import (
     REJECTED_COLUMNS,
     REQUIRED_COLUMNS,
     newest_timestamp,
+    parse_utc,
     read_readings,
     read_record_csv,
 )
@@ -273,7 +274,7 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                 f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
                 "calibration's age is unknown; pass --measured-utc with the time the readings "
                 "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
-        _check_utc(measured)
+        parse_utc(measured, "--measured-utc")
         devices = sorted(set(frame["device"]) - {""})
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)
@@ -288,18 +289,6 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                               "measured_utc": measured, "source_notes": list(table.notes),
                               "fit": fit_meta})
         return refit(out_dir, progress=progress, lock=False)
-
-
-def _check_utc(text: str) -> None:
-    from datetime import datetime
-
-    try:
-        t = datetime.fromisoformat(text)
-    except ValueError as exc:
-        raise CalibrationError(f"--measured-utc {text!r} is not an ISO 8601 time; write e.g. "
-                               "2026-08-01T10:00:00Z") from exc
-    if t.tzinfo is None:
-        raise CalibrationError(f"--measured-utc {text!r} has no time zone; end it with Z (UTC)")
 
 
 def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:
