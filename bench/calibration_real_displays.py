@@ -23,6 +23,7 @@ import pandas as pd
 
 from calibration import choose_gamma_model, fit_gamma_models
 from calibration.gamma_reference import PSYCHOPY_EQUATIONS, psychopy_heldout, table_error
+from calibration.readings import read_readings
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "calibration"
 DISPLAYS = ("ptb_apple17_crt_2000", "ptb_monitor_a_2006")
@@ -34,7 +35,7 @@ def _rms(e) -> float:
 
 def main() -> None:
     for name in DISPLAYS:
-        readings = pd.read_csv(DATA / name / "readings.csv")
+        readings = read_readings(DATA / name / "readings.csv", own_file=False).frame
         table = pd.read_csv(DATA / name / "toolbox_table.csv")
         x = readings["level"].to_numpy(float)
         y = readings["luminance_cd_m2"].to_numpy(float)

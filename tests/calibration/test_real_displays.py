@@ -23,15 +23,16 @@ import pytest
 
 from calibration import choose_gamma_model, fit_gamma_models
 from calibration.gamma_reference import PSYCHOPY_EQUATIONS, psychopy_heldout, table_error
-from calibration.readings import READINGS_COLUMNS
+from calibration.readings import READINGS_COLUMNS, read_readings
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "calibration"
 DISPLAYS = ("ptb_apple17_crt_2000", "ptb_monitor_a_2006")
 
 
 def _load(name):
-    readings = pd.read_csv(DATA / name / "readings.csv")
-    assert tuple(readings.columns) == READINGS_COLUMNS
+    table_ = read_readings(DATA / name / "readings.csv", own_file=False)
+    assert table_.columns == READINGS_COLUMNS and table_.notes == ()
+    readings = table_.frame
     table = pd.read_csv(DATA / name / "toolbox_table.csv")
     return (readings["level"].to_numpy(float), readings["luminance_cd_m2"].to_numpy(float),
             table)
