@@ -140,6 +140,26 @@ def _parse_position(text):
     return x, y
 
 
+def _parse_dac_bits(text):
+    """``--dac-bits``: 8 by default, an int in 1..16, or ``none`` (levels as given)."""
+    from calibration.errors import CalibrationError
+    from calibration.gamma import DAC_BITS
+
+    if text is None:
+        return DAC_BITS
+    if str(text).strip().lower() == "none":
+        return None
+    try:
+        bits = int(text)
+    except ValueError:
+        bits = 0
+    if not 1 <= bits <= 16:
+        raise CalibrationError(f"--dac-bits {text!r}: write the bits per gun of the display's "
+                               "output (8 for a frame buffer, 10 for a 10-bit lookup table) or "
+                               "none to fit the levels as given")
+    return bits
+
+
 def _cmd_fit(args) -> int:
     from calibration.errors import CalibrationError
     from calibration.readings import parse_level_scale
@@ -153,7 +173,8 @@ def _cmd_fit(args) -> int:
                                     ("--position", args.position),
                                     ("--display", args.display),
                                     ("--calibration-id", args.calibration_id),
-                                    ("--measured-utc", args.measured_utc)) if v is not None]
+                                    ("--measured-utc", args.measured_utc),
+                                    ("--dac-bits", args.dac_bits)) if v is not None]
             if extra:
                 raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
                                        "`python -m calibration fit READINGS.csv --out DIR ...`")
@@ -166,7 +187,8 @@ def _cmd_fit(args) -> int:
                 position=_parse_position(args.position) if args.position else None,
                 calibration_id=args.calibration_id,
                 display=load_display_file(args.display) if args.display else None,
-                measured_utc=args.measured_utc)
+                measured_utc=args.measured_utc,
+                dac_bits=_parse_dac_bits(args.dac_bits))
     except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
         return 1
@@ -318,6 +340,11 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--measured-utc", default=None,
                    help="when the readings were taken (ISO 8601 UTC), for a file without "
                         "timestamp_utc: the calibration's age counts from it")
+    p.add_argument("--dac-bits", default=None,
+                   help="bits per gun of the display's output: levels are rounded to its grid, "
+                        "the drive the display showed (default 8, the frame buffer); 'none' "
+                        "fits the levels as given, for a display behind a finer lookup table "
+                        "(e.g. Psychtoolbox's LoadNormalizedGammaTable on a 10-bit DAC)")
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
     p.set_defaults(func=_cmd_fit)
 

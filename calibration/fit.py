@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from calibration.errors import CalibrationError
-from calibration.gamma import choose_gamma_model, fit_gamma_models
+from calibration.gamma import DAC_BITS, choose_gamma_model, fit_gamma_models
 from calibration.readings import at_centre, newest_timestamp
 from calibration.record import Calibration, utc_now_iso
 from calibration.uniformity import fit_uniformity
@@ -156,7 +156,8 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
                     refresh_hz: float, instrument: dict | None = None,
                     warnings=(), n_rejected: int = 0, validation: pd.DataFrame | None = None,
                     created_utc: str | None = None,
-                    measured_utc: str | None = None) -> Calibration:
+                    measured_utc: str | None = None,
+                    dac_bits: int | None = DAC_BITS) -> Calibration:
     """Fit every gamma model to the centre's readings, choose one, add uniformity and validation.
 
     Parameters
@@ -180,6 +181,10 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
         newest ``timestamp_utc`` of ``readings``. Without either, ``measured_utc`` is None and
         the age counts from ``created_utc`` (the command line refuses that: it asks for
         ``--measured-utc``).
+    dac_bits : int or None
+        Bits per gun of the display's output: levels are rounded to its grid before the fit
+        (:func:`calibration.gamma.displayed_drive`; default 8, the frame buffer); None fits
+        the levels as given (a display driven through a finer lookup table).
 
     Returns
     -------
@@ -188,7 +193,7 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     centre = centre_readings(readings)
     levels = centre["level"].to_numpy(float)
     lum = centre["luminance_cd_m2"].to_numpy(float)
-    fits = fit_gamma_models(levels, lum)
+    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if measured_utc is None:

@@ -21,6 +21,7 @@ from calibration.fit import (
     select_calibration,
     select_position,
 )
+from calibration.gamma import DAC_BITS
 from calibration.photometers import open_photometer
 from calibration.procedure import (
     PatchDisplay,
@@ -198,7 +199,7 @@ def load_display_file(path) -> dict:
 def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.0,
                       position=None, calibration_id: str | None = None,
                       display: dict | None = None, measured_utc: str | None = None,
-                      progress=print):
+                      dac_bits: int | None = DAC_BITS, progress=print):
     """Fit a calibration from a readings file alone (any tool's; no window, no photometer).
 
     The usable readings are copied into ``out_dir/readings.csv`` (the procedure's columns, the
@@ -224,6 +225,10 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         :data:`DISPLAY_KEYS` (from :func:`load_display_file`).
     measured_utc : str or None
         When the readings were taken, for a file without ``timestamp_utc`` (ISO 8601, UTC).
+    dac_bits : int or None
+        Bits per gun of the display's output: the levels are rounded to its grid before the
+        fit (default 8); None fits them as given (a display behind a finer lookup table).
+        Kept in ``run_meta.json``, so a refit uses it too.
 
     Raises
     ------
@@ -278,6 +283,7 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         devices = sorted(set(frame["device"]) - {""})
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)
+        fit_meta["dac_bits"] = dac_bits
         fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
         fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
                                         "READINGS.csv`), not measured by the procedure")]

@@ -241,3 +241,28 @@ def test_read_readings_fills_the_optional_columns(tmp_path):
     assert list(f["repeat"]) == [0, 1, 0]  # repeats numbered in file order per patch
     assert (f[["x_norm", "y_norm"]] == 0).all().all()
     assert table.notes == ()
+
+
+def test_dac_bits_none_fits_levels_a_finer_lookup_table_showed(tmp_path, cli):
+    """A display behind a 10-bit lookup table shows 17 evenly spaced levels as requested;
+    rounded to the 8-bit default they are fitted where the display never was. `--dac-bits
+    none` fits them as given, and the folder's refit keeps that."""
+    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
+                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0, bits=16)
+    levels = np.repeat(np.linspace(0, 1, 17), 2)
+    src = tmp_path / "lut10.csv"
+    src.write_text("level,luminance_cd_m2\n" + "".join(
+        f"{float(x)!r},{float(crt.luminance(x)):.4e}\n" for x in levels))
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--dac-bits", "none"])
+    assert res.returncode == 0, res.stderr
+    fit = load_calibration(out).chosen_fit
+    assert fit.dac_bits is None
+    assert fit.params["gamma"] == pytest.approx(2.3, abs=2e-3)
+    assert cli(["fit", "--out", out]).returncode == 0
+    assert load_calibration(out).chosen_fit.params == fit.params
+    rounded = cli(["fit", src, "--out", tmp_path / "cal8", "--measured-utc", T0])
+    assert rounded.returncode == 0, rounded.stderr
+    assert load_calibration(tmp_path / "cal8").chosen_fit.dac_bits == 8
+    bad = cli(["fit", src, "--out", tmp_path / "x", "--measured-utc", T0, "--dac-bits", "ten"])
+    assert bad.returncode == 1 and "--dac-bits 'ten'" in bad.stderr
