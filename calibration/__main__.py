@@ -174,7 +174,8 @@ def _cmd_fit(args) -> int:
                                     ("--display", args.display),
                                     ("--calibration-id", args.calibration_id),
                                     ("--measured-utc", args.measured_utc),
-                                    ("--dac-bits", args.dac_bits)) if v is not None]
+                                    ("--dac-bits", args.dac_bits),
+                                    ("--floor-cd-m2", args.floor_cd_m2)) if v is not None]
             if extra:
                 raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
                                        "`python -m calibration fit READINGS.csv --out DIR ...`")
@@ -188,7 +189,7 @@ def _cmd_fit(args) -> int:
                 calibration_id=args.calibration_id,
                 display=load_display_file(args.display) if args.display else None,
                 measured_utc=args.measured_utc,
-                dac_bits=_parse_dac_bits(args.dac_bits))
+                dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2)
     except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
         return 1
@@ -345,6 +346,10 @@ def main(argv: list[str] | None = None) -> int:
                         "the drive the display showed (default 8, the frame buffer); 'none' "
                         "fits the levels as given, for a display behind a finer lookup table "
                         "(e.g. Psychtoolbox's LoadNormalizedGammaTable on a 10-bit DAC)")
+    p.add_argument("--floor-cd-m2", type=float, default=None,
+                   help="the photometer's floor, cd/m^2 (its specification's lowest reading): "
+                        "readings at or below it are fitted as censored (default: 2 noise SDs, "
+                        "0.2 %% of white without repeated readings)")
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
     p.set_defaults(func=_cmd_fit)
 

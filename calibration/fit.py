@@ -157,7 +157,8 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
                     warnings=(), n_rejected: int = 0, validation: pd.DataFrame | None = None,
                     created_utc: str | None = None,
                     measured_utc: str | None = None,
-                    dac_bits: int | None = DAC_BITS) -> Calibration:
+                    dac_bits: int | None = DAC_BITS,
+                    floor_cd_m2: float | None = None) -> Calibration:
     """Fit every gamma model to the centre's readings, choose one, add uniformity and validation.
 
     Parameters
@@ -185,6 +186,9 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
         Bits per gun of the display's output: levels are rounded to its grid before the fit
         (:func:`calibration.gamma.displayed_drive`; default 8, the frame buffer); None fits
         the levels as given (a display driven through a finer lookup table).
+    floor_cd_m2 : float or None
+        The photometer's floor, cd/m^2: readings at or below it are fitted as censored
+        (default: 2 absolute noise SDs, :mod:`calibration.noise`).
 
     Returns
     -------
@@ -193,7 +197,7 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     centre = centre_readings(readings)
     levels = centre["level"].to_numpy(float)
     lum = centre["luminance_cd_m2"].to_numpy(float)
-    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits)
+    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if measured_utc is None:

@@ -8,6 +8,7 @@ logic between them lives in :mod:`calibration.procedure`, :mod:`calibration.fit`
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import asdict
 from pathlib import Path
@@ -199,7 +200,8 @@ def load_display_file(path) -> dict:
 def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.0,
                       position=None, calibration_id: str | None = None,
                       display: dict | None = None, measured_utc: str | None = None,
-                      dac_bits: int | None = DAC_BITS, progress=print):
+                      dac_bits: int | None = DAC_BITS, floor_cd_m2: float | None = None,
+                      progress=print):
     """Fit a calibration from a readings file alone (any tool's; no window, no photometer).
 
     The usable readings are copied into ``out_dir/readings.csv`` (the procedure's columns, the
@@ -229,6 +231,9 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         Bits per gun of the display's output: the levels are rounded to its grid before the
         fit (default 8); None fits them as given (a display behind a finer lookup table).
         Kept in ``run_meta.json``, so a refit uses it too.
+    floor_cd_m2 : float or None
+        The photometer's floor, cd/m^2 (readings at or below it are censored); default 2
+        absolute noise SDs. Kept in ``run_meta.json``.
 
     Raises
     ------
@@ -284,6 +289,11 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)
         fit_meta["dac_bits"] = dac_bits
+        if floor_cd_m2 is not None:
+            if not (math.isfinite(floor_cd_m2) and floor_cd_m2 >= 0):
+                raise CalibrationError(f"--floor-cd-m2 {floor_cd_m2!r}: give the photometer's "
+                                       "lowest reading in cd/m^2 (>= 0), e.g. 0.01")
+            fit_meta["floor_cd_m2"] = float(floor_cd_m2)
         fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
         fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
                                         "READINGS.csv`), not measured by the procedure")]

@@ -266,3 +266,29 @@ def test_dac_bits_none_fits_levels_a_finer_lookup_table_showed(tmp_path, cli):
     assert load_calibration(tmp_path / "cal8").chosen_fit.dac_bits == 8
     bad = cli(["fit", src, "--out", tmp_path / "x", "--measured-utc", T0, "--dac-bits", "ten"])
     assert bad.returncode == 1 and "--dac-bits 'ten'" in bad.stderr
+
+
+def test_floor_option_fits_a_clean_display_without_repeats_exactly(tmp_path, cli):
+    """Without repeats the default floor (0.2 % of white) censors a black of 0.15 cd/m^2 on a
+    100 cd/m^2 white and pulls the fit (black 0.133, gamma 2.298); given the meter's real floor
+    the clean display (gamma 2.3, black 0.15) is fitted exactly, refits included."""
+    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
+                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0,
+                       white_cd_m2=99.85)
+    levels = np.round(np.linspace(0, 1, 17) * 255) / 255
+    src = tmp_path / "clean.csv"
+    src.write_text("level,luminance_cd_m2\n" + "".join(
+        f"{float(x)!r},{float(crt.luminance(x)):.6g}\n" for x in levels))
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--floor-cd-m2", "0.01"])
+    assert res.returncode == 0, res.stderr
+    cal = load_calibration(out)
+    assert cal.gamma_model == "power"
+    assert cal.gamma_params["gamma"] == pytest.approx(2.3, abs=1e-3)
+    assert cal.min_luminance_cd_m2 == pytest.approx(0.15, abs=1e-3)
+    assert "meter floor 0.01 cd/m^2: 0 of 17" in (out / "report.txt").read_text()
+    assert cli(["fit", "--out", out]).returncode == 0
+    assert load_calibration(out).gamma_params == cal.gamma_params
+    bad = cli(["fit", src, "--out", tmp_path / "x", "--measured-utc", T0, "--floor-cd-m2",
+               "-1"])
+    assert bad.returncode == 1 and "--floor-cd-m2" in bad.stderr
