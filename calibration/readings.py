@@ -301,10 +301,15 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
     header, rows = _parse_csv_lines(lines, path)
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
+        sep = next((name for ch, name in ((";", "';'"), ("\t", "tabs"))
+                    if len(header) == 1 and ch in header[0]), None)
+        hint = (f"; its columns are separated by {sep}: export it as CSV with commas (and a "
+                "decimal point)" if sep else "")
         raise CalibrationError(
             f"{path} has no column {missing}; a readings file needs at least the columns "
             f"{list(REQUIRED_COLUMNS)} (optional: x_norm, y_norm, repeat, timestamp_utc, "
-            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200]))
+            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200])
+            + hint)
     dupes = [c for c in set(header) if header.count(c) > 1]
     if dupes:
         raise CalibrationError(f"{path}: column(s) {sorted(dupes)} appear twice in the header")

@@ -24,8 +24,10 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
     measured = cal.measured_utc or "unknown (the age counts from the fit)"
     lines = [
         f"Calibration {cal.calibration_id}  (readings up to {measured}; fitted {cal.created_utc})",
-        (f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
-        f"{cal.instrument.get('port', '?')}"),
+        (f"instrument: {cal.device} (readings from {cal.instrument['source']})"
+         if "source" in cal.instrument else
+         f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
+         f"{cal.instrument.get('port', '?')}"),
         (f"display: {cal.monitor_name}, {cal.resolution_px[0]} x {cal.resolution_px[1]} px, "
         f"{cal.width_cm:g} cm wide, viewed at {cal.distance_cm:g} cm, {cal.refresh_hz:.1f} Hz"),
         (f"readings: {len(readings)} accepted "

@@ -72,6 +72,7 @@ def test_report_states_white_fitted_and_measured_noise_and_misfit(tmp_path, rng,
             f"{white:.3f} cd/m^2") in report
     assert f"= {100 * fit.heldout_rmse_cd_m2 / white:.3f} % of white" in report
     assert "(fitted to repeated readings); meter floor" in report
+    assert f"instrument: unknown (readings from {src.resolve()})" in report
     assert "readings at or below it, fitted as censored" in report
     rows = {line.split()[1 if line.startswith(" *") else 0]: line
             for line in report.splitlines() if line.startswith(("   ", " *"))}
@@ -201,6 +202,9 @@ def test_position_option_fits_one_position(tmp_path, rng, cli):
     ("", "holds no readings (it is empty)"),
     ("level,luminance_cd_m2\n", "holds no readings (a header only)"),
     ("drive,Y\n0,1\n", "needs at least the columns ['level', 'luminance_cd_m2']"),
+    # A spreadsheet's export with a decimal comma separates the columns by ';' (or a tab).
+    ("level;luminance_cd_m2\n0;0,5\n", "separated by ';': export it as CSV with commas"),
+    ("level\tluminance_cd_m2\n0\t0.5\n", "separated by tabs: export it as CSV"),
 ])
 def test_empty_or_foreign_file_is_a_clear_error(tmp_path, content, message, cli):
     src = tmp_path / "r.csv"
