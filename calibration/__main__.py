@@ -197,6 +197,11 @@ def _cmd_fit(args) -> int:
         print(f"fit failed: {exc}; check that the files can be read and --out is writable",
               file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"\nfit stopped (Ctrl-C). Every file in {args.out} is whole (each is written at "
+              "once); the readings are untouched. Run the same command again to fit.",
+              file=sys.stderr)
+        return 130
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0

@@ -209,3 +209,18 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(fake_proc, tmp_path):
     # Only the files the run wrote are named (a run writes no warm-up readings).
     assert "warmup.csv" not in err and "validation.csv" not in err
     assert len(read_readings(path).frame) >= 3
+
+
+def test_ctrl_c_during_a_fit_exits_130_without_a_traceback(tmp_path, cli, monkeypatch):
+    """A fit of many levels takes seconds: Ctrl-C then ends with a line, not a traceback."""
+    import calibration.run
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibration.run, "fit_readings_file", interrupted)
+    src = tmp_path / "r.csv"
+    src.write_text("level,luminance_cd_m2\n0,0.5\n1,90\n")
+    res = cli(["fit", src, "--out", tmp_path / "cal", "--measured-utc", "2026-08-01T10:00:00Z"])
+    assert res.returncode == 130
+    assert "fit stopped (Ctrl-C)" in res.stderr and "same command again" in res.stderr
