@@ -9,7 +9,8 @@ Side by side on the same readings, per display:
   does, predicting the held-out level with gammaFun (same leave-one-level-out);
 - toolbox: the file's own fitted table (Psychtoolbox gammaTable) against the readings it was
   fitted to (in-sample: no held-out error exists for it);
-- ours again with the levels as given instead of rounded to an 8-bit DAC grid.
+- ours again with the levels as given instead of rounded to an 8-bit DAC grid
+  (``calibration fit --dac-bits none``).
 Printed: each RMS error, in cd/m^2 and in % of the measured white, and the ratio other / ours.
 """
 
@@ -23,6 +24,7 @@ import pandas as pd
 
 from calibration import choose_gamma_model, fit_gamma_models
 from calibration.gamma_reference import PSYCHOPY_EQUATIONS, psychopy_heldout, table_error
+from calibration.readings import read_readings
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "calibration"
 DISPLAYS = ("ptb_apple17_crt_2000", "ptb_monitor_a_2006")
@@ -34,7 +36,7 @@ def _rms(e) -> float:
 
 def main() -> None:
     for name in DISPLAYS:
-        readings = pd.read_csv(DATA / name / "readings.csv")
+        readings = read_readings(DATA / name / "readings.csv", own_file=False).frame
         table = pd.read_csv(DATA / name / "toolbox_table.csv")
         x = readings["level"].to_numpy(float)
         y = readings["luminance_cd_m2"].to_numpy(float)
@@ -47,7 +49,7 @@ def main() -> None:
         # Psychtoolbox loads the levels into the hardware lookup table, whose output may be
         # finer than the 8-bit frame buffer the default DAC rounding assumes.
         as_given = choose_gamma_model(fit_gamma_models(x, y, dac_bits=None))
-        extra = (f"ours, levels unrounded: {as_given.model}, held-out",
+        extra = (f"ours, --dac-bits none: {as_given.model}, held-out",
                  as_given.heldout_rmse_cd_m2)
         t = time.perf_counter()
         for eq in PSYCHOPY_EQUATIONS:

@@ -86,6 +86,8 @@ def _interrupted(out, what: str) -> int:
     kept = []
     for name in ("warmup.csv", "readings.csv", "validation.csv"):
         path = Path(out) / name
+        if not path.is_file():  # a file this command never writes, or nothing measured yet
+            continue
         try:
             kept.append(f"{read_readings(path, own_file=False).n_rows} readings in {path}")
         except (ValueError, OSError):
@@ -138,6 +140,26 @@ def _parse_position(text):
     return x, y
 
 
+def _parse_dac_bits(text):
+    """``--dac-bits``: 8 by default, an int in 1..16, or ``none`` (levels as given)."""
+    from calibration.errors import CalibrationError
+    from calibration.gamma import DAC_BITS
+
+    if text is None:
+        return DAC_BITS
+    if str(text).strip().lower() == "none":
+        return None
+    try:
+        bits = int(text)
+    except ValueError:
+        bits = 0
+    if not 1 <= bits <= 16:
+        raise CalibrationError(f"--dac-bits {text!r}: write the bits per gun of the display's "
+                               "output (8 for a frame buffer, 10 for a 10-bit lookup table) or "
+                               "none to fit the levels as given")
+    return bits
+
+
 def _cmd_fit(args) -> int:
     from calibration.errors import CalibrationError
     from calibration.readings import parse_level_scale
@@ -151,7 +173,9 @@ def _cmd_fit(args) -> int:
                                     ("--position", args.position),
                                     ("--display", args.display),
                                     ("--calibration-id", args.calibration_id),
-                                    ("--measured-utc", args.measured_utc)) if v is not None]
+                                    ("--measured-utc", args.measured_utc),
+                                    ("--dac-bits", args.dac_bits),
+                                    ("--floor-cd-m2", args.floor_cd_m2)) if v is not None]
             if extra:
                 raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
                                        "`python -m calibration fit READINGS.csv --out DIR ...`")
@@ -164,7 +188,8 @@ def _cmd_fit(args) -> int:
                 position=_parse_position(args.position) if args.position else None,
                 calibration_id=args.calibration_id,
                 display=load_display_file(args.display) if args.display else None,
-                measured_utc=args.measured_utc)
+                measured_utc=args.measured_utc,
+                dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2)
     except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
         return 1
@@ -172,6 +197,11 @@ def _cmd_fit(args) -> int:
         print(f"fit failed: {exc}; check that the files can be read and --out is writable",
               file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print(f"\nfit stopped (Ctrl-C). Every file in {args.out} is whole (each is written at "
+              "once); the readings are untouched. Run the same command again to fit.",
+              file=sys.stderr)
+        return 130
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
@@ -316,6 +346,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--measured-utc", default=None,
                    help="when the readings were taken (ISO 8601 UTC), for a file without "
                         "timestamp_utc: the calibration's age counts from it")
+    p.add_argument("--dac-bits", default=None,
+                   help="bits per gun of the display's output: levels are rounded to its grid, "
+                        "the drive the display showed (default 8, the frame buffer); 'none' "
+                        "fits the levels as given, for a display behind a finer lookup table "
+                        "(e.g. Psychtoolbox's LoadNormalizedGammaTable on a 10-bit DAC)")
+    p.add_argument("--floor-cd-m2", type=float, default=None,
+                   help="the photometer's floor, cd/m^2 (its specification's lowest reading): "
+                        "readings at or below it are fitted as censored (default: 2 noise SDs, "
+                        "0.2 %% of white without repeated readings)")
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
     p.set_defaults(func=_cmd_fit)
 

@@ -235,7 +235,10 @@ class FakePhotometer:
         self.n_measurements = 0
         self.unplugged = threading.Event()
         self.log: list[tuple[str, str]] = []
-        self._t0 = time.monotonic()
+        # The simulated display is switched on at the first measurement (its warm-up counts from
+        # there), not when the fake starts: a slow start of the program under test must not let
+        # the display warm up unseen.
+        self._t0: float | None = None
         self._remote = device != "pr655"
         self._last: dict | None = None
         self._stop = threading.Event()
@@ -326,6 +329,8 @@ class FakePhotometer:
             return fault
         time.sleep(self.measure_s)
         drive, x_norm, y_norm = self.screen.sample()
+        if self._t0 is None:
+            self._t0 = time.monotonic()
         t_s = time.monotonic() - self._t0
         lum = float(self.crt.luminance(drive, x_norm, y_norm, t_s, self.rng))
         if fault == "out_of_range":

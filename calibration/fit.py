@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 
 from calibration.errors import CalibrationError
-from calibration.gamma import choose_gamma_model, fit_gamma_models
-from calibration.readings import newest_timestamp
+from calibration.gamma import DAC_BITS, choose_gamma_model, fit_gamma_models
+from calibration.readings import at_centre, newest_timestamp
 from calibration.record import Calibration, utc_now_iso
 from calibration.uniformity import fit_uniformity
 
@@ -40,7 +40,7 @@ def centre_readings(readings: pd.DataFrame) -> pd.DataFrame:
     """
     if readings.empty:
         raise CalibrationError("no readings to fit")
-    c = readings[(readings["x_norm"].abs() < 1e-9) & (readings["y_norm"].abs() < 1e-9)]
+    c = readings[at_centre(readings)]
     if c.empty:
         raise CalibrationError(
             "no readings at the screen centre (x_norm = y_norm = 0); the readings are at "
@@ -156,7 +156,9 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
                     refresh_hz: float, instrument: dict | None = None,
                     warnings=(), n_rejected: int = 0, validation: pd.DataFrame | None = None,
                     created_utc: str | None = None,
-                    measured_utc: str | None = None) -> Calibration:
+                    measured_utc: str | None = None,
+                    dac_bits: int | None = DAC_BITS,
+                    floor_cd_m2: float | None = None) -> Calibration:
     """Fit every gamma model to the centre's readings, choose one, add uniformity and validation.
 
     Parameters
@@ -180,6 +182,13 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
         newest ``timestamp_utc`` of ``readings``. Without either, ``measured_utc`` is None and
         the age counts from ``created_utc`` (the command line refuses that: it asks for
         ``--measured-utc``).
+    dac_bits : int or None
+        Bits per gun of the display's output: levels are rounded to its grid before the fit
+        (:func:`calibration.gamma.displayed_drive`; default 8, the frame buffer); None fits
+        the levels as given (a display driven through a finer lookup table).
+    floor_cd_m2 : float or None
+        The photometer's floor, cd/m^2: readings at or below it are fitted as censored
+        (default: 2 absolute noise SDs, :mod:`calibration.noise`).
 
     Returns
     -------
@@ -188,7 +197,7 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     centre = centre_readings(readings)
     levels = centre["level"].to_numpy(float)
     lum = centre["luminance_cd_m2"].to_numpy(float)
-    fits = fit_gamma_models(levels, lum)
+    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if measured_utc is None:

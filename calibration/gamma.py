@@ -93,7 +93,8 @@ class GammaFit:
     residuals_cd_m2 : tuple[float, ...]
         Reading minus fitted luminance.
     heldout_rms_pct : float
-        The held-out error relative to each reading (:func:`error_scale`), RMS in %.
+        The held-out error relative to each reading (:func:`error_scale`), RMS in %; a
+        censored reading counts only a prediction above the floor (as in ``heldout_rms_z``).
     heldout_rms_z : float
         The held-out error in noise SDs, RMS over readings (a censored reading counts only a
         prediction above the floor): about 1 for a model right up to noise. NaN in records
@@ -396,10 +397,15 @@ def _subset(d: _Data, keep: np.ndarray) -> _Data:
     return _Data(d.x[keep], d.y[keep], d.sd[keep], d.censored[keep], d.floor)
 
 
+def _heldout_error(mu: np.ndarray, d: _Data) -> np.ndarray:
+    """Reading minus prediction, cd/m^2; a censored reading (it says only "at most the floor")
+    counts only a prediction above the floor, as minus its excess."""
+    return np.where(d.censored, -np.maximum(mu - d.floor, 0.0), d.y - mu)
+
+
 def _z(mu: np.ndarray, d: _Data) -> np.ndarray:
     """Error in noise SDs; a censored reading counts only a prediction above the floor."""
-    z = (d.y - mu) / d.sd
-    return np.where(d.censored, np.maximum(mu - d.floor, 0.0) / d.sd, z)
+    return _heldout_error(mu, d) / d.sd
 
 
 # --- misfit --------------------------------------------------------------------------------------
@@ -533,7 +539,8 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
         levels=tuple(float(v) for v in x),
         luminance_cd_m2=tuple(float(v) for v in y),
         residuals_cd_m2=tuple(float(v) for v in y - fitted),
-        heldout_rms_pct=float(100 * np.sqrt(np.mean(((y - heldout) / error_scale(y)) ** 2))),
+        heldout_rms_pct=float(100 * np.sqrt(np.mean((_heldout_error(heldout, d)
+                                                     / error_scale(y)) ** 2))),
         heldout_rms_z=float(np.sqrt(np.mean(z_all**2))),
         heldout_level_loss=tuple(float(v) for v in level_loss),
         n_params=int(n_params),

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from calibration.readings import at_centre
 from calibration.record import Calibration
 from labfiles import atomic_path
 
@@ -29,7 +30,7 @@ def plot_gamma(cal: Calibration, readings: pd.DataFrame, path,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    centre = readings[(readings["x_norm"] == 0) & (readings["y_norm"] == 0)]
+    centre = readings[at_centre(readings)]
     n = 3 if validation is not None and len(validation) else 2
     fig, axes = plt.subplots(n, 1, figsize=(6.5, 3.2 * n), constrained_layout=True,
                              gridspec_kw={"height_ratios": [2, 1, 1.4][:n]})

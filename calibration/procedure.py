@@ -215,8 +215,8 @@ def load_or_create_settings(out_dir: Path, settings: ProcedureSettings, *,
                         f"{path}); resume with the same settings or use a new --out")
                 raise CalibrationError(
                     f"{out_dir} was started with {flag} {have} (not {want}; see {path}): "
-                    f"run `{command}` again with {flag} {have}, or leave it out, to resume; or "
-                    "use a new --out for the new settings")
+                    f"run `python -m calibration {command}` again with {flag} {have}, or "
+                    f"without {flag}, to resume; or use a new --out for the new settings")
         return stored
     path.parent.mkdir(parents=True, exist_ok=True)
     write_new_file(path, json.dumps(asdict(settings), indent=2) + "\n")

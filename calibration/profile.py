@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from calibration.gamma import fit_gamma
+from calibration.readings import at_centre
 from calibration.record import Calibration
 from labfiles import atomic_write_bytes
 
@@ -89,7 +90,7 @@ def write_monitor_profile(cal: Calibration, folder, readings: pd.DataFrame | Non
         mon.setGammaGrid(grid)
         mon.setLineariseMethod(method)
         if readings is not None and len(readings):
-            centre = readings[(readings["x_norm"] == 0) & (readings["y_norm"] == 0)]
+            centre = readings[at_centre(readings)]
             means = centre.groupby("level")["luminance_cd_m2"].mean()
             mon.setLevelsPre(list(np.round(means.index.to_numpy() * 255, 3)))
             mon.setLumsPre(np.tile(means.to_numpy(), (4, 1)))

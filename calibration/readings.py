@@ -56,10 +56,12 @@ __all__ = [
     "REQUIRED_COLUMNS",
     "ReadingsTable",
     "append_row",
+    "at_centre",
     "escape_reply",
     "load_readings",
     "newest_timestamp",
     "parse_level_scale",
+    "parse_utc",
     "read_readings",
     "read_record_csv",
 ]
@@ -80,6 +82,21 @@ REJECTED_COLUMNS = READINGS_COLUMNS + ("flag",)
 REQUIRED_COLUMNS = ("level", "luminance_cd_m2")
 
 _DECIMAL_COMMA = re.compile(r"^\s*[-+]?\d*,\d+\s*$")
+
+
+#: Positions are read rounded to this many decimals (norm units): a position written as 1e-12
+#: or -0.0 is the same as 0 for the fit, the uniformity grid, the plots and the profile.
+POSITION_DECIMALS = 6
+#: A position within this of x_norm = y_norm = 0 (norm units) is the screen centre.
+CENTRE_TOLERANCE_NORM = 1e-9
+
+
+def at_centre(readings: pd.DataFrame) -> pd.Series:
+    """Which rows are at the screen centre (x_norm = y_norm = 0, within
+    :data:`CENTRE_TOLERANCE_NORM`): the rows the gamma fit, its plot and the monitor profile
+    use, and the uniformity map's reference."""
+    return ((readings["x_norm"].astype(float).abs() < CENTRE_TOLERANCE_NORM)
+            & (readings["y_norm"].astype(float).abs() < CENTRE_TOLERANCE_NORM))
 
 
 def escape_reply(text) -> str:
@@ -284,10 +301,15 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
     header, rows = _parse_csv_lines(lines, path)
     missing = [c for c in REQUIRED_COLUMNS if c not in header]
     if missing:
+        sep = next((name for ch, name in ((";", "';'"), ("\t", "tabs"))
+                    if len(header) == 1 and ch in header[0]), None)
+        hint = (f"; its columns are separated by {sep}: export it as CSV with commas (and a "
+                "decimal point)" if sep else "")
         raise CalibrationError(
             f"{path} has no column {missing}; a readings file needs at least the columns "
             f"{list(REQUIRED_COLUMNS)} (optional: x_norm, y_norm, repeat, timestamp_utc, "
-            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200]))
+            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200])
+            + hint)
     dupes = [c for c in set(header) if header.count(c) > 1]
     if dupes:
         raise CalibrationError(f"{path}: column(s) {sorted(dupes)} appear twice in the header")
@@ -326,6 +348,10 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
             rec[name], why = _number(fields[col[name]], name)
             if why:
                 break
+        if why is None:
+            # One position, one value: 1e-12 or -0.0 written by another tool is the centre.
+            for name in ("x_norm", "y_norm"):
+                rec[name] = round(rec[name], POSITION_DECIMALS) + 0.0
         if why is None and "repeat" in col:
             r, why = _number(fields[col["repeat"]], "repeat")
             if why is None and (r < 0 or r != int(r)):
@@ -399,18 +425,37 @@ def load_readings(path) -> pd.DataFrame:
     return table.frame
 
 
-def _parse_utc(text: str) -> datetime | None:
+def parse_utc(text, name: str = "time") -> datetime:
+    """An ISO 8601 time with a zone, as UTC: the one rule for every time the calibration
+    records (reading times, ``created_utc``, ``measured_utc``, ``--measured-utc``).
+
+    Raises
+    ------
+    CalibrationError
+        If ``text`` is not an ISO 8601 time or has no zone (the message names ``name``).
+    """
     try:
         t = datetime.fromisoformat(str(text).strip())
-    except ValueError:
+    except (TypeError, ValueError) as exc:
+        raise CalibrationError(
+            f"{name} {text!r} is not an ISO 8601 time; write e.g. 2026-11-22T13:00:00Z"
+        ) from exc
+    if t.tzinfo is None:
+        raise CalibrationError(f"{name} {text!r} has no time zone; end it with 'Z' (UTC)")
+    return t.astimezone(UTC)
+
+
+def _parse_utc_or_none(text) -> datetime | None:
+    try:
+        return parse_utc(text)
+    except CalibrationError:
         return None
-    return t.astimezone(UTC) if t.tzinfo is not None else None
 
 
 def newest_timestamp(readings: pd.DataFrame) -> tuple[str | None, int]:
     """The newest ``timestamp_utc`` of the readings (ISO 8601, ``Z``) and how many rows had
     none that parses (a time without a zone is not used)."""
-    times = [_parse_utc(t) for t in readings["timestamp_utc"]] if len(readings) else []
+    times = [_parse_utc_or_none(t) for t in readings["timestamp_utc"]] if len(readings) else []
     ok = [t for t in times if t is not None]
     if not ok:
         return None, len(times)

@@ -22,6 +22,7 @@ from calibration.gamma import (
     gamma_drive_for_luminance,
     gamma_luminance,
 )
+from calibration.readings import parse_utc
 from calibration.uniformity import UniformityMap
 from labfiles import atomic_write_text
 
@@ -51,18 +52,6 @@ DEFAULT_CRT = {
 def utc_now_iso() -> str:
     """Current UTC time as ``YYYY-MM-DDTHH:MM:SS.ffffffZ``."""
     return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def _parse_utc(text: str, name: str = "created_utc") -> datetime:
-    try:
-        t = datetime.fromisoformat(text)
-    except (TypeError, ValueError) as exc:
-        raise CalibrationError(
-            f"{name} {text!r} is not an ISO 8601 time; write e.g. 2026-11-22T13:00:00Z"
-        ) from exc
-    if t.tzinfo is None:
-        raise CalibrationError(f"{name} {text!r} has no time zone; end it with 'Z' (UTC)")
-    return t.astimezone(UTC)
 
 
 @dataclass(frozen=True)
@@ -157,9 +146,9 @@ class Calibration:
                 f"max_luminance_cd_m2 ({self.max_luminance_cd_m2}) must exceed "
                 f"min_luminance_cd_m2 ({self.min_luminance_cd_m2}); the fit is unusable"
             )
-        _parse_utc(self.created_utc)
+        parse_utc(self.created_utc, "created_utc")
         if self.measured_utc is not None:
-            _parse_utc(self.measured_utc, "measured_utc")
+            parse_utc(self.measured_utc, "measured_utc")
 
     # --- the display model -------------------------------------------------------------------
     def luminance_for_drive(self, drive) -> np.ndarray:
@@ -199,7 +188,7 @@ class Calibration:
         now = now or datetime.now(UTC)
         if now.tzinfo is None:
             raise CalibrationError("now must carry a time zone (use datetime.now(timezone.utc))")
-        return (now - _parse_utc(self.age_from_utc)).total_seconds() / 86400.0
+        return (now - parse_utc(self.age_from_utc)).total_seconds() / 86400.0
 
     @property
     def chosen_fit(self) -> GammaFit | None:

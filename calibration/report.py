@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from calibration.gamma import GAMMA_MODELS
@@ -23,26 +24,35 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
     measured = cal.measured_utc or "unknown (the age counts from the fit)"
     lines = [
         f"Calibration {cal.calibration_id}  (readings up to {measured}; fitted {cal.created_utc})",
-        (f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
-        f"{cal.instrument.get('port', '?')}"),
+        (f"instrument: {cal.device} (readings from {cal.instrument['source']})"
+         if "source" in cal.instrument else
+         f"instrument: {cal.device} {cal.instrument.get('identity', '')} on "
+         f"{cal.instrument.get('port', '?')}"),
         (f"display: {cal.monitor_name}, {cal.resolution_px[0]} x {cal.resolution_px[1]} px, "
         f"{cal.width_cm:g} cm wide, viewed at {cal.distance_cm:g} cm, {cal.refresh_hz:.1f} Hz"),
         (f"readings: {len(readings)} accepted "
         f"({readings[['x_norm', 'y_norm']].drop_duplicates().shape[0]} positions)"),
         "",
-        ("gamma models (screen centre)    RMSE  held-out RMSE (cd/m^2)  held-out RMS "
-         "(% of reading)  held-out RMS (noise SDs)"),
+        "gamma models (screen centre): RMSE and leave-one-level-out (held-out) errors",
+        (f"   {'model':<19} {'RMSE':>8}  {'held-out RMSE':>13}  {'held-out RMS':>12}  "
+         f"{'held-out RMS':>12}  {'misfit':<7} parameters"),
+        (f"   {'':<19} {'cd/m^2':>8}  {'cd/m^2':>13}  {'% of reading':>12}  "
+         f"{'noise SDs':>12}"),
     ]
     for f in cal.fits:
         mark = "*" if f.model == cal.gamma_model else " "
         params = ", ".join(f"{k}={f.params[k]:.4g}" for k in GAMMA_MODELS[f.model])
-        lines.append(f" {mark} {f.model:<16} {f.rmse_cd_m2:8.4f}  {f.heldout_rmse_cd_m2:8.4f}"
-                     f"  {f.heldout_rms_pct:8.3f} %  {f.heldout_rms_z:8.2f}   {params}")
+        if not params:
+            params = f"{f.n_params or len(f.params) // 2} knots"
+        lines.append(f" {mark} {f.model:<19} {f.rmse_cd_m2:8.4f}  {f.heldout_rmse_cd_m2:13.4f}"
+                     f"  {f.heldout_rms_pct:10.3f} %  {f.heldout_rms_z:12.2f}  "
+                     f"{_misfit_flag(f):<7} {params}")
     lines += [
         (f"chosen: {cal.gamma_model} (the simplest model whose held-out error in noise SDs is "
          "within one standard error of the best)"),
         f"luminance range: {cal.min_luminance_cd_m2:.3f} - {cal.max_luminance_cd_m2:.3f} cd/m^2",
     ]
+    lines += _fit_summary(cal)
     if cal.uniformity is not None:
         u = cal.uniformity
         lines += ["", (f"uniformity: non-uniformity {u.nonuniformity_pct:.2f} % "
@@ -58,6 +68,46 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
         lines += ["", "rows of the readings file not used as they are:"]
         lines += [f"  - {n}" for n in notes]
     return "\n".join(lines) + "\n"
+
+
+def _misfit_flag(fit) -> str:
+    """FLAGGED (residuals not noise-like), no, or n/a (too few readings per parameter to
+    test: an interpolating model, or a record written before the test)."""
+    if fit.warnings:
+        return "FLAGGED"
+    tested = any(fit.misfit.get(k) is not None for k in ("chi2_p", "runs_p"))
+    return "no" if tested else "n/a"
+
+
+def _fit_summary(cal: Calibration) -> list[str]:
+    """Lines on the chosen fit: fitted against measured white and black, the noise model and
+    the censored readings (none for a record without the fits)."""
+    fit = cal.chosen_fit
+    if fit is None or not fit.levels:
+        return []
+    x = np.asarray(fit.levels, float)
+    y = np.asarray(fit.luminance_cd_m2, float)
+    out = []
+    if x.max() >= 1.0 - 1e-9:
+        white = float(y[x == x.max()].mean())
+        fitted = cal.max_luminance_cd_m2
+        out.append(f"white (drive 1): fitted {fitted:.3f} cd/m^2, measured {white:.3f} cd/m^2 "
+                   f"({100 * (fitted - white) / white:+.2f} %); held-out RMSE "
+                   f"{fit.heldout_rmse_cd_m2:.4f} cd/m^2 = "
+                   f"{100 * fit.heldout_rmse_cd_m2 / white:.3f} % of white")
+    if x.min() <= 1e-9:
+        out.append(f"black (drive 0): fitted {cal.min_luminance_cd_m2:.3f} cd/m^2, measured "
+                   f"{float(y[x == x.min()].mean()):.3f} cd/m^2")
+    n = fit.noise
+    if n:
+        where = ("fitted to repeated readings" if n.get("source") == "repeats" else
+                 "the default: no repeated readings" if n.get("source") == "default" else
+                 str(n.get("source")))
+        n_cens = int(sum(fit.censored))
+        out.append(f"noise: SD = sqrt({n['abs_cd_m2']:.3g}^2 + ({n['rel']:.3g} L)^2) cd/m^2 "
+                   f"({where}); meter floor {n['floor_cd_m2']:.3g} cd/m^2: {n_cens} of "
+                   f"{len(y)} readings at or below it, fitted as censored")
+    return out
 
 
 def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,

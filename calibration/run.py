@@ -8,6 +8,7 @@ logic between them lives in :mod:`calibration.procedure`, :mod:`calibration.fit`
 from __future__ import annotations
 
 import json
+import math
 import re
 from dataclasses import asdict
 from pathlib import Path
@@ -21,6 +22,7 @@ from calibration.fit import (
     select_calibration,
     select_position,
 )
+from calibration.gamma import DAC_BITS
 from calibration.photometers import open_photometer
 from calibration.procedure import (
     PatchDisplay,
@@ -36,6 +38,7 @@ from calibration.readings import (
     REJECTED_COLUMNS,
     REQUIRED_COLUMNS,
     newest_timestamp,
+    parse_utc,
     read_readings,
     read_record_csv,
 )
@@ -197,6 +200,7 @@ def load_display_file(path) -> dict:
 def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.0,
                       position=None, calibration_id: str | None = None,
                       display: dict | None = None, measured_utc: str | None = None,
+                      dac_bits: int | None = DAC_BITS, floor_cd_m2: float | None = None,
                       progress=print):
     """Fit a calibration from a readings file alone (any tool's; no window, no photometer).
 
@@ -223,6 +227,13 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         :data:`DISPLAY_KEYS` (from :func:`load_display_file`).
     measured_utc : str or None
         When the readings were taken, for a file without ``timestamp_utc`` (ISO 8601, UTC).
+    dac_bits : int or None
+        Bits per gun of the display's output: the levels are rounded to its grid before the
+        fit (default 8); None fits them as given (a display behind a finer lookup table).
+        Kept in ``run_meta.json``, so a refit uses it too.
+    floor_cd_m2 : float or None
+        The photometer's floor, cd/m^2 (readings at or below it are censored); default 2
+        absolute noise SDs. Kept in ``run_meta.json``.
 
     Raises
     ------
@@ -273,10 +284,16 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                 f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
                 "calibration's age is unknown; pass --measured-utc with the time the readings "
                 "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
-        _check_utc(measured)
+        parse_utc(measured, "--measured-utc")
         devices = sorted(set(frame["device"]) - {""})
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)
+        fit_meta["dac_bits"] = dac_bits
+        if floor_cd_m2 is not None:
+            if not (math.isfinite(floor_cd_m2) and floor_cd_m2 >= 0):
+                raise CalibrationError(f"--floor-cd-m2 {floor_cd_m2!r}: give the photometer's "
+                                       "lowest reading in cd/m^2 (>= 0), e.g. 0.01")
+            fit_meta["floor_cd_m2"] = float(floor_cd_m2)
         fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
         fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
                                         "READINGS.csv`), not measured by the procedure")]
@@ -288,18 +305,6 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                               "measured_utc": measured, "source_notes": list(table.notes),
                               "fit": fit_meta})
         return refit(out_dir, progress=progress, lock=False)
-
-
-def _check_utc(text: str) -> None:
-    from datetime import datetime
-
-    try:
-        t = datetime.fromisoformat(text)
-    except ValueError as exc:
-        raise CalibrationError(f"--measured-utc {text!r} is not an ISO 8601 time; write e.g. "
-                               "2026-08-01T10:00:00Z") from exc
-    if t.tzinfo is None:
-        raise CalibrationError(f"--measured-utc {text!r} has no time zone; end it with Z (UTC)")
 
 
 def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:

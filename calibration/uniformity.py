@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from calibration.errors import CalibrationError
+from calibration.readings import at_centre
 
 __all__ = ["UniformityMap", "fit_uniformity"]
 
@@ -121,7 +122,7 @@ def fit_uniformity(readings: pd.DataFrame, *, min_level: float = 0.5) -> Uniform
     xs = np.sort(df["x_norm"].unique())
     ys = np.sort(df["y_norm"].unique())
     # Reference per level: the centre if measured, else the mean over positions.
-    centre = bright[(bright["x_norm"] == 0) & (bright["y_norm"] == 0)]
+    centre = bright[at_centre(bright)]
     if centre.empty:
         ref = bright.groupby("level")["above"].mean()
     else:

@@ -2,7 +2,7 @@
 
 The fake photometer runs as its own process over a pseudo-terminal, measuring a simulated CRT
 that warms up (``warmup_drift``, ``warmup_tau_s`` in its ``[crt]`` table, counted from the
-fake's start: its "power-on"); the check runs as ``python -m calibration check`` in a PsychoPy
+fake's first measurement: its "power-on"); the check runs as ``python -m calibration check`` in a PsychoPy
 window under Xvfb, through the real drivers.
 """
 

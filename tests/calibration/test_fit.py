@@ -113,3 +113,22 @@ def test_report_names_the_chosen_model(rng):
     cal = fit_calibration(readings, **META)
     text = report_text(cal, readings)
     assert "* extended_power" in text and "non-uniformity" in text
+
+
+def test_a_centre_a_hair_off_zero_is_the_centre_for_every_use(rng, tmp_path):
+    """Another tool may write the centre as 1e-12 or -0: read, it is the centre for the gamma
+    fit, the uniformity map's grid and reference, the plots and the profile alike."""
+    from calibration.readings import at_centre, read_readings
+
+    crt = SimulatedCRT(falloff=0.2, tilt_x=0.05)
+    exact = _readings(crt, rng)
+    hair = exact.copy()
+    centre = (hair["x_norm"] == 0) & (hair["y_norm"] == 0)
+    hair["x_norm"] = hair["x_norm"].astype(object)
+    hair.loc[centre, "x_norm"] = "1e-12"
+    hair.loc[centre, "y_norm"] = -0.0
+    hair.to_csv(tmp_path / "hair.csv", index=False)
+    read = read_readings(tmp_path / "hair.csv").frame
+    assert at_centre(read).sum() == centre.sum() == 34
+    assert set(read["x_norm"]) == {-0.6, 0.0, 0.6}
+    assert np.allclose(fit_uniformity(read).relative, fit_uniformity(exact).relative)

@@ -57,6 +57,29 @@ def test_fit_of_another_tools_file_writes_every_output(tmp_path, rng, cli):
     assert load_calibration(out).gamma_params == cal.gamma_params
 
 
+def test_report_states_white_fitted_and_measured_noise_and_misfit(tmp_path, rng, cli):
+    """What a user checks first: the fitted white against the measured one, the held-out error
+    in % of white, the noise model and floor used, and which models were flagged."""
+    src = _tool_file(tmp_path / "lab.csv", rng=rng)
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--level-scale", "0-255", "--measured-utc", T0])
+    assert res.returncode == 0, res.stderr
+    cal = load_calibration(out)
+    fit = cal.chosen_fit
+    white = np.mean([y for x, y in zip(fit.levels, fit.luminance_cd_m2) if x == 1.0])
+    report = (out / "report.txt").read_text()
+    assert (f"white (drive 1): fitted {cal.max_luminance_cd_m2:.3f} cd/m^2, measured "
+            f"{white:.3f} cd/m^2") in report
+    assert f"= {100 * fit.heldout_rmse_cd_m2 / white:.3f} % of white" in report
+    assert "(fitted to repeated readings); meter floor" in report
+    assert f"instrument: unknown (readings from {src.resolve()})" in report
+    assert "readings at or below it, fitted as censored" in report
+    rows = {line.split()[1 if line.startswith(" *") else 0]: line
+            for line in report.splitlines() if line.startswith(("   ", " *"))}
+    assert "FLAGGED" in rows["power"]  # the simulated CRT has a threshold power cannot fit
+    assert "FLAGGED" not in rows[cal.gamma_model]
+
+
 def test_wrong_level_scale_names_the_option(tmp_path, rng, cli):
     src = _tool_file(tmp_path / "lab.csv", rng=rng, scale=1023)
     res = cli(["fit", src, "--out", tmp_path / "a", "--measured-utc", T0])
@@ -179,6 +202,9 @@ def test_position_option_fits_one_position(tmp_path, rng, cli):
     ("", "holds no readings (it is empty)"),
     ("level,luminance_cd_m2\n", "holds no readings (a header only)"),
     ("drive,Y\n0,1\n", "needs at least the columns ['level', 'luminance_cd_m2']"),
+    # A spreadsheet's export with a decimal comma separates the columns by ';' (or a tab).
+    ("level;luminance_cd_m2\n0;0,5\n", "separated by ';': export it as CSV with commas"),
+    ("level\tluminance_cd_m2\n0\t0.5\n", "separated by tabs: export it as CSV"),
 ])
 def test_empty_or_foreign_file_is_a_clear_error(tmp_path, content, message, cli):
     src = tmp_path / "r.csv"
@@ -219,3 +245,54 @@ def test_read_readings_fills_the_optional_columns(tmp_path):
     assert list(f["repeat"]) == [0, 1, 0]  # repeats numbered in file order per patch
     assert (f[["x_norm", "y_norm"]] == 0).all().all()
     assert table.notes == ()
+
+
+def test_dac_bits_none_fits_levels_a_finer_lookup_table_showed(tmp_path, cli):
+    """A display behind a 10-bit lookup table shows 17 evenly spaced levels as requested;
+    rounded to the 8-bit default they are fitted where the display never was. `--dac-bits
+    none` fits them as given, and the folder's refit keeps that."""
+    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
+                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0, bits=16)
+    levels = np.repeat(np.linspace(0, 1, 17), 2)
+    src = tmp_path / "lut10.csv"
+    src.write_text("level,luminance_cd_m2\n" + "".join(
+        f"{float(x)!r},{float(crt.luminance(x)):.4e}\n" for x in levels))
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--dac-bits", "none"])
+    assert res.returncode == 0, res.stderr
+    fit = load_calibration(out).chosen_fit
+    assert fit.dac_bits is None
+    assert fit.params["gamma"] == pytest.approx(2.3, abs=2e-3)
+    assert cli(["fit", "--out", out]).returncode == 0
+    assert load_calibration(out).chosen_fit.params == fit.params
+    rounded = cli(["fit", src, "--out", tmp_path / "cal8", "--measured-utc", T0])
+    assert rounded.returncode == 0, rounded.stderr
+    assert load_calibration(tmp_path / "cal8").chosen_fit.dac_bits == 8
+    bad = cli(["fit", src, "--out", tmp_path / "x", "--measured-utc", T0, "--dac-bits", "ten"])
+    assert bad.returncode == 1 and "--dac-bits 'ten'" in bad.stderr
+
+
+def test_floor_option_fits_a_clean_display_without_repeats_exactly(tmp_path, cli):
+    """Without repeats the default floor (0.2 % of white) censors a black of 0.15 cd/m^2 on a
+    100 cd/m^2 white and pulls the fit (black 0.133, gamma 2.298); given the meter's real floor
+    the clean display (gamma 2.3, black 0.15) is fitted exactly, refits included."""
+    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
+                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0,
+                       white_cd_m2=99.85)
+    levels = np.round(np.linspace(0, 1, 17) * 255) / 255
+    src = tmp_path / "clean.csv"
+    src.write_text("level,luminance_cd_m2\n" + "".join(
+        f"{float(x)!r},{float(crt.luminance(x)):.6g}\n" for x in levels))
+    out = tmp_path / "cal"
+    res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--floor-cd-m2", "0.01"])
+    assert res.returncode == 0, res.stderr
+    cal = load_calibration(out)
+    assert cal.gamma_model == "power"
+    assert cal.gamma_params["gamma"] == pytest.approx(2.3, abs=1e-3)
+    assert cal.min_luminance_cd_m2 == pytest.approx(0.15, abs=1e-3)
+    assert "meter floor 0.01 cd/m^2: 0 of 17" in (out / "report.txt").read_text()
+    assert cli(["fit", "--out", out]).returncode == 0
+    assert load_calibration(out).gamma_params == cal.gamma_params
+    bad = cli(["fit", src, "--out", tmp_path / "x", "--measured-utc", T0, "--floor-cd-m2",
+               "-1"])
+    assert bad.returncode == 1 and "--floor-cd-m2" in bad.stderr

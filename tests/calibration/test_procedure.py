@@ -73,6 +73,7 @@ def test_full_run_recovers_the_simulated_display(fake_proc, tmp_path):
     assert loaded.stdout.split()[-3:] == ["32.5", "55.0", cal.calibration_id], loaded.stderr
 
 
+@pytest.mark.slow
 def test_bad_replies_are_flagged_and_remeasured(fake_proc, tmp_path):
     out = tmp_path / "cal"
     faults = ["saturated:2", "garbled:4", "out_of_range:5", "timeout:7"]
@@ -117,6 +118,7 @@ def test_persistent_timeouts_stop_with_the_last_reply(fake_proc, tmp_path):
     assert "last raw reply 'OK00," in res.stderr
 
 
+@pytest.mark.slow
 def test_unplug_keeps_readings_and_rerun_resumes(fake_proc, tmp_path):
     out = tmp_path / "cal"
     with fake_proc("pr650", ["unplug:4"]) as (port, aim, proc):
@@ -135,6 +137,7 @@ def test_unplug_keeps_readings_and_rerun_resumes(fake_proc, tmp_path):
     assert not both.duplicated(["x_norm", "y_norm", "level", "repeat"]).any()
 
 
+@pytest.mark.slow
 def test_kill_mid_run_then_resume(fake_proc, tmp_path):
     out = tmp_path / "cal"
     args = ["--fast", "--levels", "17", "--repeats", "1", "--grid", "1", "--validation", "0",
@@ -165,6 +168,7 @@ def test_kill_mid_run_then_resume(fake_proc, tmp_path):
                                         n_levels=17, n_repeats=1, grid=1))["level"].round(6))
 
 
+@pytest.mark.slow
 def test_refit_without_instrument_matches(fake_proc, tmp_path):
     out = tmp_path / "cal"
     with fake_proc("ls100") as (port, aim, _):

@@ -153,6 +153,8 @@ def test_resume_with_other_settings_is_refused(tmp_path, option, value, stored, 
     res = cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out, *args])
     assert res.returncode == 2
     assert f"was started with {stored}" in res.stderr and "new --out" in res.stderr
+    # The fix is a command the operator can type as it is written.
+    assert f"`python -m calibration run` again with {stored}" in res.stderr
     # Leaving the options out resumes with the stored ones (it gets as far as the port).
     res = cli(["run", "--device", "pr655", "--port", tmp_path / "nope", "--out", out,
                    "--fast"])
@@ -204,4 +206,21 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(fake_proc, tmp_path):
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert "stopped (Ctrl-C)" in err and "readings in" in err and "again to resume" in err
+    # Only the files the run wrote are named (a run writes no warm-up readings).
+    assert "warmup.csv" not in err and "validation.csv" not in err
     assert len(read_readings(path).frame) >= 3
+
+
+def test_ctrl_c_during_a_fit_exits_130_without_a_traceback(tmp_path, cli, monkeypatch):
+    """A fit of many levels takes seconds: Ctrl-C then ends with a line, not a traceback."""
+    import calibration.run
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(calibration.run, "fit_readings_file", interrupted)
+    src = tmp_path / "r.csv"
+    src.write_text("level,luminance_cd_m2\n0,0.5\n1,90\n")
+    res = cli(["fit", src, "--out", tmp_path / "cal", "--measured-utc", "2026-08-01T10:00:00Z"])
+    assert res.returncode == 130
+    assert "fit stopped (Ctrl-C)" in res.stderr and "same command again" in res.stderr
