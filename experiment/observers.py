@@ -38,7 +38,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiment.datafile import SESSION_COLUMNS, app_version, session_path
+from experiment.datafile import SESSION_COLUMNS, SessionWriter, app_version, session_path
 from experiment.plan import make_plan, participant_seed
 from labfiles import atomic_write_text, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
@@ -256,12 +256,10 @@ class Observer:
         return gloss_hat, depth_hat
 
     def to_slider(self, gloss_pct, depth_cm):
-        """Physical estimates -> slider positions clipped to [slider.min, slider.max]."""
-        s = self.slider
-        g0 = float(s.to_gloss_pct(s.min))
-        gloss_v = s.min + (np.asarray(gloss_pct, float) - g0) / s.gloss_pct_per_unit
-        depth_v = np.asarray(depth_cm, float) / s.depth_cm_per_unit
-        return np.clip(gloss_v, s.min, s.max), np.clip(depth_v, s.min, s.max)
+        """Physical estimates (%, cm) -> slider positions clipped to [slider.min, slider.max]
+        (the design's own conversion, :meth:`studydesign.SliderSpec.from_gloss_pct`)."""
+        return (self.slider.from_gloss_pct(gloss_pct, clip=True),
+                self.slider.from_depth_cm(depth_cm, clip=True))
 
     def respond(self, trial_row, rng: np.random.Generator) -> tuple[float, float]:
         """Answer one trial.
@@ -420,9 +418,8 @@ def write_simulated_sessions(folder, design: StudyDesign, observers, rng: np.ran
         raise FileExistsError(17, "session file exists", str(exists[0]))
     paths = []
     for (who, session), rows in groups:
-        path = session_path(folder, who, int(session))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "x", newline="", encoding="utf-8") as fh:
-            rows.to_csv(fh, index=False)
-        paths.append(path)
+        # The app's own writer: one format and one torn-tail rule for simulated and real rows.
+        with SessionWriter(folder, who, int(session), sliders=False) as writer:
+            writer.extend(rows.to_dict("records"))
+        paths.append(writer.path)
     return paths

@@ -92,6 +92,20 @@ def test_physical_to_slider_inverts_slider_to_physical_whatever_the_minimum(desi
     assert s.from_gloss_pct([-50.0, 500.0], clip=True).tolist() == [slider_min, s.max]
 
 
+@pytest.mark.parametrize("slider_min", [0.0, 1.0, 2.5])
+def test_slider_position_matches_the_reference_label_whatever_the_minimum(design, slider_min):
+    """A changed slider.min bounds the marker; it does not move the scale: position v is still
+    the reference object labelled v (gloss 10 (v - 1) %, depth 0.4 v cm)."""
+    import dataclasses
+
+    s = dataclasses.replace(design.slider, min=slider_min)
+    labels = np.array([3.0, 6.0, 11.0])
+    assert s.to_gloss_pct(labels) == pytest.approx(design.gloss.pct(labels))
+    assert s.to_depth_cm(labels) == pytest.approx(design.depth.cm(labels))
+    with pytest.raises(DesignError):
+        s.to_gloss_pct(slider_min - 0.5)
+
+
 @pytest.mark.parametrize("rgb, y", [((1, 1, 1), 1.0), ((1, 0, 0), 0.2126), ((0, 0, 2), 0.1444)])
 def test_rec709_luminance_weights(rgb, y):
     """ITU-R BT.709-6 item 3.2: Y = 0.2126 R + 0.7152 G + 0.0722 B."""
