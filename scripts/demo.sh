@@ -12,7 +12,7 @@ ln -sfn "$(basename "$RUN")" "$OUT/latest"
 t0=$(date +%s)
 step() { echo; echo "== $* ($(( $(date +%s) - t0 )) s)"; }
 
-# --- design (issue 2) ---
+# --- design ---
 step "study design"
 "$PY" -m studydesign check
 "$PY" -m studydesign show
@@ -21,7 +21,7 @@ mkdir -p "$RUN/design"
 "$PY" -m studydesign json > "$RUN/design/design.json"
 # --- end design ---
 
-# --- calibration (issue 4) ---
+# --- calibration ---
 step "display calibration: simulated PR-655 on a pseudo-terminal, PsychoPy window under Xvfb"
 # The fake photometer and the procedure share one X display: the fake reads the window's pixels.
 # That display has the design's resolution (as the lab's CRT would), not $XVFB's 1280x1024.
@@ -57,7 +57,7 @@ xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
 ' calibration "$PY" "$CAL" "$CAL_HZ" "$RUN/calibration-check"
 # --- end calibration ---
 
-# --- gloss fit (issue 7) ---
+# --- gloss fit ---
 step "gloss fit: synthetic HDR photos of the gloss spheres -> Ward parameters (basis method)"
 # The lab's photos are not in the repository: render 6 of the 11 levels (clear-coat spheres with
 # noise, glare, vignetting and misregistration), then fit them as the lab's photos would be.
@@ -66,7 +66,7 @@ step "gloss fit: synthetic HDR photos of the gloss spheres -> Ward parameters (b
 "$PY" -m stimuli fit-gloss "$RUN/glossfit/photos" --out "$RUN/glossfit"
 # --- end gloss fit ---
 
-# --- stimuli (issue 3) ---
+# --- stimuli ---
 step "stimuli: Mitsuba (LLVM) renders of the ellipsoid arrays with the Ward BSDF, tone-mapped, gamma-corrected"
 # The gloss table and calibration of the steps above when they exist, else the documented defaults.
 mkdir -p "$RUN/stimuli"
@@ -85,7 +85,7 @@ STIM_OPTS=()
 "$PY" -m stimuli export-print --depth-level 5 --spacing-cm 0.05 "$RUN/stimuli/print_depth05.stl"
 # --- end stimuli ---
 
-# --- experiment (issue 5) ---
+# --- experiment ---
 step "experiment: two simulated humanlike observers x two sessions through the app (Xvfb, XTEST input)"
 # The real session app, windowed under Xvfb, a simulated participant at the X mouse and keyboard;
 # --fast: no waiting for the vertical blank or the observer's response times.
@@ -120,13 +120,13 @@ xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
 "$PY" -m experiment simulate --observer ideal --participants D01 D02 --data "$RUN/data_ideal" --seed 1
 # --- end experiment ---
 
-# --- analysis report (issue 6) ---
+# --- analysis report ---
 step "analysis report: figures, mixed models (lme4's formulation), bootstrap"
 # 2,000 bootstrap runs per model instead of the default 10,000, to keep the demo near a minute.
 "$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1
 # --- end analysis report ---
 
-# --- image statistics (issue 9) ---
+# --- image statistics ---
 step "image statistics: a stratified subset of the imagestats set, statistics on Dask, relation to gloss"
 # 2 illuminations x 1 light field x 1 array x gloss levels 2,6,10 x depth levels 2,6,10 = 18
 # images at 192 px (the smallest size whose array square suits the Portilla-Simoncelli pyramid),
@@ -141,7 +141,7 @@ IS="$RUN/imagestats"
   --out "$IS/report" --n-boot 200 --seed 1
 # --- end image statistics ---
 
-# --- sim-to-real gap (issue 8) ---
+# --- sim-to-real gap ---
 step "sim-to-real gap: observer, display and render layers, then which layer carries the gap"
 GAP="$RUN/gap"
 mkdir -p "$GAP"

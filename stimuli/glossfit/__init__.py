@@ -1,4 +1,4 @@
-"""Gloss fitting: Ward parameters of the physical gloss spheres from HDR photos (issue 7).
+"""Gloss fitting: Ward parameters of the physical gloss spheres from HDR photos.
 
 Pipeline: ``load_photo_set`` (envmap.exr, photos/gloss_XXX.exr, setup.toml; checked) ->
 ``register`` each photo to a reference render (the seed's affine Nelder-Mead) -> ``grid_fit``

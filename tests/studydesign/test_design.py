@@ -1,4 +1,4 @@
-"""The design object carries the seed's numbers, validates its input, and is the only copy."""
+"""The design object carries the source study's numbers, validates its input, and is the only copy."""
 
 from __future__ import annotations
 
@@ -193,7 +193,7 @@ def test_design_numbers_have_no_second_copy_in_package_code(repo_root):
             for pattern, what in _DESIGN_LITERALS:
                 for m in re.finditer(pattern, text):
                     line = text[: m.start()].count("\n") + 1
-                    # Docstrings and comments may quote the seed's formulas.
+                    # Docstrings and comments may quote the source study's formulas.
                     src_line = text.splitlines()[line - 1].strip()
                     if src_line.startswith("#") or '"' in src_line or "'" in src_line:
                         continue
