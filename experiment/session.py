@@ -60,7 +60,7 @@ from experiment.datafile import (
     sliders_path,
     write_run_log,
 )
-from experiment.plan import PlanError, load_or_create_plan, participant_seed
+from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
 from studydesign import StudyDesign
@@ -444,9 +444,7 @@ def _check_refresh(win, cal, log: dict, out) -> None:
 
 def _session_row(row: dict, result: TrialResult, calibration_id: str) -> dict:
     """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer."""
-    record = {c: row[c] for c in ("participant", "session", "trial", "order", "stimulus_id",
-                                  "illumination", "gloss_level", "depth_level",
-                                  "true_gloss_pct", "true_depth_cm")}
+    record = {c: row[c] for c in PLAN_COLUMNS if c in SESSION_COLUMNS}
     record.update(gloss_match=result.gloss_match, depth_match=result.depth_match,
                   rt_s=result.rt_s, onset_s=result.onset_s,
                   dropped_frames=result.dropped_frames, timestamp_utc=_now(),
