@@ -193,8 +193,11 @@ def main_run(req) -> int:
         print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
         return 130
     if res.status == "complete":
+        log = (f"log {res.log_file}" if res.log_file is not None else
+               "its run log could not be written (see the warning above; the trials are all "
+               "kept, the log's timing and dropped-frame figures are not)")
         print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
-              f"in {res.data_file}; log {res.log_file}")
+              f"in {res.data_file}; {log}")
     return 0
 
 

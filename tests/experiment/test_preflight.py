@@ -350,3 +350,19 @@ def test_data_folder_must_be_given(design, session_files, tmp_path, monkeypatch)
     monkeypatch.setenv("GLOSSDEPTH_DATA", str(session_files["data"]))
     assert main(["plan", "--participant", "P01"]) == 0
     assert (session_files["data"] / "plans" / "P01_plan.csv").is_file()
+
+
+def test_complete_session_whose_run_log_failed_says_so(monkeypatch, capsys, tmp_path):
+    """A run whose log could not be written (a full disk at the end) names what is missing,
+    rather than printing ``log None``."""
+    from types import SimpleNamespace
+
+    import experiment.session
+    from experiment.__main__ import main_run
+    from experiment.session import SessionOutcome
+
+    out = SessionOutcome("complete", "P01", 1, 6, 6, str(tmp_path / "P01_s1.csv"), None)
+    monkeypatch.setattr(experiment.session, "run_session", lambda req: out)
+    assert main_run(SimpleNamespace(data_dir=tmp_path)) == 0
+    said = capsys.readouterr().out
+    assert "None" not in said and "run log could not be written" in said
