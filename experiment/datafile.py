@@ -56,6 +56,7 @@ from labfiles import (
 
 __all__ = [
     "SESSION_COLUMNS",
+    "SIMULATED_CALIBRATION_ID",
     "DataFileError",
     "SessionWriter",
     "app_version",
@@ -65,6 +66,8 @@ __all__ = [
     "read_slider_histories",
     "runs_path",
     "session_path",
+    "simulated_app_version",
+    "simulated_rows",
     "sliders_path",
     "write_run_log",
 ]
@@ -81,6 +84,31 @@ SESSION_COLUMNS = (
 _HEADER = csv_record(SESSION_COLUMNS)
 #: A whole session row: it parses into exactly the session's columns.
 _ROW_CHECK = csv_fields_check(len(SESSION_COLUMNS))
+
+
+#: The ``calibration_id`` of sessions simulated without the app (``python -m experiment
+#: simulate``): no display was involved.
+SIMULATED_CALIBRATION_ID = "simulated"
+#: ``app_version`` tags of rows answered by a simulated observer: through the app's window
+#: (``run --simulate``, the real calibration's id) or without the app (``simulate_dataset``).
+_SIMULATED_TAGS = (" simulated:", " simulate_dataset:")
+
+
+def simulated_app_version(kind: str, *, through_app: bool) -> str:
+    """The ``app_version`` of a row answered by a simulated observer of ``kind``: the version,
+    then ``simulated:<kind>`` (``run --simulate``) or ``simulate_dataset:<kind>``."""
+    return f"{app_version()}{_SIMULATED_TAGS[0 if through_app else 1]}{kind}"
+
+
+def simulated_rows(frame: pd.DataFrame) -> pd.Series:
+    """Which session rows a simulated observer answered (bool, aligned with ``frame``): its
+    ``app_version`` says so (:func:`simulated_app_version`) or its ``calibration_id`` is
+    ``SIMULATED_CALIBRATION_ID``. Such rows are not a participant's, wherever they are."""
+    version = frame["app_version"].fillna("").astype(str)
+    tagged = pd.Series(False, index=frame.index)
+    for tag in _SIMULATED_TAGS:
+        tagged |= version.str.contains(tag, regex=False)
+    return tagged | (frame["calibration_id"].fillna("").astype(str) == SIMULATED_CALIBRATION_ID)
 
 
 class DataFileError(ValueError):

@@ -38,7 +38,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiment.datafile import SESSION_COLUMNS, SessionWriter, app_version, session_path
+from experiment.datafile import (
+    SESSION_COLUMNS,
+    SIMULATED_CALIBRATION_ID,
+    SessionWriter,
+    session_path,
+    simulated_app_version,
+)
 from experiment.plan import make_plan, participant_seed
 from labfiles import atomic_write_text, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
@@ -351,7 +357,7 @@ def _plan(design: StudyDesign, participant: str) -> pd.DataFrame:
 
 
 def simulate_dataset(design: StudyDesign, observers, rng: np.random.Generator, *,
-                     calibration_id: str = "simulated") -> pd.DataFrame:
+                     calibration_id: str = SIMULATED_CALIBRATION_ID) -> pd.DataFrame:
     """Every observer answers its whole plan (all sessions), without the app.
 
     Each observer's plan is the one ``python -m experiment run`` makes for that participant id
@@ -398,7 +404,7 @@ def simulate_dataset(design: StudyDesign, observers, rng: np.random.Generator, *
             (start + timedelta(seconds=float(t + r))).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
             for t, r in zip(onset, plan["rt_s"])
         ]
-        plan["app_version"] = f"{app_version()} simulate_dataset:{obs.kind}"
+        plan["app_version"] = simulated_app_version(obs.kind, through_app=False)
         plan["calibration_id"] = calibration_id
         frames.append(plan[list(SESSION_COLUMNS)])
     out = pd.concat(frames, ignore_index=True)

@@ -57,6 +57,7 @@ from experiment.datafile import (
     read_slider_histories,
     runs_path,
     session_path,
+    simulated_app_version,
     sliders_path,
     write_run_log,
 )
@@ -442,13 +443,18 @@ def _check_refresh(win, cal, log: dict, out) -> None:
         log["warnings"].append(w)
 
 
-def _session_row(row: dict, result: TrialResult, calibration_id: str) -> dict:
-    """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer."""
+def _session_row(row: dict, result: TrialResult, calibration_id: str,
+                 simulate: str | None = None) -> dict:
+    """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer; a simulated
+    observer's (``simulate``: its kind) is tagged in ``app_version``, so that the analysis
+    never takes it for a participant's."""
+    version = (app_version() if simulate is None
+               else simulated_app_version(simulate, through_app=True))
     record = {c: row[c] for c in PLAN_COLUMNS if c in SESSION_COLUMNS}
     record.update(gloss_match=result.gloss_match, depth_match=result.depth_match,
                   rt_s=result.rt_s, onset_s=result.onset_s,
                   dropped_frames=result.dropped_frames, timestamp_utc=_now(),
-                  app_version=app_version(), calibration_id=calibration_id)
+                  app_version=version, calibration_id=calibration_id)
     return {c: record[c] for c in SESSION_COLUMNS}
 
 
@@ -523,7 +529,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
                 if last_response_s is not None:
                     trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
                 last_response_s = result.onset_s + result.rt_s
-                writer.append(_session_row(row, result, cal.calibration_id),
+                writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
                               sliders=result.slider_record())
                 trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
                                    "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})
