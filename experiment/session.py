@@ -257,7 +257,7 @@ def prepare_session(req: SessionRequest) -> Prepared:
     screen = profile = stim = cal = observer = None
     inputs: dict = {}
     if len(todo):
-        stim = check_stimuli(req.manifest, rows)
+        stim = check_stimuli(req.manifest, rows, every_stimulus=plan["stimulus_id"])
         cal = check_calibration(req.calibration, design,
                                 max_age_days=req.max_calibration_age_days)
         inputs = session_inputs(stim, req.calibration, cal)

@@ -273,6 +273,20 @@ def test_every_stimulus_png_is_decoded_before_the_session(design, session_files,
     assert sid in str(info.value) and "re-render" in str(info.value).lower()
 
 
+def test_a_damaged_image_of_a_later_session_is_refused_before_the_first(design,
+                                                                        session_files):
+    """Every image of the participant's sessions is decoded at each start: a truncated PNG that
+    session 2 would show stops session 1, not the participant's return a week later (when only a
+    re-rendered set could be shown)."""
+    prep = prepare_session(_request(design, session_files, session=2))
+    png, sid = prep.stimuli.frame["png"].iloc[0], prep.stimuli.frame["stimulus_id"].iloc[0]
+    Path(png).write_bytes(Path(png).read_bytes()[:-30])
+    _rewrite_manifest_checksum(session_files["manifest"], sid)
+    with pytest.raises(PreflightError, match="does not decode") as info:
+        prepare_session(_request(design, session_files, session=1))
+    assert sid in str(info.value) and "participant's" in str(info.value)
+
+
 def _record_first_run(design, files, n_rows=2):
     """The state after a first run answered ``n_rows`` trials: rows and the run's start event."""
     prep = prepare_session(_request(design, files))
