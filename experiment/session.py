@@ -23,6 +23,7 @@ even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import platform
 import warnings
@@ -217,6 +218,24 @@ def _check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], pat
             "images if they were replaced)")
 
 
+def _run_logs(data_dir, stem: str, *, read: bool = True) -> list[tuple[int, dict]]:
+    """The run logs ``logs/<stem>_run<k>.json`` of a session as ``(k, log)``, by ``k``; a log
+    that does not read as JSON is ``{}`` (and so is every log with ``read=False``)."""
+    found = []
+    for path in (Path(data_dir) / "logs").glob(f"{stem}_run*.json"):
+        number = path.stem[len(stem) + 4:]
+        if not number.isdigit():
+            continue
+        log = {}
+        if read:
+            try:
+                log = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                log = {}
+        found.append((int(number), log if isinstance(log, dict) else {}))
+    return sorted(found, key=lambda item: item[0])
+
+
 def _read_recorded(read, path: Path, warned: list):
     """``read(path)`` (a session CSV or run log reader) with a torn tail turned into a
     pre-flight warning (nothing is moved yet: the run does that, holding the lock)."""
@@ -263,6 +282,17 @@ def prepare_session(req: SessionRequest) -> Prepared:
         inputs = session_inputs(stim, req.calibration, cal)
         events = _read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
                                                            session), notes)
+        if len(done) and not any("stimuli_sha256" in e for e in events):
+            # The start events are gone (the file was moved or deleted): each run's own log
+            # holds the same inputs.
+            events = events + [{"event": "start", **log["inputs"]}
+                               for _, log in _run_logs(req.data_dir, path.stem)
+                               if "inputs" in log]
+            if not any("stimuli_sha256" in e for e in events):
+                notes.append(f"{path}: no record of the stimuli and calibration file this "
+                             f"session started with ({runs_path(req.data_dir, req.participant, session)} "
+                             "and the run logs are missing); this resume cannot check that they "
+                             "are the same")
         _check_same_inputs(inputs, done, events, path)
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
         if other:
@@ -395,8 +425,12 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             events = runs_path(req.data_dir, req.participant, prep.session)
-            run = 1 + sum(1 for e in read_run_events(events, repair=True)
-                          if e.get("event") == "start")
+            starts = sum(1 for e in read_run_events(events, repair=True)
+                         if e.get("event") == "start")
+            # The next free run number: a run log is never overwritten, even when the run
+            # history (``*_runs.jsonl``) was lost.
+            run = 1 + max([starts, *(k for k, _ in _run_logs(req.data_dir, data.stem,
+                                                              read=False))])
             read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
                                   repair=True)
             if len(read_session(data, repair=True)) != len(prep.done):

@@ -319,6 +319,27 @@ def test_resume_keeps_the_calibration_and_stimuli_it_started_with(design, sessio
     assert "--stimuli" in str(info.value) and first.inputs["manifest"] in str(info.value)
 
 
+def test_resume_without_its_run_history_checks_the_run_logs_and_numbers_the_next_run(
+        design, session_files, tmp_path):
+    """An operator moved ``*_runs.jsonl`` away: the resume still refuses other images (the
+    first run's log holds its inputs; the check used to be skipped, mixing image sizes in one
+    session), and the next run takes a free number (run 1's log used to be 'not written')."""
+    from experiment.session import _run_logs
+
+    f = session_files
+    first = _record_first_run(design, f)
+    logs = f["data"] / "logs"
+    (logs / "P01_s1_run1.json").write_text(json.dumps({"run": 1, "inputs": first.inputs}))
+    runs_path(f["data"], "P01", 1).unlink()
+    small = make_manifest(tmp_path / "small", design, size_px=32)
+    with pytest.raises(PreflightError, match="are not the same"):
+        prepare_session(_request(design, f, manifest=str(small)))
+    assert [k for k, _ in _run_logs(f["data"], "P01_s1")] == [1]
+    (logs / "P01_s1_run1.json").unlink()
+    prep = prepare_session(_request(design, f, manifest=str(small)))
+    assert any("cannot check" in w for w in prep.warnings)
+
+
 def test_screenshot_into_a_missing_folder_is_refused(design, session_files, tmp_path):
     with pytest.raises(PreflightError, match="does not exist; create it"):
         prepare_session(_request(design, session_files,
