@@ -35,15 +35,24 @@ def data_folder(value: str | None) -> Path:
     Raises
     ------
     UsageError
-        Neither is given.
+        Neither is given, or ``$GLOSSDEPTH_DATA`` is a relative path (a lab-wide setting that
+        would follow the working directory).
     """
-    value = value or os.environ.get(DATA_ENV)
+    if value:
+        return Path(value).expanduser().absolute()
+    value = os.environ.get(DATA_ENV)
     if not value:
         raise UsageError(
             f"no data folder: pass --data /path/to/the/lab/data, or set {DATA_ENV} to the lab's "
             "data root (the working directory is never used, so that the same command continues "
             "a session from any directory)")
-    return Path(value).expanduser().absolute()
+    root = Path(value).expanduser()
+    if not root.is_absolute():
+        raise UsageError(
+            f"{DATA_ENV}={value} is a relative path, so the data folder would change with the "
+            f"working directory (here {root.absolute()}); set {DATA_ENV} to an absolute path, "
+            "e.g. /srv/glossdepth/data, or pass --data")
+    return root
 
 
 def _cmd_plan(args) -> int:

@@ -387,6 +387,20 @@ def test_data_folder_must_be_given(design, session_files, tmp_path, monkeypatch)
     assert (session_files["data"] / "plans" / "P01_plan.csv").is_file()
 
 
+def test_a_relative_lab_data_root_is_refused(tmp_path, monkeypatch, capsys):
+    """GLOSSDEPTH_DATA=data (set once in a profile) would follow the working directory: the same
+    command from another directory started the session over in another ./data."""
+    from experiment.__main__ import main
+
+    monkeypatch.setenv("GLOSSDEPTH_DATA", "data")
+    monkeypatch.chdir(tmp_path)
+    assert main(["plan", "--participant", "P01"]) == 2
+    assert "relative path" in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
+    assert main(["plan", "--participant", "P01", "--data", "data"]) == 0  # explicit: allowed
+    assert (tmp_path / "data" / "plans" / "P01_plan.csv").is_file()
+
+
 def test_complete_session_whose_run_log_failed_says_so(monkeypatch, capsys, tmp_path):
     """A run whose log could not be written (a full disk at the end) names what is missing,
     rather than printing ``log None``."""
