@@ -115,6 +115,8 @@ class Prepared:
     warnings: list = field(default_factory=list)
     inputs: dict = field(default_factory=dict)
     observer: object = None
+    #: The torn tails among ``warnings``: the run moves them aside and says so itself.
+    torn: list = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -236,7 +238,7 @@ def _run_logs(data_dir, stem: str, *, read: bool = True) -> list[tuple[int, dict
     return sorted(found, key=lambda item: item[0])
 
 
-def _read_recorded(read, path: Path, warned: list):
+def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
     """``read(path)`` (a session CSV or run log reader) with a torn tail turned into a
     pre-flight warning (nothing is moved yet: the run does that, holding the lock)."""
     with warnings.catch_warnings(record=True) as caught:
@@ -245,7 +247,10 @@ def _read_recorded(read, path: Path, warned: list):
             records = read(path)
         except DataFileError as exc:
             raise PreflightError(str(exc)) from exc
-    warned += [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    found = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    warned += found
+    if torn is not None:
+        torn += found
     return records
 
 
@@ -262,9 +267,10 @@ def prepare_session(req: SessionRequest) -> Prepared:
     rows = plan[plan["session"] == session].sort_values("trial").reset_index(drop=True)
     path = session_path(req.data_dir, req.participant, session)
     notes: list = []
-    done = _read_recorded(read_session, path, notes)
+    torn: list = []
+    done = _read_recorded(read_session, path, notes, torn)
     _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
-                   notes)
+                   notes, torn)
     _check_done(done, rows, path)
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
@@ -281,7 +287,7 @@ def prepare_session(req: SessionRequest) -> Prepared:
                                 max_age_days=req.max_calibration_age_days)
         inputs = session_inputs(stim, req.calibration, cal)
         events = _read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
-                                                           session), notes)
+                                                           session), notes, torn)
         if len(done) and not any("stimuli_sha256" in e for e in events):
             # The start events are gone (the file was moved or deleted): each run's own log
             # holds the same inputs.
@@ -316,7 +322,8 @@ def prepare_session(req: SessionRequest) -> Prepared:
         screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,
                     stimuli=stim, calibration=cal, screen_px=screen, monitor_profile=profile,
-                    warnings=notes, inputs=inputs, observer=observer)
+                    warnings=notes, inputs=inputs, observer=observer,
+                    torn=[w for w in notes if w in torn])
 
 
 def _make_observer(req: SessionRequest):
@@ -408,7 +415,8 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
     data = session_path(req.data_dir, req.participant, prep.session)
     total = len(prep.plan)
     for w in prep.warnings:
-        out(f"warning: {w}")
+        if prep.todo.empty or w not in prep.torn:  # a run reports the torn tails it moves
+            out(f"warning: {w}")
     if prep.todo.empty:
         out(f"session {prep.session} of {req.participant} is already complete "
             f"({total} trials in {data}); nothing to do")
