@@ -181,7 +181,8 @@ def main_run(req) -> int:
         return 1
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            what = (exc.strerror if "disk is full" in str(exc.strerror)
+            what = (str(exc.strerror).split("; free space")[0]  # said once, below
+                    if "disk is full" in str(exc.strerror)
                     else f"the disk is full: could not write {exc.filename or req.data_dir}")
             print(f"error: {what}. The trials answered so far are kept in {req.data_dir}; "
                   f"free space, then {again}", file=sys.stderr)

@@ -206,6 +206,7 @@ def test_full_disk_mid_session_is_named_and_the_resume_completes(
         assert _kill_after.returncode == 1, (kept, _kill_after.stderr)
         assert "disk is full" in _kill_after.stderr and "Traceback" not in _kill_after.stderr
         assert "free space, then run the same command to continue" in _kill_after.stderr
+        assert _kill_after.stderr.count("free space") == 1
         assert read_session(path)["trial"].tolist() == list(range(1, kept + 1))
         filler.unlink()
         res = _run(cmd)
