@@ -200,7 +200,8 @@ class Illumination:
 
 @dataclass(frozen=True)
 class ToneMapSpec:
-    """Seed tone mapping: linear below the knee, asymptotic logistic above (8-bit values)."""
+    """The source study's tone mapping: linear below the knee, asymptotic logistic above
+    (8-bit values)."""
 
     linear_fraction: float
     knee_value: int
