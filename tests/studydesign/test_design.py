@@ -21,7 +21,8 @@ def test_gloss_levels_match_seed(design):
 
 
 def test_depth_levels_are_0p4_cm_steps(design):
-    # d_i = 0.4 i cm, i = 1..11 -> 0.4..4.4 cm; rendered 2..10 -> 0.8..4.0 cm (the source study's ranges).
+    # d_i = 0.4 i cm, i = 1..11 -> 0.4..4.4 cm; rendered 2..10 -> 0.8..4.0 cm
+    # (the source study's ranges).
     assert design.depth.physical_cm == pytest.approx([0.4 * i for i in range(1, 12)])
     assert design.depth.physical_cm[0] == pytest.approx(0.4)
     assert design.depth.physical_cm[-1] == pytest.approx(4.4)
