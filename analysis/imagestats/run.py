@@ -105,8 +105,11 @@ def dask_client(*, workers: int = 2, scheduler: str | None = None):
     if workers < 1:
         raise ImageStatsError(f"--workers {workers}: use at least 1")
     with _workers_ignore_ctrl_c():
+        # Worker logs at CRITICAL only: a task's error reaches this process through its
+        # future; what the workers log at ERROR is their shutdown racing the scheduler's
+        # (heartbeat tracebacks after Ctrl-C or a busy machine's slow close).
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
     with cluster, Client(cluster) as client:
         yield client
 
