@@ -221,6 +221,7 @@ def _cmd_status(args) -> int:
         read_slider_histories,
         runs_path,
         session_path,
+        simulated_rows,
         sliders_path,
     )
     from experiment.participants import check_participant_id
@@ -237,26 +238,33 @@ def _cmd_status(args) -> int:
     plan = plan_path(data, args.participant)
     print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
     n = design.sessions.trials_per_session
+    damaged = 0
     for session in range(1, design.sessions.n_sessions + 1):
         path = session_path(data, args.participant, session)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             try:
-                done = len(read_session(path))
+                rows = read_session(path)
                 runs = read_run_events(runs_path(data, args.participant, session))
                 read_slider_histories(sliders_path(data, args.participant, session))
             except DataFileError as exc:
                 print(f"  session {session}: DAMAGED: {exc}")
+                damaged += 1
                 continue
+        done = len(rows)
         starts = sum(1 for e in runs if e.get("event") == "start")
         last = runs[-1].get("event") if runs else "-"
         state = "complete" if done == n else ("not started" if done == 0 else "to resume")
         print(f"  session {session}: {done}/{n} trials, {state}; {starts} run(s), last event "
               f"{last!r}")
+        simulated = int(simulated_rows(rows).sum()) if done else 0
+        if simulated:
+            print(f"    NOTE: {simulated} of these trials were answered by a simulated observer "
+                  "(not the participant); the analysis lists them")
         for w in caught:
             if issubclass(w.category, TornTailWarning):
                 print(f"    WARNING: {w.message}")
-    return 0
+    return 1 if damaged else 0
 
 
 def _cmd_simulate(args) -> int:
