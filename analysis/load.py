@@ -6,8 +6,9 @@ against the study design, and converted to physical units through the design
 (`analysis.units.matches_to_physical`). Errors (the data cannot be analysed as they are) raise
 `SessionDataError` naming the file, the row and the fix; what can be analysed but is worth
 knowing becomes a warning that the report shows: an incomplete session, a participant with one
-session, a torn last row (left out, the file is not changed), simulated participants
-(``calibration_id`` ``simulated``) and data recorded with more than one calibration.
+session, a torn last row (left out, the file is not changed), rows a simulated observer answered
+(`experiment.simulated_rows`: ``experiment simulate`` or ``experiment run --simulate``) and data
+recorded with more than one calibration.
 """
 
 from __future__ import annotations
@@ -22,13 +23,12 @@ import pandas as pd
 
 from analysis.units import matches_to_physical
 from experiment import DataFileError, read_session
+from experiment.datafile import SIMULATED_CALIBRATION_ID, simulated_rows
 from labfiles import TornTailWarning
 from studydesign import StudyDesign
 
-__all__ = ["SIMULATED_CALIBRATION_ID", "SessionData", "SessionDataError", "load_sessions"]
+__all__ = ["SessionData", "SessionDataError", "load_sessions"]
 
-#: The ``calibration_id`` of sessions written by a simulated observer, not a participant.
-SIMULATED_CALIBRATION_ID = "simulated"
 _NAME = re.compile(r"^(?P<participant>[A-Za-z0-9_-]{1,32})_s(?P<session>\d+)\.csv$")
 _NUMERIC = ("session", "trial", "order", "gloss_level", "depth_level", "true_gloss_pct",
             "true_depth_cm", "gloss_match", "depth_match", "rt_s")
@@ -232,12 +232,14 @@ def _provenance(data: pd.DataFrame) -> tuple[tuple, list[str]]:
         (cid, tuple(sorted(grp["participant"].unique())), len(grp))
         for cid, grp in data.assign(calibration_id=ids).groupby("calibration_id", sort=True))
     notes = []
-    simulated = sorted(data.loc[ids == SIMULATED_CALIBRATION_ID, "participant"].unique())
+    simulated = sorted(data.loc[simulated_rows(data), "participant"].unique())
     if simulated:
         notes.append(
-            f"simulated data included: participants {simulated} have calibration_id "
-            f"'{SIMULATED_CALIBRATION_ID}' (written by `python -m experiment simulate`, not by "
-            "a participant); move their files out of the data folder unless this is a test")
+            f"simulated data included: participants {simulated} were answered by a simulated "
+            f"observer (calibration_id '{SIMULATED_CALIBRATION_ID}' from `python -m experiment "
+            "simulate`, or 'simulated:' in app_version from `python -m experiment run "
+            "--simulate`), not by a participant; move their files out of the data folder "
+            "unless this is a test")
     per_session = data.assign(calibration_id=ids).groupby(["participant", "session"])
     for (participant, session), grp in per_session:
         used = sorted(grp["calibration_id"].unique())

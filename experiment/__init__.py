@@ -5,8 +5,9 @@ Public API
 check_participant_id, make_plan, load_or_create_plan, plan_path, participant_seed, PLAN_COLUMNS
     Participant ids and trial plans.
 SESSION_COLUMNS, DataFileError, SessionWriter, read_session, read_slider_histories,
-read_run_events, session_path, sliders_path, runs_path
-    Session data files (one CSV row per trial, appended and fsynced; one torn-tail rule).
+read_run_events, session_path, sliders_path, runs_path, simulated_rows
+    Session data files (one CSV row per trial, appended and fsynced; one torn-tail rule) and
+    which rows a simulated observer answered.
 Observer, make_observer, simulate_dataset, write_simulated_sessions, load_observer_params,
 OBSERVER_KINDS, write_observer_params
     Simulated observers (``ideal``, ``humanlike``; parameters in ``observers.toml``).
@@ -30,6 +31,7 @@ from experiment.datafile import (
     read_slider_histories,
     runs_path,
     session_path,
+    simulated_rows,
     sliders_path,
 )
 from experiment.observers import (
@@ -94,6 +96,7 @@ __all__ = [
     "runs_path",
     "session_path",
     "simulate_dataset",
+    "simulated_rows",
     "sliders_path",
     "write_observer_params",
     "write_simulated_sessions",

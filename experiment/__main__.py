@@ -35,15 +35,24 @@ def data_folder(value: str | None) -> Path:
     Raises
     ------
     UsageError
-        Neither is given.
+        Neither is given, or ``$GLOSSDEPTH_DATA`` is a relative path (a lab-wide setting that
+        would follow the working directory).
     """
-    value = value or os.environ.get(DATA_ENV)
+    if value:
+        return Path(value).expanduser().absolute()
+    value = os.environ.get(DATA_ENV)
     if not value:
         raise UsageError(
             f"no data folder: pass --data /path/to/the/lab/data, or set {DATA_ENV} to the lab's "
             "data root (the working directory is never used, so that the same command continues "
             "a session from any directory)")
-    return Path(value).expanduser().absolute()
+    root = Path(value).expanduser()
+    if not root.is_absolute():
+        raise UsageError(
+            f"{DATA_ENV}={value} is a relative path, so the data folder would change with the "
+            f"working directory (here {root.absolute()}); set {DATA_ENV} to an absolute path, "
+            "e.g. /srv/glossdepth/data, or pass --data")
+    return root
 
 
 def _cmd_plan(args) -> int:
@@ -172,7 +181,8 @@ def main_run(req) -> int:
         return 1
     except OSError as exc:
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            what = (exc.strerror if "disk is full" in str(exc.strerror)
+            what = (str(exc.strerror).split("; free space")[0]  # said once, below
+                    if "disk is full" in str(exc.strerror)
                     else f"the disk is full: could not write {exc.filename or req.data_dir}")
             print(f"error: {what}. The trials answered so far are kept in {req.data_dir}; "
                   f"free space, then {again}", file=sys.stderr)
@@ -193,8 +203,11 @@ def main_run(req) -> int:
         print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
         return 130
     if res.status == "complete":
+        log = (f"log {res.log_file}" if res.log_file is not None else
+               "its run log could not be written (see the warning above; the trials are all "
+               "kept, the log's timing and dropped-frame figures are not)")
         print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
-              f"in {res.data_file}; log {res.log_file}")
+              f"in {res.data_file}; {log}")
     return 0
 
 
@@ -208,6 +221,7 @@ def _cmd_status(args) -> int:
         read_slider_histories,
         runs_path,
         session_path,
+        simulated_rows,
         sliders_path,
     )
     from experiment.participants import check_participant_id
@@ -224,26 +238,33 @@ def _cmd_status(args) -> int:
     plan = plan_path(data, args.participant)
     print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
     n = design.sessions.trials_per_session
+    damaged = 0
     for session in range(1, design.sessions.n_sessions + 1):
         path = session_path(data, args.participant, session)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             try:
-                done = len(read_session(path))
+                rows = read_session(path)
                 runs = read_run_events(runs_path(data, args.participant, session))
                 read_slider_histories(sliders_path(data, args.participant, session))
             except DataFileError as exc:
                 print(f"  session {session}: DAMAGED: {exc}")
+                damaged += 1
                 continue
+        done = len(rows)
         starts = sum(1 for e in runs if e.get("event") == "start")
         last = runs[-1].get("event") if runs else "-"
         state = "complete" if done == n else ("not started" if done == 0 else "to resume")
         print(f"  session {session}: {done}/{n} trials, {state}; {starts} run(s), last event "
               f"{last!r}")
+        simulated = int(simulated_rows(rows).sum()) if done else 0
+        if simulated:
+            print(f"    NOTE: {simulated} of these trials were answered by a simulated observer "
+                  "(not the participant); the analysis lists them")
         for w in caught:
             if issubclass(w.category, TornTailWarning):
                 print(f"    WARNING: {w.message}")
-    return 0
+    return 1 if damaged else 0
 
 
 def _cmd_simulate(args) -> int:

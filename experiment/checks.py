@@ -149,7 +149,8 @@ class SessionStimuli:
         return sorted(set(self.frame["calibration_id"].astype(str)))
 
 
-def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
+def check_stimuli(manifest, plan_rows: pd.DataFrame, *,
+                  every_stimulus=None) -> SessionStimuli:
     """Check the manifest holds every stimulus of ``plan_rows``, present and unchanged.
 
     Parameters
@@ -158,6 +159,11 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
         ``manifest.csv`` written by ``python -m stimuli render`` (or its folder).
     plan_rows : DataFrame
         The session's plan rows (``stimulus_id`` and the design levels).
+    every_stimulus : sequence of str, optional
+        Stimulus ids checked as well (checksums, every PNG decoded): the app passes those of
+        all the participant's sessions, so that an image damaged or replaced is found before
+        the first session rather than at the start of a later one (where the participant would
+        see a re-rendered set). Default: the session's only.
 
     Raises
     ------
@@ -172,25 +178,27 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame) -> SessionStimuli:
             "`python -m stimuli render --set experiment --out DIR`)"
         )
     ids = list(plan_rows["stimulus_id"])
+    checked = list(dict.fromkeys([*ids, *(every_stimulus if every_stimulus is not None else [])]))
+    whose = "this session's" if len(checked) == len(ids) else "the participant's"
     try:
         frame = load_manifest(manifest)
-        problems = verify_manifest(manifest, kinds=("png",), stimulus_ids=ids)
+        problems = verify_manifest(manifest, kinds=("png",), stimulus_ids=checked)
     except ManifestError as exc:
         raise PreflightError(str(exc)) from exc
     if problems:
         more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
         raise PreflightError(
             f"stimulus manifest {frame.attrs['manifest_path']}: {len(problems)} problem(s) with "
-            f"this session's stimuli{more}:\n  " + "\n  ".join(problems[:10])
+            f"{whose} stimuli{more}:\n  " + "\n  ".join(problems[:10])
         )
     path = Path(frame.attrs["manifest_path"])
     rows = frame.set_index("stimulus_id").loc[ids].reset_index()
-    problems = _decode_problems(path, rows)
+    problems = _decode_problems(path, frame.set_index("stimulus_id").loc[checked].reset_index())
     if problems:
         more = f" (and {len(problems) - 10} more)" if len(problems) > 10 else ""
         raise PreflightError(
-            f"stimulus manifest {path}: {len(problems)} image(s) of this session do not decode "
-            f"as the manifest says{more}:\n  " + "\n  ".join(problems[:10]))
+            f"stimulus manifest {path}: {len(problems)} of {whose} images do not decode as the "
+            f"manifest says{more}:\n  " + "\n  ".join(problems[:10]))
     for col in ("illumination", "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm"):
         a, b = rows[col].to_numpy(), plan_rows[col].to_numpy()
         same = a == b if col == "illumination" else np.isclose(a.astype(float), b.astype(float))

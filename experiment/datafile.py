@@ -56,6 +56,7 @@ from labfiles import (
 
 __all__ = [
     "SESSION_COLUMNS",
+    "SIMULATED_CALIBRATION_ID",
     "DataFileError",
     "SessionWriter",
     "app_version",
@@ -65,6 +66,8 @@ __all__ = [
     "read_slider_histories",
     "runs_path",
     "session_path",
+    "simulated_app_version",
+    "simulated_rows",
     "sliders_path",
     "write_run_log",
 ]
@@ -81,6 +84,31 @@ SESSION_COLUMNS = (
 _HEADER = csv_record(SESSION_COLUMNS)
 #: A whole session row: it parses into exactly the session's columns.
 _ROW_CHECK = csv_fields_check(len(SESSION_COLUMNS))
+
+
+#: The ``calibration_id`` of sessions simulated without the app (``python -m experiment
+#: simulate``): no display was involved.
+SIMULATED_CALIBRATION_ID = "simulated"
+#: ``app_version`` tags of rows answered by a simulated observer: through the app's window
+#: (``run --simulate``, the real calibration's id) or without the app (``simulate_dataset``).
+_SIMULATED_TAGS = (" simulated:", " simulate_dataset:")
+
+
+def simulated_app_version(kind: str, *, through_app: bool) -> str:
+    """The ``app_version`` of a row answered by a simulated observer of ``kind``: the version,
+    then ``simulated:<kind>`` (``run --simulate``) or ``simulate_dataset:<kind>``."""
+    return f"{app_version()}{_SIMULATED_TAGS[0 if through_app else 1]}{kind}"
+
+
+def simulated_rows(frame: pd.DataFrame) -> pd.Series:
+    """Which session rows a simulated observer answered (bool, aligned with ``frame``): its
+    ``app_version`` says so (:func:`simulated_app_version`) or its ``calibration_id`` is
+    ``SIMULATED_CALIBRATION_ID``. Such rows are not a participant's, wherever they are."""
+    version = frame["app_version"].fillna("").astype(str)
+    tagged = pd.Series(False, index=frame.index)
+    for tag in _SIMULATED_TAGS:
+        tagged |= version.str.contains(tag, regex=False)
+    return tagged | (frame["calibration_id"].fillna("").astype(str) == SIMULATED_CALIBRATION_ID)
 
 
 class DataFileError(ValueError):
@@ -262,6 +290,9 @@ class SessionWriter:
     background_fsync : bool
         Run the fsync beside the next stimulus's drawing (the session app does: the fsync of two
         files costs about half a frame, see bench/experiment_frame_cost.py).
+    sliders : bool
+        Open the slider-histories file too (the app); ``False`` for rows without histories
+        (simulated sessions), which then leave no empty histories file.
 
     Raises
     ------
@@ -270,24 +301,28 @@ class SessionWriter:
     """
 
     def __init__(self, data_dir, participant: str, session: int, *,
-                 background_fsync: bool = False):
+                 background_fsync: bool = False, sliders: bool = True):
         self.path = session_path(data_dir, participant, session)
         self.sliders = sliders_path(data_dir, participant, session)
         self._rows = RecordFile(self.path, header=_HEADER, check=_ROW_CHECK, sync=False)
-        self._histories = RecordFile(self.sliders, check=json_record_check, sync=False)
+        self._histories = (RecordFile(self.sliders, check=json_record_check, sync=False)
+                           if sliders else None)
         self._background = background_fsync
         self._pool = None
         self._pending = None
         self.torn: list = []
 
     def __enter__(self) -> Self:
-        self._histories.__enter__()
+        if self._histories is not None:
+            self._histories.__enter__()
         try:
             self._rows.__enter__()
         except BaseException:
-            self._histories.close()
+            if self._histories is not None:
+                self._histories.close()
             raise
-        self.torn = [t for t in (self._rows.torn, self._histories.torn) if t is not None]
+        files = (self._rows, self._histories)
+        self.torn = [f.torn for f in files if f is not None and f.torn is not None]
         if self._background:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fsync")
         return self
@@ -300,7 +335,8 @@ class SessionWriter:
                 self._pool.shutdown(wait=True)
                 self._pool = None
             self._rows.close()
-            self._histories.close()
+            if self._histories is not None:
+                self._histories.close()
 
     def wait(self) -> None:
         """Block until the last row is on the disk (raises the fsync's error, if any)."""
@@ -309,7 +345,8 @@ class SessionWriter:
             pending.result()
 
     def _fsync(self) -> None:
-        self._histories.sync()
+        if self._histories is not None:
+            self._histories.sync()
         self._rows.sync()
 
     def append(self, row: dict, sliders: dict | None = None) -> None:
@@ -322,13 +359,11 @@ class SessionWriter:
         sliders : dict, optional
             JSON-serialisable histories, e.g. ``{"gloss": [[rating, t_s], ...], "depth": ...}``.
         """
-        missing = [c for c in SESSION_COLUMNS if c not in row]
-        if missing:
-            raise ValueError(f"session row lacks {missing}")
-        if self._rows.fd is None:
-            raise RuntimeError("SessionWriter used outside its `with` block")
+        self._check(row)
         self.wait()
         if sliders is not None:
+            if self._histories is None:
+                raise ValueError("this SessionWriter was opened with sliders=False")
             record = {"participant": row["participant"], "session": int(row["session"]),
                       "trial": int(row["trial"]), "stimulus_id": row["stimulus_id"], **sliders}
             self._histories.append(json_record(record))
@@ -337,3 +372,25 @@ class SessionWriter:
             self._pending = self._pool.submit(self._fsync)
         else:
             self._fsync()
+
+    def extend(self, rows) -> None:
+        """Write many trials without slider histories (simulated sessions): each row is one
+        ``write`` as in :meth:`append`, and the file is fsynced once at the end.
+
+        Parameters
+        ----------
+        rows : iterable of dict
+            Each with every name of ``SESSION_COLUMNS``.
+        """
+        self.wait()
+        for row in rows:
+            self._check(row)
+            self._rows.append(csv_record([row[c] for c in SESSION_COLUMNS]))
+        self._fsync()
+
+    def _check(self, row: dict) -> None:
+        missing = [c for c in SESSION_COLUMNS if c not in row]
+        if missing:
+            raise ValueError(f"session row lacks {missing}")
+        if self._rows.fd is None:
+            raise RuntimeError("SessionWriter used outside its `with` block")

@@ -43,6 +43,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize, special
 
+from experiment.datafile import simulated_rows
 from studydesign import StudyDesign
 
 __all__ = ["ObserverFitError", "ObserverFitWarning", "fit_observer_params"]
@@ -192,11 +193,6 @@ def _population_reml(theta, se):
 
 
 # -------------------------------------------------------------------------------- data checks
-def _simulated_rows(frame: pd.DataFrame) -> pd.Series:
-    """Rows written by :func:`experiment.simulate_dataset` (their app_version says so)."""
-    return frame["app_version"].astype(str).str.contains("simulate_dataset:", regex=False)
-
-
 def _check_frame(sessions: pd.DataFrame, simulated_sessions) -> pd.DataFrame:
     """Refuse what cannot be fitted; warn about simulated rows among real ones."""
     if not isinstance(sessions, pd.DataFrame) or sessions.empty:
@@ -231,7 +227,7 @@ def _check_frame(sessions: pd.DataFrame, simulated_sessions) -> pd.DataFrame:
         raise ObserverFitError(f"only one participant ({counts.index[0]}): the between-observer "
                                "SDs need at least 2 participants (the study has 11); fit a pilot "
                                "of several participants")
-    sim = _simulated_rows(frame)
+    sim = simulated_rows(frame)
     for who, session in simulated_sessions or ():
         sim |= (frame["participant"] == str(who)) & (frame["session"] == session)
     if sim.any() and not sim.all():

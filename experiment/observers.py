@@ -38,7 +38,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiment.datafile import SESSION_COLUMNS, app_version, session_path
+from experiment.datafile import (
+    SESSION_COLUMNS,
+    SIMULATED_CALIBRATION_ID,
+    SessionWriter,
+    session_path,
+    simulated_app_version,
+)
 from experiment.plan import make_plan, participant_seed
 from labfiles import atomic_write_text, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
@@ -256,12 +262,10 @@ class Observer:
         return gloss_hat, depth_hat
 
     def to_slider(self, gloss_pct, depth_cm):
-        """Physical estimates -> slider positions clipped to [slider.min, slider.max]."""
-        s = self.slider
-        g0 = float(s.to_gloss_pct(s.min))
-        gloss_v = s.min + (np.asarray(gloss_pct, float) - g0) / s.gloss_pct_per_unit
-        depth_v = np.asarray(depth_cm, float) / s.depth_cm_per_unit
-        return np.clip(gloss_v, s.min, s.max), np.clip(depth_v, s.min, s.max)
+        """Physical estimates (%, cm) -> slider positions clipped to [slider.min, slider.max]
+        (the design's own conversion, :meth:`studydesign.SliderSpec.from_gloss_pct`)."""
+        return (self.slider.from_gloss_pct(gloss_pct, clip=True),
+                self.slider.from_depth_cm(depth_cm, clip=True))
 
     def respond(self, trial_row, rng: np.random.Generator) -> tuple[float, float]:
         """Answer one trial.
@@ -353,7 +357,7 @@ def _plan(design: StudyDesign, participant: str) -> pd.DataFrame:
 
 
 def simulate_dataset(design: StudyDesign, observers, rng: np.random.Generator, *,
-                     calibration_id: str = "simulated") -> pd.DataFrame:
+                     calibration_id: str = SIMULATED_CALIBRATION_ID) -> pd.DataFrame:
     """Every observer answers its whole plan (all sessions), without the app.
 
     Each observer's plan is the one ``python -m experiment run`` makes for that participant id
@@ -400,7 +404,7 @@ def simulate_dataset(design: StudyDesign, observers, rng: np.random.Generator, *
             (start + timedelta(seconds=float(t + r))).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
             for t, r in zip(onset, plan["rt_s"])
         ]
-        plan["app_version"] = f"{app_version()} simulate_dataset:{obs.kind}"
+        plan["app_version"] = simulated_app_version(obs.kind, through_app=False)
         plan["calibration_id"] = calibration_id
         frames.append(plan[list(SESSION_COLUMNS)])
     out = pd.concat(frames, ignore_index=True)
@@ -420,9 +424,8 @@ def write_simulated_sessions(folder, design: StudyDesign, observers, rng: np.ran
         raise FileExistsError(17, "session file exists", str(exists[0]))
     paths = []
     for (who, session), rows in groups:
-        path = session_path(folder, who, int(session))
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with open(path, "x", newline="", encoding="utf-8") as fh:
-            rows.to_csv(fh, index=False)
-        paths.append(path)
+        # The app's own writer: one format and one torn-tail rule for simulated and real rows.
+        with SessionWriter(folder, who, int(session), sliders=False) as writer:
+            writer.extend(rows.to_dict("records"))
+        paths.append(writer.path)
     return paths

@@ -23,6 +23,7 @@ even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import platform
 import warnings
@@ -57,10 +58,11 @@ from experiment.datafile import (
     read_slider_histories,
     runs_path,
     session_path,
+    simulated_app_version,
     sliders_path,
     write_run_log,
 )
-from experiment.plan import PlanError, load_or_create_plan, participant_seed
+from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
 from studydesign import StudyDesign
@@ -113,6 +115,8 @@ class Prepared:
     warnings: list = field(default_factory=list)
     inputs: dict = field(default_factory=dict)
     observer: object = None
+    #: The torn tails among ``warnings``: the run moves them aside and says so itself.
+    torn: list = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -216,7 +220,25 @@ def _check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], pat
             "images if they were replaced)")
 
 
-def _read_recorded(read, path: Path, warned: list):
+def _run_logs(data_dir, stem: str, *, read: bool = True) -> list[tuple[int, dict]]:
+    """The run logs ``logs/<stem>_run<k>.json`` of a session as ``(k, log)``, by ``k``; a log
+    that does not read as JSON is ``{}`` (and so is every log with ``read=False``)."""
+    found = []
+    for path in (Path(data_dir) / "logs").glob(f"{stem}_run*.json"):
+        number = path.stem[len(stem) + 4:]
+        if not number.isdigit():
+            continue
+        log = {}
+        if read:
+            try:
+                log = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError):
+                log = {}
+        found.append((int(number), log if isinstance(log, dict) else {}))
+    return sorted(found, key=lambda item: item[0])
+
+
+def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
     """``read(path)`` (a session CSV or run log reader) with a torn tail turned into a
     pre-flight warning (nothing is moved yet: the run does that, holding the lock)."""
     with warnings.catch_warnings(record=True) as caught:
@@ -225,7 +247,10 @@ def _read_recorded(read, path: Path, warned: list):
             records = read(path)
         except DataFileError as exc:
             raise PreflightError(str(exc)) from exc
-    warned += [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    found = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
+    warned += found
+    if torn is not None:
+        torn += found
     return records
 
 
@@ -242,9 +267,10 @@ def prepare_session(req: SessionRequest) -> Prepared:
     rows = plan[plan["session"] == session].sort_values("trial").reset_index(drop=True)
     path = session_path(req.data_dir, req.participant, session)
     notes: list = []
-    done = _read_recorded(read_session, path, notes)
+    torn: list = []
+    done = _read_recorded(read_session, path, notes, torn)
     _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
-                   notes)
+                   notes, torn)
     _check_done(done, rows, path)
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
@@ -256,12 +282,23 @@ def prepare_session(req: SessionRequest) -> Prepared:
     screen = profile = stim = cal = observer = None
     inputs: dict = {}
     if len(todo):
-        stim = check_stimuli(req.manifest, rows)
+        stim = check_stimuli(req.manifest, rows, every_stimulus=plan["stimulus_id"])
         cal = check_calibration(req.calibration, design,
                                 max_age_days=req.max_calibration_age_days)
         inputs = session_inputs(stim, req.calibration, cal)
         events = _read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
-                                                           session), notes)
+                                                           session), notes, torn)
+        if len(done) and not any("stimuli_sha256" in e for e in events):
+            # The start events are gone (the file was moved or deleted): each run's own log
+            # holds the same inputs.
+            events = events + [{"event": "start", **log["inputs"]}
+                               for _, log in _run_logs(req.data_dir, path.stem)
+                               if "inputs" in log]
+            if not any("stimuli_sha256" in e for e in events):
+                notes.append(f"{path}: no record of the stimuli and calibration file this "
+                             f"session started with ({runs_path(req.data_dir, req.participant, session)} "
+                             "and the run logs are missing); this resume cannot check that they "
+                             "are the same")
         _check_same_inputs(inputs, done, events, path)
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
         if other:
@@ -285,7 +322,8 @@ def prepare_session(req: SessionRequest) -> Prepared:
         screen = check_screen(design, fullscr=req.fullscr)
     return Prepared(request=req, session=session, plan=rows, done=done, todo=todo,
                     stimuli=stim, calibration=cal, screen_px=screen, monitor_profile=profile,
-                    warnings=notes, inputs=inputs, observer=observer)
+                    warnings=notes, inputs=inputs, observer=observer,
+                    torn=[w for w in notes if w in torn])
 
 
 def _make_observer(req: SessionRequest):
@@ -377,7 +415,8 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
     data = session_path(req.data_dir, req.participant, prep.session)
     total = len(prep.plan)
     for w in prep.warnings:
-        out(f"warning: {w}")
+        if prep.todo.empty or w not in prep.torn:  # a run reports the torn tails it moves
+            out(f"warning: {w}")
     if prep.todo.empty:
         out(f"session {prep.session} of {req.participant} is already complete "
             f"({total} trials in {data}); nothing to do")
@@ -394,8 +433,12 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             events = runs_path(req.data_dir, req.participant, prep.session)
-            run = 1 + sum(1 for e in read_run_events(events, repair=True)
-                          if e.get("event") == "start")
+            starts = sum(1 for e in read_run_events(events, repair=True)
+                         if e.get("event") == "start")
+            # The next free run number: a run log is never overwritten, even when the run
+            # history (``*_runs.jsonl``) was lost.
+            run = 1 + max([starts, *(k for k, _ in _run_logs(req.data_dir, data.stem,
+                                                              read=False))])
             read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
                                   repair=True)
             if len(read_session(data, repair=True)) != len(prep.done):
@@ -442,15 +485,18 @@ def _check_refresh(win, cal, log: dict, out) -> None:
         log["warnings"].append(w)
 
 
-def _session_row(row: dict, result: TrialResult, calibration_id: str) -> dict:
-    """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer."""
-    record = {c: row[c] for c in ("participant", "session", "trial", "order", "stimulus_id",
-                                  "illumination", "gloss_level", "depth_level",
-                                  "true_gloss_pct", "true_depth_cm")}
+def _session_row(row: dict, result: TrialResult, calibration_id: str,
+                 simulate: str | None = None) -> dict:
+    """The session CSV's row (``SESSION_COLUMNS``) for one plan row and its answer; a simulated
+    observer's (``simulate``: its kind) is tagged in ``app_version``, so that the analysis
+    never takes it for a participant's."""
+    version = (app_version() if simulate is None
+               else simulated_app_version(simulate, through_app=True))
+    record = {c: row[c] for c in PLAN_COLUMNS if c in SESSION_COLUMNS}
     record.update(gloss_match=result.gloss_match, depth_match=result.depth_match,
                   rt_s=result.rt_s, onset_s=result.onset_s,
                   dropped_frames=result.dropped_frames, timestamp_utc=_now(),
-                  app_version=app_version(), calibration_id=calibration_id)
+                  app_version=version, calibration_id=calibration_id)
     return {c: record[c] for c in SESSION_COLUMNS}
 
 
@@ -525,7 +571,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
                 if last_response_s is not None:
                     trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
                 last_response_s = result.onset_s + result.rt_s
-                writer.append(_session_row(row, result, cal.calibration_id),
+                writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
                               sliders=result.slider_record())
                 trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
                                    "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})

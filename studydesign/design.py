@@ -71,6 +71,12 @@ def _levels(levels: Any, n_levels: int, name: str) -> tuple[int, ...]:
     return out
 
 
+#: The label of the first (matte, 0 %) gloss reference object. A slider position is the label
+#: of the reference object it matches, so the slider's gloss scale is anchored here, not at
+#: ``slider.min`` (which only bounds where the marker can go).
+FIRST_GLOSS_LABEL = 1.0
+
+
 @dataclass(frozen=True)
 class GlossSpec:
     """Gloss levels: physical references labelled 1..n, ``gloss_pct = step_pct * (label - 1)``."""
@@ -95,7 +101,7 @@ class GlossSpec:
 
     def pct(self, level):
         """Gloss in % (0-100) of level label(s) 1..n."""
-        return np.round(self.step_pct * (np.asarray(level, dtype=float) - 1.0), 10)
+        return np.round(self.step_pct * (np.asarray(level, dtype=float) - FIRST_GLOSS_LABEL), 10)
 
     @property
     def physical_pct(self) -> tuple[float, ...]:
@@ -196,7 +202,8 @@ class Illumination:
 
 @dataclass(frozen=True)
 class ToneMapSpec:
-    """Seed tone mapping: linear below the knee, asymptotic logistic above (8-bit values)."""
+    """The source study's tone mapping: linear below the knee, asymptotic logistic above
+    (8-bit values)."""
 
     linear_fraction: float
     knee_value: int
@@ -268,12 +275,16 @@ class SliderSpec:
         return v
 
     def to_depth_cm(self, value):
-        """Slider position(s) in [min, max] -> matched depth in cm (``0.4 * v``)."""
+        """Slider position(s) in [min, max] -> matched depth in cm (``depth_cm_per_unit * v``,
+        0.4 v in the shipped design: position v matches the depth reference labelled v)."""
         return self.depth_cm_per_unit * self._check(value)
 
     def to_gloss_pct(self, value):
-        """Slider position(s) in [min, max] -> matched gloss in % (``10 * (v - 1)``)."""
-        return self.gloss_pct_per_unit * (self._check(value) - 1.0)
+        """Slider position(s) in [min, max] -> matched gloss in %
+        (``gloss_pct_per_unit * (v - FIRST_GLOSS_LABEL)``, 10 (v - 1) in the shipped design:
+        position v matches the gloss reference labelled v whatever ``min`` is; ``min`` and
+        ``max`` bound the positions accepted)."""
+        return self.gloss_pct_per_unit * (self._check(value) - FIRST_GLOSS_LABEL)
 
     def from_depth_cm(self, depth_cm, *, clip: bool):
         """Depth in cm -> slider position(s), the inverse of :meth:`to_depth_cm`.
@@ -288,7 +299,7 @@ class SliderSpec:
         """Gloss in % -> slider position(s), the inverse of :meth:`to_gloss_pct` (whatever
         ``min`` is, ``to_gloss_pct(from_gloss_pct(g)) == g``); ``clip`` as
         :meth:`from_depth_cm`."""
-        v = 1.0 + np.asarray(gloss_pct, dtype=float) / self.gloss_pct_per_unit
+        v = FIRST_GLOSS_LABEL + np.asarray(gloss_pct, dtype=float) / self.gloss_pct_per_unit
         return np.clip(v, self.min, self.max) if clip else v
 
 

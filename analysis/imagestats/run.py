@@ -10,6 +10,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import signal
+import threading
 import time
 import warnings
 from dataclasses import asdict, dataclass
@@ -102,10 +104,32 @@ def dask_client(*, workers: int = 2, scheduler: str | None = None):
         return
     if workers < 1:
         raise ImageStatsError(f"--workers {workers}: use at least 1")
-    with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
-            Client(cluster) as client:
+    with _workers_ignore_ctrl_c():
+        # Worker logs at CRITICAL only: a task's error reaches this process through its
+        # future; what the workers log at ERROR is their shutdown racing the scheduler's
+        # (heartbeat tracebacks after Ctrl-C or a busy machine's slow close).
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                               dashboard_address=None, silence_logs=logging.CRITICAL)
+    with cluster, Client(cluster) as client:
         yield client
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """Start worker processes with SIGINT ignored (they inherit it through ``exec``).
+
+    Ctrl-C in a terminal signals the whole process group: the workers, hit too, died with
+    tracebacks of their own over the run's clean message. Only this process must see it; it
+    then closes the cluster, which ends the workers.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _folder_problems(manifest: pd.DataFrame, root: Path) -> list[tuple[str, str]]:

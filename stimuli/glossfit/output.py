@@ -1,4 +1,4 @@
-"""Writing a gloss fit's output folder (read by the sim-to-real diagnosis).
+"""Writing a gloss fit's output folder (read by the sim-to-real diagnosis, analysis.gap).
 
     OUT_DIR/gloss_table.csv          stimuli.glosstable format (+ rho_d_fit, rho_s_fit)
     OUT_DIR/fits.csv                 one row per gloss level (FITS_COLUMNS), appended as fitted

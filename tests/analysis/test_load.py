@@ -119,3 +119,23 @@ def test_simulated_and_mixed_calibration_data_are_listed(folder, design):
                in w for w in data.warnings)
     assert ("simulated", ("S02",), design.sessions.trials_per_session) in data.calibrations
     assert any(w.startswith("data of more than one calibration") for w in data.warnings)
+
+
+def test_sessions_answered_by_the_apps_simulated_observer_are_listed(folder, design):
+    """``experiment run --simulate`` writes the real calibration's id into the real data folder:
+    its rows are still listed as simulated (their app_version says so), not as a participant."""
+    from experiment.session import _session_row
+    from experiment.trial import TrialResult
+
+    path = folder / "sessions" / "S01_s1.csv"
+    frame = pd.read_csv(path, dtype=str)
+    plan_row = frame.iloc[0].to_dict()
+    result = TrialResult(gloss_match=5.0, depth_match=5.0, rt_s=1.0, onset_s=0.0,
+                         dropped_frames=0, gloss_history=(), depth_history=(), gloss_trace=(),
+                         depth_trace=(), early_space_s=(), pauses=())
+    row = _session_row(plan_row, result, "crt-2026-11", simulate="humanlike")
+    assert row["calibration_id"] == "crt-2026-11"
+    frame["app_version"] = row["app_version"]
+    frame.to_csv(path, index=False)
+    data = load_sessions(folder, design)
+    assert any("simulated data included: participants ['S01']" in w for w in data.warnings)

@@ -74,6 +74,26 @@ def test_torn_session_row_is_left_out_by_readers_and_moved_aside_by_the_writer(t
     assert read_session(path)["trial"].tolist() == [1, 2]
 
 
+def test_status_fails_on_a_damaged_session_and_notes_simulated_trials(tmp_path, design, capsys):
+    """A row damaged in the middle of a session CSV is not a torn tail: `status` exits 1 (a
+    script checking the lab's sessions notices); trials of a simulated observer are noted."""
+    import numpy as np
+
+    from experiment import make_observer, write_simulated_sessions
+
+    obs = [make_observer("ideal", "P01", np.random.default_rng(1), design=design)]
+    first, _ = write_simulated_sessions(tmp_path, design, obs, np.random.default_rng(2))
+    assert main(["status", "--participant", "P01", "--data", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert f"NOTE: {design.sessions.trials_per_session} of these trials were answered by a " \
+           "simulated observer" in out
+    lines = first.read_text().splitlines()
+    lines[3] = lines[3][:20]
+    first.write_text("\n".join(lines) + "\n")
+    assert main(["status", "--participant", "P01", "--data", str(tmp_path)]) == 1
+    assert "session 1: DAMAGED" in capsys.readouterr().out
+
+
 def test_torn_run_log_is_named_in_status_and_repaired_by_the_next_run(tmp_path, design,
                                                                      capsys):
     """A torn last line of *_runs.jsonl crashed `status` and `run` with a JSONDecodeError that

@@ -94,6 +94,29 @@ def test_simulated_sessions_load_in_analysis(tmp_path, design, rng):
         write_simulated_sessions(tmp_path, design, observers, rng)
 
 
+def test_simulated_sessions_are_written_by_the_apps_session_writer(tmp_path, design, monkeypatch):
+    """Simulated and app sessions have one writer: its rows, fsynced, and no histories file."""
+
+    from experiment import datafile
+
+    calls = []
+    real_extend = datafile.SessionWriter.extend
+
+    def extend(self, rows):
+        rows = list(rows)
+        calls.append((self.path, len(rows)))
+        return real_extend(self, rows)
+
+    monkeypatch.setattr(datafile.SessionWriter, "extend", extend)
+    obs = [make_observer("ideal", "S0", np.random.default_rng(1), design=design)]
+    paths = write_simulated_sessions(tmp_path, design, obs, np.random.default_rng(2))
+    assert [c[0] for c in calls] == paths
+    assert sum(c[1] for c in calls) == design.n_stimuli
+    expected = simulate_dataset(design, obs, np.random.default_rng(2))
+    got = pd.concat([read_session(p) for p in paths], ignore_index=True)
+    assert got["gloss_match"].to_numpy() == pytest.approx(expected["gloss_match"].to_numpy())
+    assert not (tmp_path / "sliders").exists()
+
 def test_simulate_dataset_shape(design, rng):
     obs = [make_observer("ideal", "A", rng), make_observer("ideal", "B", rng)]
     frame = simulate_dataset(design, obs, rng)
@@ -103,7 +126,6 @@ def test_simulate_dataset_shape(design, rng):
     assert isinstance(frame, pd.DataFrame)
     with pytest.raises(ValueError, match="repeat"):
         simulate_dataset(design, [obs[0], obs[0]], rng)
-
 
 def test_simulate_command_writes_and_never_overwrites(tmp_path, design, capsys):
     from experiment.__main__ import main

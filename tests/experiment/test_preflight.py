@@ -273,6 +273,20 @@ def test_every_stimulus_png_is_decoded_before_the_session(design, session_files,
     assert sid in str(info.value) and "re-render" in str(info.value).lower()
 
 
+def test_a_damaged_image_of_a_later_session_is_refused_before_the_first(design,
+                                                                        session_files):
+    """Every image of the participant's sessions is decoded at each start: a truncated PNG that
+    session 2 would show stops session 1, not the participant's return a week later (when only a
+    re-rendered set could be shown)."""
+    prep = prepare_session(_request(design, session_files, session=2))
+    png, sid = prep.stimuli.frame["png"].iloc[0], prep.stimuli.frame["stimulus_id"].iloc[0]
+    Path(png).write_bytes(Path(png).read_bytes()[:-30])
+    _rewrite_manifest_checksum(session_files["manifest"], sid)
+    with pytest.raises(PreflightError, match="does not decode") as info:
+        prepare_session(_request(design, session_files, session=1))
+    assert sid in str(info.value) and "participant's" in str(info.value)
+
+
 def _record_first_run(design, files, n_rows=2):
     """The state after a first run answered ``n_rows`` trials: rows and the run's start event."""
     prep = prepare_session(_request(design, files))
@@ -303,6 +317,27 @@ def test_resume_keeps_the_calibration_and_stimuli_it_started_with(design, sessio
     with pytest.raises(PreflightError, match="are not the same") as info:
         prepare_session(_request(design, f, manifest=str(small)))
     assert "--stimuli" in str(info.value) and first.inputs["manifest"] in str(info.value)
+
+
+def test_resume_without_its_run_history_checks_the_run_logs_and_numbers_the_next_run(
+        design, session_files, tmp_path):
+    """An operator moved ``*_runs.jsonl`` away: the resume still refuses other images (the
+    first run's log holds its inputs; the check used to be skipped, mixing image sizes in one
+    session), and the next run takes a free number (run 1's log used to be 'not written')."""
+    from experiment.session import _run_logs
+
+    f = session_files
+    first = _record_first_run(design, f)
+    logs = f["data"] / "logs"
+    (logs / "P01_s1_run1.json").write_text(json.dumps({"run": 1, "inputs": first.inputs}))
+    runs_path(f["data"], "P01", 1).unlink()
+    small = make_manifest(tmp_path / "small", design, size_px=32)
+    with pytest.raises(PreflightError, match="are not the same"):
+        prepare_session(_request(design, f, manifest=str(small)))
+    assert [k for k, _ in _run_logs(f["data"], "P01_s1")] == [1]
+    (logs / "P01_s1_run1.json").unlink()
+    prep = prepare_session(_request(design, f, manifest=str(small)))
+    assert any("cannot check" in w for w in prep.warnings)
 
 
 def test_screenshot_into_a_missing_folder_is_refused(design, session_files, tmp_path):
@@ -350,3 +385,33 @@ def test_data_folder_must_be_given(design, session_files, tmp_path, monkeypatch)
     monkeypatch.setenv("GLOSSDEPTH_DATA", str(session_files["data"]))
     assert main(["plan", "--participant", "P01"]) == 0
     assert (session_files["data"] / "plans" / "P01_plan.csv").is_file()
+
+
+def test_a_relative_lab_data_root_is_refused(tmp_path, monkeypatch, capsys):
+    """GLOSSDEPTH_DATA=data (set once in a profile) would follow the working directory: the same
+    command from another directory started the session over in another ./data."""
+    from experiment.__main__ import main
+
+    monkeypatch.setenv("GLOSSDEPTH_DATA", "data")
+    monkeypatch.chdir(tmp_path)
+    assert main(["plan", "--participant", "P01"]) == 2
+    assert "relative path" in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
+    assert main(["plan", "--participant", "P01", "--data", "data"]) == 0  # explicit: allowed
+    assert (tmp_path / "data" / "plans" / "P01_plan.csv").is_file()
+
+
+def test_complete_session_whose_run_log_failed_says_so(monkeypatch, capsys, tmp_path):
+    """A run whose log could not be written (a full disk at the end) names what is missing,
+    rather than printing ``log None``."""
+    from types import SimpleNamespace
+
+    import experiment.session
+    from experiment.__main__ import main_run
+    from experiment.session import SessionOutcome
+
+    out = SessionOutcome("complete", "P01", 1, 6, 6, str(tmp_path / "P01_s1.csv"), None)
+    monkeypatch.setattr(experiment.session, "run_session", lambda req: out)
+    assert main_run(SimpleNamespace(data_dir=tmp_path)) == 0
+    said = capsys.readouterr().out
+    assert "None" not in said and "run log could not be written" in said

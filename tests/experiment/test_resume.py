@@ -164,6 +164,9 @@ def test_ctrl_c_keeps_the_answers_and_a_torn_history_is_repaired_on_resume(
     res = _run(cmd)
     assert res.returncode == 0, res.stderr
     assert f"warning: {hist}: line {kept + 1} is torn" in res.stdout
+    # Said once, by the run that moves it (not also announced as "the next run moves ...").
+    assert res.stdout.count(f"warning: {hist}: line {kept + 1} is torn") == 1
+    assert res.stdout.count(f"warning: {runs}: line") == 1
     assert read_session(path)["trial"].tolist() == list(range(1, n + 1))
     assert pd.read_json(hist, lines=True)["trial"].tolist() == list(range(1, n + 1))
     assert len(list(hist.parent.glob("C1_s1.jsonl.torn-*"))) == 1
@@ -203,6 +206,7 @@ def test_full_disk_mid_session_is_named_and_the_resume_completes(
         assert _kill_after.returncode == 1, (kept, _kill_after.stderr)
         assert "disk is full" in _kill_after.stderr and "Traceback" not in _kill_after.stderr
         assert "free space, then run the same command to continue" in _kill_after.stderr
+        assert _kill_after.stderr.count("free space") == 1
         assert read_session(path)["trial"].tolist() == list(range(1, kept + 1))
         filler.unlink()
         res = _run(cmd)

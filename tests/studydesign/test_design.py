@@ -1,4 +1,4 @@
-"""The design object carries the seed's numbers, validates its input, and is the only copy."""
+"""The design object carries the source study's numbers, validates its input, and is the only copy."""
 
 from __future__ import annotations
 
@@ -21,7 +21,8 @@ def test_gloss_levels_match_seed(design):
 
 
 def test_depth_levels_are_0p4_cm_steps(design):
-    # d_i = 0.4 i cm, i = 1..11 -> 0.4..4.4 cm; rendered 2..10 -> 0.8..4.0 cm (seed's ranges).
+    # d_i = 0.4 i cm, i = 1..11 -> 0.4..4.4 cm; rendered 2..10 -> 0.8..4.0 cm
+    # (the source study's ranges).
     assert design.depth.physical_cm == pytest.approx([0.4 * i for i in range(1, 12)])
     assert design.depth.physical_cm[0] == pytest.approx(0.4)
     assert design.depth.physical_cm[-1] == pytest.approx(4.4)
@@ -90,6 +91,20 @@ def test_physical_to_slider_inverts_slider_to_physical_whatever_the_minimum(desi
     assert s.from_gloss_pct(s.to_gloss_pct(v), clip=False) == pytest.approx(v)
     assert s.from_depth_cm(s.to_depth_cm(v), clip=False) == pytest.approx(v)
     assert s.from_gloss_pct([-50.0, 500.0], clip=True).tolist() == [slider_min, s.max]
+
+
+@pytest.mark.parametrize("slider_min", [0.0, 1.0, 2.5])
+def test_slider_position_matches_the_reference_label_whatever_the_minimum(design, slider_min):
+    """A changed slider.min bounds the marker; it does not move the scale: position v is still
+    the reference object labelled v (gloss 10 (v - 1) %, depth 0.4 v cm)."""
+    import dataclasses
+
+    s = dataclasses.replace(design.slider, min=slider_min)
+    labels = np.array([3.0, 6.0, 11.0])
+    assert s.to_gloss_pct(labels) == pytest.approx(design.gloss.pct(labels))
+    assert s.to_depth_cm(labels) == pytest.approx(design.depth.cm(labels))
+    with pytest.raises(DesignError):
+        s.to_gloss_pct(slider_min - 0.5)
 
 
 @pytest.mark.parametrize("rgb, y", [((1, 1, 1), 1.0), ((1, 0, 0), 0.2126), ((0, 0, 2), 0.1444)])
@@ -179,7 +194,7 @@ def test_design_numbers_have_no_second_copy_in_package_code(repo_root):
             for pattern, what in _DESIGN_LITERALS:
                 for m in re.finditer(pattern, text):
                     line = text[: m.start()].count("\n") + 1
-                    # Docstrings and comments may quote the seed's formulas.
+                    # Docstrings and comments may quote the source study's formulas.
                     src_line = text.splitlines()[line - 1].strip()
                     if src_line.startswith("#") or '"' in src_line or "'" in src_line:
                         continue

@@ -283,3 +283,30 @@ def test_ctrl_c_ends_the_run_cleanly_and_it_resumes(tmp_path, rng, scheduler, de
                         progress=False)
     assert run.ok and run.n_skipped >= 2
     _check_known(load_stats(out), params)
+
+
+@pytest.mark.slow
+def test_ctrl_c_with_the_local_cluster_prints_no_worker_tracebacks(tmp_path, rng):
+    """Ctrl-C in a terminal signals the whole process group, the local cluster's workers too:
+    they used to die with tracebacks over the clean message; they ignore it, and the run stops
+    them."""
+    folder = tmp_path / "r"
+    write_render_set(folder, rng, n_images=60)
+    out = tmp_path / "stats.parquet"
+    parts = tmp_path / "stats.parquet.partial"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
+         "--workers", "2", "--batch-size", "2", "--quiet", "--no-ps"],
+        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, start_new_session=True,
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 180
+    while not list(parts.glob("part-*.parquet")):
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline, "no batch was written within 180 s"
+        time.sleep(0.005)
+    os.killpg(proc.pid, signal.SIGINT)
+    err = proc.communicate(timeout=120)[1]
+    assert not out.exists(), "the run finished before Ctrl-C; the test proves nothing"
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err, err
+    assert "run the same command to resume" in err

@@ -154,8 +154,8 @@ def test_photo_set_of_the_synth_loads(ward_photos, design):
 @pytest.mark.slow
 def test_grid_and_basis_agree_with_far_fewer_basis_renders(ward_fit, ward_photos, tmp_path,
                                                             design):
-    """The seed's grid and the basis fit minimise the same objective on the same registered
-    photo: |delta rho_s| and |delta alpha| < 0.005 (the gloss fit's target), with >= 20x fewer renders."""
+    """The source study's grid and the basis fit minimise the same objective on the same
+    registered photo: |delta rho_s| and |delta alpha| < 0.005, with >= 20x fewer renders."""
     folder = tmp_path / "set"
     shutil.copytree(ward_photos, folder)
     (folder / "photos" / "gloss_050.exr").unlink()  # one level keeps this test near 40 s
