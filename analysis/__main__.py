@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     p.set_defaults(func=_cmd_fit)
     p = sub.add_parser(
         "report", help="figures, mixed models and bootstrap of DATA_DIR/sessions as HTML",
-        description="Load and validate every session CSV of DATA_DIR, draw the seed's figures, "
+        description="Load and validate every session CSV of DATA_DIR, draw the source study's figures, "
         "fit the mixed models (Type II Wald tests), bootstrap them and write "
         "REPORT_DIR/index.html. An existing report is never overwritten.")
     p.add_argument("data_dir", help="folder holding sessions/<participant>_s<n>.csv")

@@ -241,7 +241,7 @@ def _schur_loop(XtXy, parts, m_yy) -> float:
 
 
 def _schur5(XtXy, R0, R1, R2, J, m_yy) -> float:
-    """`_schur_loop` unrolled for four fixed effects (the seed's model), about 3x faster."""
+    """`_schur_loop` unrolled for four fixed effects (the source study's model), about 3x faster."""
     a0, a1, a2, a3, a4 = R0
     b0, b1, b2, b3, b4 = R1
     e0, e1, e2, e3, e4 = R2

@@ -1,4 +1,4 @@
-"""Claim: the basis gloss fit lands on the seed's grid fit (|delta rho_s|, |delta alpha| < 0.005)
+"""Claim: the basis gloss fit lands on the source study's grid fit (|delta rho_s|, |delta alpha| < 0.005)
 with >= 20x fewer renders.
 
 Both methods fit the same synthetic photo set (clear-coat spheres with every default camera

@@ -32,12 +32,9 @@ def _cmd_fake(args) -> int:
     with FakePhotometer(args.device, crt, screen, np.random.default_rng(args.seed),
                         faults=faults, measure_s=args.measure_s) as fake:
         if args.port_file:
-            tmp = f"{args.port_file}.tmp"
-            with open(tmp, "w") as fh:
-                fh.write(fake.port + "\n")
-            import os
+            from labfiles import atomic_write_text
 
-            os.replace(tmp, args.port_file)
+            atomic_write_text(args.port_file, fake.port + "\n")
         print(fake.port, flush=True)
         print(f"simulated {args.device} on {fake.port} (seed {args.seed}); screen "
               f"{screen.width_px} x {screen.height_px} px; Ctrl-C stops", file=sys.stderr,

@@ -17,7 +17,7 @@ draw_array, stimulus_seed, render_mesh, print_mesh, mesh_edges_ok, write_mesh, A
 camera_geometry, CameraGeometry, StimulusRenderer, multijitter_spp
     Camera at the viewing distance showing the array at its physical size; the reusable scene.
 tone_curve, ToneCurve, tonemap, display_fraction, luminance_range, gamma_encode, write_png
-    The seed's tone map (linear + asymptotic logistic) and the calibration's inverse gamma.
+    The source study's tone map (linear + asymptotic logistic) and the calibration's inverse gamma.
 render_set, RenderJob, contact_sheet
     Render a set into a folder (Dask, resumable); tile its PNGs.
 stimulus_set, SET_NAMES, SET_COLUMNS, parse_filters, apply_filters, MANIFEST_COLUMNS, load_manifest, verify_manifest, append_manifest_row,

@@ -1,4 +1,4 @@
-"""Tone mapping (the seed's linear + asymptotic logistic) and gamma correction to 8-bit PNG.
+"""Tone mapping (the source study's linear + asymptotic logistic) and gamma correction to 8-bit PNG.
 
 Per illumination condition, one curve for all its stimuli. With ``L_max`` the condition's
 luminance range (below), ``f = design.tonemap.linear_fraction`` (0.67), ``v_k = knee_value`` (171)

@@ -26,7 +26,12 @@ from analysis.gap.engine import (
     register,
 )
 from analysis.gap.layers import parse_layer_paths, which_layer
-from analysis.gap.observer import OBSERVER_CANDIDATES, load_sessions, load_sim, localise_observer
+from analysis.gap.observer import (
+    OBSERVER_CANDIDATES,
+    load_sim,
+    localise_observer,
+    read_session_csvs,
+)
 from analysis.gap.report import write_multi_report, write_report
 
 __all__ = [
@@ -41,10 +46,10 @@ __all__ = [
     "diagnose",
     "diagnose_losses",
     "holm",
-    "load_sessions",
     "load_sim",
     "localise_observer",
     "parse_layer_paths",
+    "read_session_csvs",
     "register",
     "which_layer",
     "write_multi_report",

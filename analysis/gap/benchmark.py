@@ -26,7 +26,7 @@ import pandas as pd
 from analysis.gap import inject
 from analysis.gap.diagnose import diagnose
 from analysis.gap.engine import candidate
-from analysis.gap.observer import load_sessions, observer_frame, observer_nll
+from analysis.gap.observer import observer_frame, observer_nll, read_session_csvs
 from analysis.gap.render import noise_sd
 
 __all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
@@ -58,7 +58,7 @@ def _observer_trial(design, effect, strength, rng, tmp: Path, n_boot, n_particip
         return diag, float("nan")
     # The generating process: the effect's true parameters on the ideal observer, every trial
     # (each is held out once), at the ideal observer's noise.
-    frame = observer_frame(load_sessions(tmp / "real"), design)
+    frame = observer_frame(read_session_csvs(tmp / "real"), design)
     names = inject.lab_names(design)
     truth = candidate("observer", effect).truth(
         strength, illuminations=[names[i.name] for i in design.illuminations])

@@ -30,7 +30,6 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
         ceiling_loss,
         check_sim,
         fit_ceiling,
-        load_sessions,
         load_sim,
         localise_observer,
         observer_folds,
@@ -38,10 +37,11 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
         observer_loss,
         observer_unit_ids,
         observer_where,
+        read_session_csvs,
     )
 
     _same_path(real, sim)
-    frame = real if not isinstance(real, (str, Path)) else load_sessions(real)
+    frame = real if not isinstance(real, (str, Path)) else read_session_csvs(real)
     base = load_sim(sim, design, kind=sim_kind)
     notes = check_sim(frame, base)
     data = observer_frame(frame, design, base)

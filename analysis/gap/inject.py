@@ -11,6 +11,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from studydesign import rec709_luminance
+
 __all__ = [
     "DISPLAY_EFFECTS",
     "DISPLAY_OUT_OF_CATALOGUE",
@@ -325,7 +327,6 @@ _SIZE, _PAD = 64, 8  # the residual files' size; rendered 8 px larger, cropped o
 _OFFSET = (2, 6)  # crop origin (y, x): the sphere sits off the image centre, as in a fit crop
 _SPHERE_RADIUS_PX = 23.0
 _PHOTONS, _READ_REL = 10_000.0, 0.003  # 1.04 % noise at the sphere's mean, 4.5 % at 20x it
-_REC709 = np.array([0.2126, 0.7152, 0.0722])
 _base_cache: dict = {}
 
 
@@ -358,7 +359,7 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False,
                                 category=RuntimeWarning)
         with SphereScene(env, _render_camera(shift), spp=spp, seed=seed,
                          bsdf=lambda *_a: material) as scene:
-            img = scene.render(0.0, 0.0, 0.0) @ _REC709
+            img = rec709_luminance(scene.render(0.0, 0.0, 0.0))
     img = _crop(img).astype(float)
     return img if background else img - _background(spp, shift)
 

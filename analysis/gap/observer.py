@@ -40,7 +40,6 @@ __all__ = [
     "base_from_sessions",
     "check_sim",
     "fit_ceiling",
-    "load_sessions",
     "load_sim",
     "localise_observer",
     "observer_folds",
@@ -50,6 +49,7 @@ __all__ = [
     "observer_unit_ids",
     "observer_where",
     "predict",
+    "read_session_csvs",
     "to_slider_units",
 ]
 
@@ -65,7 +65,7 @@ _FLOOR_DRAWS = 20  # Monte-Carlo draws per held-out trial for the ceiling's own 
 
 # --- reading ------------------------------------------------------------------------------
 
-def load_sessions(path: str | Path) -> pd.DataFrame:
+def read_session_csvs(path: str | Path) -> pd.DataFrame:
     """Read every ``*.csv`` session file under ``path`` (a folder searched recursively, or one
     file) with the experiment's own reader (:func:`experiment.read_session`)."""
     from experiment import DataFileError, read_session
@@ -310,7 +310,7 @@ def load_sim(sim, design, *, kind: str | None = None) -> ObserverBase:
         fit = params.get("fit") if isinstance(params.get("fit"), Mapping) else None
         return base_from_params(params[kind], kind if fit is None or kind == "ideal"
                                 else "fitted", design.slider, source=str(path), fit_info=fit)
-    return base_from_sessions(load_sessions(path), design, source=str(path))
+    return base_from_sessions(read_session_csvs(path), design, source=str(path))
 
 
 def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:

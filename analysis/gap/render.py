@@ -57,6 +57,7 @@ import pandas as pd
 from scipy import ndimage, optimize
 
 from analysis.gap.engine import Candidate, GapError, catalogue, register
+from studydesign import rec709_luminance
 
 __all__ = [
     "NPZ_ARRAYS",
@@ -89,12 +90,11 @@ _GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
 _COAT_PATHS = (1.0, 2.0)  # passes through the coat at the view angle (see _coat_t)
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
-_REC709 = np.array([0.2126, 0.7152, 0.0722])
 
 
 def _lum(a: np.ndarray) -> np.ndarray:
     a = np.asarray(a, float)
-    return a @ _REC709 if a.ndim == 3 else a
+    return rec709_luminance(a) if a.ndim == 3 else a
 
 
 class RenderData:

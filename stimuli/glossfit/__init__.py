@@ -1,8 +1,8 @@
 """Gloss fitting: Ward parameters of the physical gloss spheres from HDR photos.
 
 Pipeline: ``load_photo_set`` (envmap.exr, photos/gloss_XXX.exr, setup.toml; checked) ->
-``register`` each photo to a reference render (the seed's affine Nelder-Mead) -> ``grid_fit``
-(the seed's shrinking grid) or ``basis_fit`` (closed-form albedos from basis renders, 1-D alpha
+``register`` each photo to a reference render (the source study's affine Nelder-Mead) -> ``grid_fit``
+(the source study's shrinking grid) or ``basis_fit`` (closed-form albedos from basis renders, 1-D alpha
 search; same optimum, far fewer renders) -> residuals by region -> ``gloss_table_from_fits``
 (common albedo, rho_s on a line in gloss with leave-one-out errors). ``fit_gloss`` runs it all
 and writes the output folder; ``synth_photo_set`` renders test photo sets.

@@ -84,7 +84,7 @@ def register(subparsers) -> None:
     p.add_argument("--out", required=True, help="new output folder")
     p.add_argument("--method", choices=("basis", "grid"), default="basis",
                    help="basis: closed-form albedos + 1-D alpha search (default); grid: the "
-                        "seed's shrinking 2-D grid")
+                        "source study's shrinking 2-D grid")
     p.add_argument("--resolution", type=int, default=64, help="fit render size, px (default 64)")
     p.add_argument("--spp", type=int, default=36, help="samples per pixel (default 36)")
     p.add_argument("--seed", type=int, default=0, help="sampler seed of the fit renders")

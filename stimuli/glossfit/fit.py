@@ -73,7 +73,7 @@ def fit_level(photo: np.ndarray, clipped: np.ndarray, photo_set: PhotoSet, scene
               max_background_mismatch: float = 0.25, refine: bool = True) -> tuple[Registration, LevelFit, dict, dict[str, np.ndarray]]:
     """Register and fit one photo.
 
-    Registration is the seed's (Nelder-Mead against ``reference``); with ``refine`` it is done
+    Registration is the source study's (Nelder-Mead against ``reference``); with ``refine`` it is done
     once more against a quick basis fit's render, whose shading and highlight match the photo's
     (the reference's differ, which biased the scale by up to 3 % on synthetic photos). Both
     methods get the same registration.

@@ -1,6 +1,6 @@
-"""Fitting Ward parameters to one registered photo: the seed's grid search and the basis fit.
+"""Fitting Ward parameters to one registered photo: the source study's grid search and the basis fit.
 
-Both minimise the seed's objective: over the sphere's circular mask, the mean squared difference
+Both minimise the source study's objective: over the sphere's circular mask, the mean squared difference
 of photo and render luminance, each divided by its own mean,
 
     E = mean((P / mean(P) - R / mean(R))^2),    R = R(rho_d = 1 - r, rho_s = r, alpha),
@@ -46,7 +46,7 @@ class FitSettings:
     alpha_bounds : (float, float)
         Range of the Ward roughness alpha searched.
     grid_points : int
-        Points per axis of the seed's grid (odd, so the centre is on the grid).
+        Points per axis of the source study's grid (odd, so the centre is on the grid).
     shrink : float
         Share by which each range shrinks per grid iteration (seed: 0.35).
     tol : float
@@ -118,7 +118,7 @@ class LevelFit:
 
 
 def normalised_error(photo_lum: np.ndarray, render_lum: np.ndarray) -> float:
-    """The seed's objective E over already-masked luminance vectors (dimensionless)."""
+    """The source study's objective E over already-masked luminance vectors (dimensionless)."""
     q = photo_lum / photo_lum.mean()
     return float(np.mean((q - render_lum / render_lum.mean()) ** 2))
 
@@ -153,7 +153,7 @@ def _window(centre: float, width: float, lo: float, hi: float, n: int) -> np.nda
 
 def grid_fit(renderer, photo_lum: np.ndarray, mask: np.ndarray,
              settings: FitSettings | None = None) -> LevelFit:
-    """The seed's fit: iterated, shrinking 2-D grid over r = rho_s and alpha (rho_d = 1 - r).
+    """The source study's fit: iterated, shrinking 2-D grid over r = rho_s and alpha (rho_d = 1 - r).
 
     Parameters
     ----------
@@ -194,7 +194,7 @@ def grid_fit(renderer, photo_lum: np.ndarray, mask: np.ndarray,
         new = min((error(r, a), (float(r), float(a))) for r in rs for a in alphas)
         if best is not None and new[0] > best_e:
             new = (best_e, best)  # the grid moved past the best point seen; keep it
-        # Stop only once the grid resolves tol (the seed's rule alone could stop at a coarse grid
+        # Stop only once the grid resolves tol (the source study's rule alone could stop at a coarse grid
         # whose centre stays best by chance).
         # At r = 0 alpha has no effect on the render (rho_s = 0), so the best alpha there is
         # chance (Monte-Carlo noise): keep alpha's range whole and do not count the iteration

@@ -1,4 +1,4 @@
-"""Registration of a photo onto the fit renders' pixel grid (the seed's affine Nelder-Mead).
+"""Registration of a photo onto the fit renders' pixel grid (the source study's affine Nelder-Mead).
 
 The seed registers each photo to a reference render by Nelder-Mead (MATLAB's ``fminsearch``)
 over x-scale, y-scale, x-shift and y-shift of an affine warp, minimising the pixel-wise SSE. Here
@@ -130,7 +130,7 @@ def warp_photo(image: np.ndarray, registration: Registration, fit_cam: Camera,
 def register(photo: np.ndarray, reference: np.ndarray, fit_cam: Camera, setup: PhotoSetup,
              *, valid: np.ndarray | None = None, max_scale_error: float = 0.25,
              name: str = "photo") -> Registration:
-    """Register a photo to a reference render (the seed's affine Nelder-Mead).
+    """Register a photo to a reference render (the source study's affine Nelder-Mead).
 
     Parameters
     ----------

@@ -9,7 +9,7 @@ The lab's photos are not in the repository, so the fit is tested on renders. Two
 
 Per gloss level g (0-1 = 0-100 %): rich, clear-coat weight g and GGX alpha log-linear from 0.35
 to 0.04 over a base of albedo 0.5; Ward, rho_d = 0.4, rho_s = 0.01 + 0.09 g (a line in gloss, as
-the seed's table), alpha log-linear from 0.30 to 0.04.
+the source study's table), alpha log-linear from 0.30 to 0.04.
 
 Camera effects, each switchable and parameterised (``EFFECTS``), applied in this order:
 misregistration (an affine warp: shift and scale of the sphere), veiling glare (a share of the
@@ -48,7 +48,7 @@ EFFECTS = {
 }
 DEFAULT_EFFECTS = ("misregistration", "glare", "vignetting", "noise")
 
-#: The synthetic sets' geometry: the seed's 27.5 cm and 2 cm; a 20 degree, 96 px camera.
+#: The synthetic sets' geometry: the source study's 27.5 cm and 2 cm; a 20 degree, 96 px camera.
 DEFAULT_SETUP = PhotoSetup(camera_distance_cm=27.5, sphere_radius_cm=2.0, fov_deg=20.0,
                            resolution_px=(96, 96))
 

@@ -1,4 +1,4 @@
-"""From per-level fits to the gloss table (the seed's final steps).
+"""From per-level fits to the gloss table (the source study's final steps).
 
 The seed averages rho_d over all levels (one common albedo: the balls share a base and differ in
 varnish), fits rho_s against gloss level by a line, checks the line by leave-one-out

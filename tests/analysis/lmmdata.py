@@ -1,4 +1,4 @@
-"""Simulated data sets for the mixed-model tests (plain numpy; the seed's 2 x 9 x 9 design).
+"""Simulated data sets for the mixed-model tests (plain numpy; the source study's 2 x 9 x 9 design).
 
 Each case is a response built from known fixed effects and per-participant random effects, so a
 fit can be checked against the truth and against lme4 on identical numbers.

@@ -2,7 +2,7 @@
 
 `write_sessions` makes each participant's plan with ``experiment.make_plan`` and answers every
 trial with a simple observer: ``humanlike`` compresses depth towards the middle and sees deeper
-surfaces as glossier (the seed's pattern); ``ideal`` reports the truth plus noise.
+surfaces as glossier (the source study's pattern); ``ideal`` reports the truth plus noise.
 """
 
 from __future__ import annotations

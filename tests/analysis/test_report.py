@@ -1,4 +1,4 @@
-"""The report end to end: a folder of sessions in, index.html with the seed's numbers out."""
+"""The report end to end: a folder of sessions in, index.html with the source study's numbers out."""
 
 from __future__ import annotations
 

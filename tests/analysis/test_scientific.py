@@ -1,6 +1,6 @@
 """Scientific check: simulated observers through the whole analysis give the source study's pattern.
 
-With the seed's 11 observers, ``humanlike`` observers must show a large depth effect on
+With the source study's 11 observers, ``humanlike`` observers must show a large depth effect on
 estimated depth with no gloss effect and no interaction, significant gloss, depth and
 interaction effects on estimated gloss, depth compression and "deeper looks glossier";
 ``ideal`` observers must show no depth effect on estimated gloss.

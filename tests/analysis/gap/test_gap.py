@@ -201,14 +201,14 @@ def test_cli_diagnose_accepts_an_observers_toml(tmp_path, capsys):
 
 
 def test_bad_input(tmp_path):
-    from analysis.gap import load_sessions
+    from analysis.gap import read_session_csvs
 
     (tmp_path / "x.csv").write_text("a,b\n1,2\n")
     with pytest.raises(GapError, match="columns"):
-        load_sessions(tmp_path)
+        read_session_csvs(tmp_path)
     (tmp_path / "empty").mkdir()
     with pytest.raises(GapError, match="no session CSVs"):
-        load_sessions(tmp_path / "empty")
+        read_session_csvs(tmp_path / "empty")
     with pytest.raises(GapError, match="no \\[humanlike\\] table|lacks the tables"):
         (tmp_path / "obs.toml").write_text("[ideal]\nx = 1\n")
         diagnose("observer", _humanlike(1, 1), tmp_path / "obs.toml", DESIGN, seed=0)
