@@ -41,11 +41,13 @@ __all__ = [
     "RecordFile",
     "TornTail",
     "TornTailWarning",
+    "append_csv_record",
     "csv_fields_check",
     "csv_record",
     "find_torn_tail",
     "json_record",
     "json_record_check",
+    "read_csv_records",
     "read_records",
     "repair_torn_tail",
 ]
@@ -340,3 +342,51 @@ class RecordFile:
         """fsync what was appended."""
         if self.fd is not None:
             os.fsync(self.fd)
+
+
+def _csv_header_check(path: Path) -> LineCheck | None:
+    try:
+        with open(path, encoding="utf-8", newline="") as fh:
+            header = fh.readline()
+    except (FileNotFoundError, UnicodeDecodeError):
+        return None
+    if not header.endswith("\n"):
+        return None
+    return csv_fields_check(len(next(csv.reader([header.rstrip("\r\n")]), [])))
+
+
+def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
+    """An append-only CSV as a DataFrame, after the torn-tail rule.
+
+    The whole-record check is the header's field count, so a last row cut short (inside or
+    outside quotes) is never read as data, nor merged with a later one.
+
+    Parameters
+    ----------
+    path : str or Path
+    repair : bool
+        Move a torn tail aside (the writer's rule); False for readers that must not write, which
+        read up to the last whole record and warn.
+    **read_csv_kw
+        Passed to :func:`pandas.read_csv` (e.g. ``dtype``).
+    """
+    import pandas as pd
+
+    path = Path(path)
+    torn = repair_torn_tail(path, check=_csv_header_check(path), repair=repair)
+    if torn is not None and torn.side_file is None:
+        data = path.read_bytes()[:torn.offset]
+        return pd.read_csv(io.BytesIO(data), **read_csv_kw)
+    return pd.read_csv(path, **read_csv_kw)
+
+
+def append_csv_record(path, columns, values) -> None:
+    """Append one CSV row to an append-only file (header first if new), fsynced.
+
+    The torn-tail rule is applied first; a file with another header is refused
+    (:class:`LabFileError`).
+    """
+    columns = list(columns)
+    with RecordFile(path, header=csv_record(columns),
+                    check=csv_fields_check(len(columns))) as rec:
+        rec.append(csv_record(values))

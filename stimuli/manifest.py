@@ -15,12 +15,12 @@ and their SHA-256.
 
 from __future__ import annotations
 
-import csv
 import hashlib
-import os
 from pathlib import Path
 
 import pandas as pd
+
+from labfiles import append_csv_record, read_csv_records
 
 __all__ = [
     "MANIFEST_COLUMNS",
@@ -79,20 +79,12 @@ def append_manifest_row(path: str | Path, row: dict) -> None:
     """Append one row (all of ``MANIFEST_COLUMNS``) to a manifest, writing the header if new.
 
     The row is flushed and fsynced before returning, so a crash never loses a finished render's
-    record.
+    record; a torn last row (a crash mid-write) is moved aside first (``labfiles``' rule).
     """
     missing = [c for c in MANIFEST_COLUMNS if c not in row]
     if missing:
         raise ManifestError(f"manifest row lacks {missing}")
-    path = Path(path)
-    new = not path.exists() or path.stat().st_size == 0
-    with open(path, "a", newline="", encoding="utf-8") as fh:
-        writer = csv.DictWriter(fh, fieldnames=MANIFEST_COLUMNS, extrasaction="raise")
-        if new:
-            writer.writeheader()
-        writer.writerow({c: row[c] for c in MANIFEST_COLUMNS})
-        fh.flush()
-        os.fsync(fh.fileno())
+    append_csv_record(path, MANIFEST_COLUMNS, [row[c] for c in MANIFEST_COLUMNS])
 
 
 def load_manifest(path: str | Path) -> pd.DataFrame:
@@ -112,7 +104,8 @@ def load_manifest(path: str | Path) -> pd.DataFrame:
             "(python -m stimuli render --set experiment --out DIR)"
         )
     try:
-        frame = pd.read_csv(path, dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str})
+        frame = read_csv_records(path, repair=False,
+                                 dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str})
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise ManifestError(f"stimulus manifest {path} is not a readable CSV: {exc}") from exc
     missing = [c for c in MANIFEST_COLUMNS if c not in frame.columns]

@@ -21,7 +21,6 @@ whose files verify, and finishes the rest.
 
 from __future__ import annotations
 
-import csv
 import os
 import sys
 import time
@@ -32,7 +31,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from labfiles import TEMPORARY_GLOB
+from labfiles import TEMPORARY_GLOB, append_csv_record, read_csv_records
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss
@@ -145,14 +144,7 @@ def render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
 
 # --- driver side ---------------------------------------------------------------------------------
 def _append_csv(path: Path, columns: list[str], row: dict) -> None:
-    new = not path.exists() or path.stat().st_size == 0
-    with open(path, "a", newline="", encoding="utf-8") as fh:
-        w = csv.DictWriter(fh, fieldnames=columns, extrasaction="ignore")
-        if new:
-            w.writeheader()
-        w.writerow(row)
-        fh.flush()
-        os.fsync(fh.fileno())
+    append_csv_record(path, columns, [row.get(c, "") for c in columns])
 
 
 def _remove_stale_temporaries(out: Path) -> int:
@@ -180,7 +172,7 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
     if not log.is_file():
         return set()
     try:
-        done = pd.read_csv(log, dtype={"stimulus_id": str, "exr_sha256": str})
+        done = read_csv_records(log, dtype={"stimulus_id": str, "exr_sha256": str})
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
                            "(finished EXRs will be rendered again)") from exc
@@ -206,56 +198,11 @@ def _progress(total: int, desc: str, enabled: bool):
                 file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
 
 
-def render_set(
-    table: pd.DataFrame,
-    out_dir: str | os.PathLike,
-    *,
-    job: RenderJob,
-    gloss_table: pd.DataFrame,
-    calibration,
-    tonemap_spec,
-    client=None,
-    progress: bool = True,
-    gloss_table_name: str = "",
-) -> dict:
-    """Render ``table`` (rows of a stimulus set) into ``out_dir`` (see the module docstring).
-
-    Parameters
-    ----------
-    table : DataFrame
-        Rows of :func:`stimuli.stimulus_set` (possibly filtered).
-    out_dir : path-like
-        Output folder (created).
-    job : RenderJob
-        Camera, size, spp, variant.
-    gloss_table : DataFrame
-        Validated gloss table (gloss % -> Ward parameters).
-    calibration : calibration.Calibration
-        Inverse gamma for the PNGs; its id goes into the manifest.
-    tonemap_spec : studydesign.ToneMapSpec
-        The design's tone-map numbers.
-    client : dask.distributed.Client, optional
-        Where to run pass 1; None renders in this process.
-    progress : bool
-        Show a progress bar with ETA on stderr.
-    gloss_table_name : str
-        Recorded in the run summary.
-
-    Returns
-    -------
-    dict
-        Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
+def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client,
+                 progress: bool) -> tuple[int, int]:
+    """Pass 1: render every EXR of ``plan`` not already logged in ``renders.csv`` with these
+    settings (and matching its checksum); log each as it is written. Returns (rendered, skipped).
     """
-    out = Path(out_dir)
-    for sub in ("exr", "png"):
-        (out / sub).mkdir(parents=True, exist_ok=True)
-    stale = _remove_stale_temporaries(out)
-    plan = _plan_rows(table, gloss_table, job)
-    for env in plan["envmap"].unique():
-        probe_path(env)  # fail early, naming the file, before any worker starts
-    t0 = time.perf_counter()
-
-    # pass 1: EXRs
     done = _done_exrs(out, plan, job)
     todo = plan[~plan["stimulus_id"].isin(done)]
     groups = [g.to_dict("records") for _, g in todo.groupby(["light_field", "seed"], sort=False)]
@@ -281,10 +228,21 @@ def render_set(
                     bar.update(1)
     finally:
         bar.close()
-    t_render = time.perf_counter() - t0
+    return n_rendered, len(done)
 
-    # pass 2: tone map per light field, PNG, manifest
-    records = pd.read_csv(log, dtype={"stimulus_id": str, "exr_sha256": str})
+
+def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, tonemap_spec,
+                  progress: bool) -> tuple[int, int, Path]:
+    """Pass 2: tone map each light field's EXRs with one curve (its largest luminance), write
+    the PNGs and append their manifest rows. Returns (PNGs written, skipped, manifest path).
+
+    Raises
+    ------
+    StimuliError
+        If the manifest already lists a stimulus rendered or tone-mapped differently, or a listed
+        PNG is missing or changed (recorded data are never overwritten).
+    """
+    records = read_csv_records(out / "renders.csv", dtype={"stimulus_id": str, "exr_sha256": str})
     records = records.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
     manifest_path = out / "manifest.csv"
     existing = load_manifest(manifest_path) if manifest_path.exists() else None
@@ -340,9 +298,65 @@ def render_set(
                 bar.update(1)
     finally:
         bar.close()
+    return n_png, n_png_skipped, manifest_path
+
+
+def render_set(
+    table: pd.DataFrame,
+    out_dir: str | os.PathLike,
+    *,
+    job: RenderJob,
+    gloss_table: pd.DataFrame,
+    calibration,
+    tonemap_spec,
+    client=None,
+    progress: bool = True,
+    gloss_table_name: str = "",
+) -> dict:
+    """Render ``table`` (rows of a stimulus set) into ``out_dir`` (see the module docstring).
+
+    Parameters
+    ----------
+    table : DataFrame
+        Rows of :func:`stimuli.stimulus_set` (possibly filtered).
+    out_dir : path-like
+        Output folder (created).
+    job : RenderJob
+        Camera, size, spp, variant.
+    gloss_table : DataFrame
+        Validated gloss table (gloss % -> Ward parameters).
+    calibration : calibration.Calibration
+        Inverse gamma for the PNGs; its id goes into the manifest.
+    tonemap_spec : studydesign.ToneMapSpec
+        The design's tone-map numbers.
+    client : dask.distributed.Client, optional
+        Where to run pass 1; None renders in this process.
+    progress : bool
+        Show a progress bar with ETA on stderr.
+    gloss_table_name : str
+        Recorded in the run summary.
+
+    Returns
+    -------
+    dict
+        Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
+    """
+    out = Path(out_dir)
+    for sub in ("exr", "png"):
+        (out / sub).mkdir(parents=True, exist_ok=True)
+    stale = _remove_stale_temporaries(out)
+    plan = _plan_rows(table, gloss_table, job)
+    for env in plan["envmap"].unique():
+        probe_path(env)  # fail early, naming the file, before any worker starts
+    t0 = time.perf_counter()
+
+    n_rendered, n_done = _render_pass(out, plan, job, client, progress)
+    t_render = time.perf_counter() - t0
+    n_png, n_png_skipped, manifest_path = _tonemap_pass(out, plan, job, calibration,
+                                                       tonemap_spec, progress)
     wall = time.perf_counter() - t0
     return {
-        "n_stimuli": len(plan), "rendered": n_rendered, "render_skipped": len(done),
+        "n_stimuli": len(plan), "rendered": n_rendered, "render_skipped": n_done,
         "png_written": n_png, "png_skipped": n_png_skipped, "stale_temporaries_removed": stale,
         "render_s": round(t_render, 2), "wall_s": round(wall, 2),
         "images_per_hour": round(3600 * n_rendered / t_render, 1) if n_rendered else None,

@@ -136,3 +136,17 @@ with FolderLock({str(tmp_path)!r}, what="calibration folder"):
         proc.stdout.close()
     with FolderLock(tmp_path):  # released by the kernel when the holder died
         pass
+
+
+def test_csv_records_read_around_a_torn_row_and_append_after_it(tmp_path):
+    from labfiles import append_csv_record, read_csv_records
+
+    path = tmp_path / "renders.csv"
+    append_csv_record(path, ["a", "b"], [1, "x,y"])
+    path.write_bytes(path.read_bytes() + b'2,"cut')
+    with pytest.warns(TornTailWarning):
+        frame = read_csv_records(path, repair=False)
+    assert frame.to_dict("list") == {"a": [1], "b": ["x,y"]}
+    with pytest.warns(TornTailWarning):
+        append_csv_record(path, ["a", "b"], [2, "z"])
+    assert read_csv_records(path).to_dict("list") == {"a": [1, 2], "b": ["x,y", "z"]}

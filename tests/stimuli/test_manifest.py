@@ -38,3 +38,22 @@ def test_manifest_round_trip_and_verification(tmp_path):
 def test_missing_manifest_names_the_fix(tmp_path):
     with pytest.raises(ManifestError, match="python -m stimuli render"):
         load_manifest(tmp_path / "manifest.csv")
+
+
+def test_torn_manifest_row_is_read_around_then_kept_aside_by_the_next_append(tmp_path):
+    """A render killed mid-write leaves half a manifest row: readers skip it (never merging it
+    with the next row), the next append moves it to a side file and starts on a fresh line."""
+    from labfiles import TornTailWarning
+
+    path = tmp_path / "manifest.csv"
+    append_manifest_row(path, _row(tmp_path, "indoor_g02_d02"))
+    whole = path.read_bytes()
+    path.write_bytes(whole + b"indoor_g02_d03,0,0,")
+    with pytest.warns(TornTailWarning, match="left as it is"):
+        assert list(load_manifest(tmp_path)["stimulus_id"]) == ["indoor_g02_d02"]
+    assert path.read_bytes().endswith(b"0,0,")  # the reader changed nothing
+    with pytest.warns(TornTailWarning, match="moved to"):
+        append_manifest_row(path, _row(tmp_path, "indoor_g02_d03"))
+    assert list(load_manifest(tmp_path)["stimulus_id"]) == ["indoor_g02_d02", "indoor_g02_d03"]
+    side = list(tmp_path.glob("manifest.csv.torn-*"))
+    assert len(side) == 1 and side[0].read_bytes() == b"indoor_g02_d03,0,0,"
