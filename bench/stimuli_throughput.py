@@ -57,14 +57,14 @@ from stimuli import (
     default_gloss_table,
     draw_array,
     load_light_probe,
-    luminance_range,
-    multijitter_spp,
     setup_mitsuba,
     stimulus_seed,
     tone_curve,
     ward_params_for_gloss,
 )
 from stimuli.noise import displayed_error
+from stimuli.render import multijitter_spp
+from stimuli.tonemap import luminance_range
 from studydesign import load_design
 
 

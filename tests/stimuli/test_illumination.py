@@ -5,15 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stimuli import (
-    IlluminationError,
-    load_light_probe,
-    luminance,
-    read_exr,
-    rotate_latlong,
-    write_exr,
-)
-from stimuli.illumination import solid_angle_weights
+from stimuli import IlluminationError, load_light_probe, read_exr, write_exr
+from stimuli.illumination import luminance, rotate_latlong, solid_angle_weights
 
 
 @pytest.mark.parametrize("name", ["interior.exr", "courtyard.exr"])
