@@ -172,14 +172,15 @@ if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
 else
   echo "error: the gap observer layer needs \$RUN/data/sessions (humanlike, app) and \$RUN/data_ideal/sessions (ideal observer)" >&2; exit 1
 fi
-# Display: photometer readings against the calibration (the noise floor needs >= 2 repeats per patch).
-if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$RUN/calibration/readings.csv" ]; then
-  READINGS="$RUN/calibration/readings.csv"
-  "$PY" -m analysis gap diagnose --layer display --real "$READINGS" \
-    --sim "$RUN/calibration/calibration.json" --out "$GAP/display"
-  GAP_REAL+=("display=$READINGS"); GAP_SIM+=("display=$RUN/calibration/calibration.json")
+# Display: a separate check run (measured after the calibration, never the readings the
+# calibration was fitted from) against the calibration.
+CHECK="$RUN/calibration-check"
+if [ -f "$RUN/calibration/calibration.json" ] && [ -f "$CHECK/readings.csv" ]; then
+  "$PY" -m analysis gap diagnose --layer display --real "$CHECK" \
+    --sim "$RUN/calibration" --out "$GAP/display"
+  GAP_REAL+=("display=$CHECK"); GAP_SIM+=("display=$RUN/calibration")
 else
-  echo "error: the gap display layer needs \$RUN/calibration/calibration.json and readings.csv" >&2; exit 1
+  echo "error: the gap display layer needs \$RUN/calibration/calibration.json and the check run's \$RUN/calibration-check/readings.csv" >&2; exit 1
 fi
 # Render: the synthetic photos against their Ward fit (the gloss fit's residual files).
 if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
