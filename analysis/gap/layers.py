@@ -55,8 +55,13 @@ def which_layer(diags: dict[str, Diagnosis], tolerance: float = TOLERANCE_NATS) 
     Returns ``{"layer": name or None, "carrying": [names with a gap], "text": str,
     "gaps": {name: (gap, ci_low, ci_high)}}``.
     """
+    from analysis.gap.report import no_significant_gap
+
     gaps = {n: _gap(d) for n, d in diags.items()}
-    carrying = [n for n in LAYER_ORDER if n in gaps and gaps[n][1] > tolerance]
+    # A layer whose own verdict is 'no significant gap' (with a ceiling: the simulation predicts
+    # as well as a flexible model of the data) carries none, whatever its distance to the floor.
+    carrying = [n for n in LAYER_ORDER if n in gaps and gaps[n][1] > tolerance
+                and not no_significant_gap(diags[n])]
     if not carrying:
         text = (f"No layer shows a held-out gap above {tolerance} nats per unit (lower 95 % "
                 "bound): the simulation matches the data at every layer given.")

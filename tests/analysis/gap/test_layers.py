@@ -34,3 +34,28 @@ def test_layer_paths_errors():
     with pytest.raises(GapError, match="LAYER=PATH"):
         parse_layer_paths("optics=/x")
     assert set(parse_layer_paths("display=/a, render=/b")) == {"display", "render"}
+
+
+def _diag(layer, gap, ci, *, steps=(), verdict="unexplained", remaining=None):
+    from analysis.gap.engine import Diagnosis
+
+    return Diagnosis(layer=layer, ranking=(), steps=steps, verdict=verdict, gap_before=gap,
+                     gap_after=gap, shrink_abs=0.0, shrink_abs_ci=(0.0, 0.0), shrink_pct=0.0,
+                     shrink_pct_ci=(0.0, 0.0), seed=0, gap_before_ci=ci, remaining=remaining)
+
+
+def test_a_layer_whose_own_verdict_is_no_gap_does_not_carry_one():
+    """Above its floor but no worse than its ceiling (the demo's fitted observer) is no gap."""
+    from analysis.gap.layers import which_layer
+
+    observer = _diag("observer", 0.388, (0.30, 0.47), verdict="none",
+                     remaining={"gap": -0.04, "ci": (-0.12, 0.02), "significant": False})
+    render = _diag("render", 1.34, (1.18, 1.53), steps=("clearcoat",), verdict="clearcoat",
+                   remaining={"gap": 0.0, "ci": (-0.01, 0.01), "significant": False})
+    out = which_layer({"observer": observer, "render": render})
+    assert out["layer"] == "render" and out["carrying"] == ["render"]
+    assert "observer" not in out["text"]
+    flagged = _diag("observer", 0.388, (0.30, 0.47),
+                    remaining={"gap": 0.2, "ci": (0.1, 0.3), "significant": True})
+    assert which_layer({"observer": flagged, "render": render})["carrying"] == ["render",
+                                                                               "observer"]
