@@ -74,6 +74,25 @@ def fake_process(tmp_path: Path, device: str, faults=(), seed: int = 7, display=
             proc.wait(timeout=10)
 
 
+def interrupt_after(args, readings: Path, n_lines: int) -> tuple[int, str]:
+    """Start ``python -m calibration ARGS``, send Ctrl-C (SIGINT) once ``readings`` holds
+    ``n_lines`` lines, and return (exit code, stderr)."""
+    import signal
+
+    proc = subprocess.Popen([sys.executable, "-m", "calibration", *map(str, args)],
+                            cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:
+        if readings.exists() and len(readings.read_text().splitlines()) >= n_lines:
+            break
+        assert proc.poll() is None, proc.stderr.read()
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    return proc.returncode, err
+
+
 def run_cli(args, *, timeout=240, **kw):
     """``python -m calibration ARGS`` from the repository root."""
     return subprocess.run([sys.executable, "-m", "calibration", *map(str, args)], cwd=REPO_ROOT,

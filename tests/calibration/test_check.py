@@ -18,7 +18,7 @@ import pytest
 from calibration import READINGS_COLUMNS, CalibrationError, SimulatedCRT, load_calibration
 from calibration.check import WarmupRule, check_deviation, predicted_luminance, warmup_stability
 from calibration.fit import fit_calibration
-from tests.calibration.conftest import run_cli
+from tests.calibration.conftest import interrupt_after, run_cli
 
 META = {"device": "pr655", "monitor_name": "crt-test", "width_cm": 32.0, "distance_cm": 55.0,
         "refresh_hz": 85.0}
@@ -186,32 +186,15 @@ def test_check_folder_refuses_another_calibration(tmp_path, rng, cli):
 def test_check_stopped_by_ctrl_c_resumes(fake_proc, tmp_path, design):
     """Ctrl-C mid-check: exit 130 naming what was kept; the rerun keeps the stable warm-up and
     measures only the missing patches."""
-    import signal
-    import subprocess
-    import sys
-    import time
-
-    from tests.calibration.conftest import REPO_ROOT
-
     cal = _calibration(tmp_path, SimulatedCRT(), "lab", design.display.resolution_px)
     out = tmp_path / "check"
     with fake_proc("pr655") as (port, aim, _):
         args = ["check", "--calibration", cal, "--device", "pr655", "--port", port, "--out", out,
                 "--sim-aim", aim, "--fast", "--settle-s", "0.2", "--repeats", "1",
                 "--warmup-interval-s", "0.1", "--warmup-window-s", "0.5"]
-        proc = subprocess.Popen([sys.executable, "-m", "calibration", *map(str, args)],
-                                cwd=REPO_ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                                text=True)
         path = out / "readings.csv"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if path.exists() and len(path.read_text().splitlines()) >= 5:
-                break
-            assert proc.poll() is None, proc.stderr.read()
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-        assert proc.returncode == 130, err
+        code, err = interrupt_after(args, path, 5)
+        assert code == 130, err
         assert "Traceback" not in err and "check stopped (Ctrl-C)" in err
         kept = len(pd.read_csv(path))
         n_warm = len(pd.read_csv(out / "warmup.csv"))

@@ -9,10 +9,6 @@ from __future__ import annotations
 
 import json
 import os
-import signal
-import subprocess
-import sys
-import time
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -26,7 +22,7 @@ from calibration.readings import append_row, read_readings
 from calibration.record import save_calibration
 from calibration.report import write_outputs
 from labfiles import FolderLock, TornTailWarning
-from tests.calibration.conftest import REPO_ROOT, run_cli
+from tests.calibration.conftest import interrupt_after, run_cli
 
 SMALL = ["--fast", "--levels", "6", "--repeats", "1", "--grid", "1", "--validation", "0",
          "--calibration-id", "t1", "--width-cm", "32.5", "--refresh-hz", "85"]
@@ -190,25 +186,14 @@ def test_ctrl_c_stops_cleanly_and_says_how_to_resume(fake_proc, tmp_path):
     args = ["--fast", "--levels", "17", "--repeats", "1", "--grid", "1", "--validation", "0",
             "--calibration-id", "c1", "--refresh-hz", "85", "--settle-s", "0.2"]
     with fake_proc("pr655") as (port, aim, _):
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "calibration", "run", "--device", "pr655", "--port", port,
-             "--out", out, "--sim-aim", aim, *args], cwd=REPO_ROOT, stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE, text=True)
-        path = out / "readings.csv"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if path.exists() and len(path.read_text().splitlines()) >= 4:
-                break
-            assert proc.poll() is None, proc.stderr.read()
-            time.sleep(0.05)
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 130, err
+        code, err = interrupt_after(["run", "--device", "pr655", "--port", port, "--out", out,
+                                     "--sim-aim", aim, *args], out / "readings.csv", 4)
+    assert code == 130, err
     assert "Traceback" not in err
     assert "stopped (Ctrl-C)" in err and "readings in" in err and "again to resume" in err
     # Only the files the run wrote are named (a run writes no warm-up readings).
     assert "warmup.csv" not in err and "validation.csv" not in err
-    assert len(read_readings(path).frame) >= 3
+    assert len(read_readings(out / "readings.csv").frame) >= 3
 
 
 def test_ctrl_c_during_a_fit_exits_130_without_a_traceback(tmp_path, cli, monkeypatch):
