@@ -73,23 +73,24 @@ def _display(real, sim, design, *, seed: int, n_boot: int, **_):
         DISPLAY_MIN_SHARE,
         display_ceiling,
         display_floor,
+        display_folds,
         display_frame,
         display_loss,
         display_loss_info,
         display_unit_ids,
         load_display,
         localise_display,
-        split_display,
     )
 
     readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
     rng = np.random.default_rng(seed)
     data = display_frame(readings, cal)
-    train, test = split_display(data, rng)
-    diag = diagnose_losses("display", catalogue("display"), train, test, display_loss,
-                           display_floor, rng=rng, seed=seed, n_boot=n_boot,
-                           unit_ids=display_unit_ids, min_share=DISPLAY_MIN_SHARE,
-                           loss_info=display_loss_info(data), ceiling=display_ceiling)
+    folds, text = display_folds(data, rng)
+    diag = diagnose_losses("display", catalogue("display"), None, None,
+                           lambda _train: display_loss, display_floor, rng=rng, seed=seed,
+                           n_boot=n_boot, unit_ids=display_unit_ids,
+                           min_share=DISPLAY_MIN_SHARE, loss_info=display_loss_info(data),
+                           ceiling=display_ceiling, folds=folds, split=text)
     return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
 
 
