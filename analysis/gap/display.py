@@ -37,6 +37,11 @@ warm-up between repeats is not counted as noise. The floor (the loss of a model 
 noise) is ``0.5 log(2 pi sd^2) + 0.5`` per reading. The ceiling (:func:`display_ceiling`) is a
 penalised smooth of level, position and time fitted to the residuals; a chosen model that
 stays significantly above it leaves a gap the catalogue does not explain.
+
+Held out: each patch's repeats alternate between two halves, and the halves are cross-fitted
+(:func:`display_folds`: each fitted on the other and held out once), so every reading is held
+out and a small effect seen in few readings (a black offset in the darkest patches) is tested
+on all of them.
 """
 
 from __future__ import annotations
