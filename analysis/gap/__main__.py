@@ -12,9 +12,10 @@ LAYERS = ("observer", "display", "render")
 
 
 def _harder(args, design, layers) -> int:
-    """The harder benchmark: the observer part (``analysis.gap.bench_observer``) and the
+    """The harder benchmark: the observer part (``analysis.gap.bench_observer``), the
     display part (``analysis.gap.bench_display``: ``run_display_cases``,
-    ``score_display_cases``, ``format_display_scores``) where that module exists."""
+    ``score_display_cases``, ``format_display_scores``) where that module exists, and the
+    render part (``analysis.gap.bench_render``)."""
     from analysis.gap.bench_observer import format_harder, run_harder_observer
 
     log = None if args.quiet else print
@@ -34,7 +35,12 @@ def _harder(args, design, layers) -> int:
             print(bench_display.format_display_scores(
                 bench_display.score_display_cases(records)), flush=True)
         else:
-            print(f"{layer} (harder): no harder cases for this layer; use the plain benchmark")
+            from analysis.gap import bench_render
+
+            records = bench_render.run_render_cases(design, trials=args.trials, seed=args.seed,
+                                                    log=log)
+            print(bench_render.format_render_scores(
+                bench_render.score_render_cases(records)), flush=True)
     print(f"seed {args.seed}, {args.trials} cases per layer (harder benchmark)")
     return 0
 

@@ -397,6 +397,7 @@ def diagnose_losses(
     split: str = "",
     warnings: Sequence[str] = (),
     refit_rounds: int = 2,
+    ceiling_given_chosen: bool = False,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, measure the held-out gap before and after, and test
     what remains against a flexible ceiling.
@@ -419,6 +420,11 @@ def diagnose_losses(
         model that any systematic structure would fit. After the greedy combination the
         chosen model's held-out loss is compared with it (paired bootstrap, one-sided); a
         significant excess of at least ``min_gain`` is a gap the catalogue does not explain.
+    ceiling_given_chosen : bool
+        Call ``ceiling(train, test, fitted)`` with the fold's chosen candidates (fitted on its
+        training data), for a ceiling that models what the chosen model leaves (e.g. a smooth
+        of its residual): a ceiling of the plain simulation's residual alone can fall behind
+        a chosen model that fits sharp structure, and then hide a gap that remains beside it.
     where : callable ``where(fits) -> str``, optional
         Words for where the remaining gap lies (e.g. "in the depth response, rising with
         gloss"); ``fits`` is a list of ``(train, test, fitted)`` per fold, ``fitted`` the
@@ -530,7 +536,8 @@ def diagnose_losses(
     rem = None
     ceiling_share = float("nan")
     if ceiling is not None:
-        ceil = cv.per_unit([ceiling(tr, te) for tr, te, _ in cv.folds])
+        ceil = cv.per_unit([ceiling(tr, te, ch) if ceiling_given_chosen else ceiling(tr, te)
+                            for (tr, te, _), ch in zip(cv.folds, chosen)])
         r_gap, r_lo, r_hi, r_p = _test(current - ceil, idx)
         significant = bool(r_p < alpha and r_gap >= min_gain)
         rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": significant,

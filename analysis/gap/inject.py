@@ -393,12 +393,12 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False,
 
 
 def _background(spp: int, shift=(0.0, 0.0)) -> np.ndarray:
-    """B: the render of a black sphere (the unshifted one cached per process)."""
-    if tuple(shift) != (0.0, 0.0):
-        return _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
-    if ("B", spp) not in _base_cache:
-        _base_cache[("B", spp)] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True)
-    return _base_cache[("B", spp)]
+    """B: the render of a black sphere (cached per process and camera shift)."""
+    shift = tuple(float(v) for v in shift)
+    key = ("B", spp) if shift == (0.0, 0.0) else ("B", spp, shift)
+    if key not in _base_cache:
+        _base_cache[key] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
+    return _base_cache[key]
 
 
 def _ward(rho_d, rho_s, alpha, **extra):
