@@ -116,8 +116,9 @@ def main(argv=None) -> int:
     b.add_argument("--harder", action="store_true",
                    help="the harder benchmark: human-like observers (in-catalogue effects always "
                         "present) with effects outside the catalogue on top, co-occurring "
-                        "effects, a generator written apart from the experiment's observers, "
-                        "verdict agreement across seeds; --trials cases")
+                        "effects, generators written apart from the diagnosis's own injectors "
+                        "(observers, display, an analytic render sphere), verdict agreement "
+                        "across seeds; --trials cases")
     d = sub.add_parser("diagnose", help="diagnose real data against the simulation")
     d.add_argument("--layer", choices=[*LAYERS, "all"], required=True)
     d.add_argument("--real", required=True,

@@ -43,8 +43,9 @@ gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) 
 Each candidate is one object registered with the engine (``register("render", ...)``): its fit,
 its term (``apply``, in the registration order), its injector (the effect built into a Mitsuba
 material or the camera, drawn with the benchmark's renderer), its default strength and the
-parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is a local smooth of the
-residual; a chosen model that stays significantly above it leaves a gap outside the catalogue.
+parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is the chosen model plus a
+local smooth of what it leaves; a chosen model that stays significantly above it leaves a gap
+outside the catalogue.
 """
 
 from __future__ import annotations
