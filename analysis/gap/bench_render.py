@@ -13,11 +13,12 @@ that the diagnosis reads blind:
   Mitsuba scene and the diagnosis: an orthographic sphere (super-sampled silhouette) with a
   Lambertian diffuse and a GGX microfacet lobe (Walter et al. 2007, Smith shadowing) lit by a
   distant key light and a sky, on a wall with a vertical gradient. Its effects are its own
-  physics: exact dielectric Fresnel (not Schlick) on the half vector, a clear coat's exact
-  Fresnel transmission at the light's and the view's angles, a GTR1 haze (Burley 2012) as the
-  long tail, cos^4 vignetting about the frame's (not the crop's) centre, an exponential glare
-  PSF, a shift of the whole scene, and, outside the catalogue, a second light (a second
-  highlight and shading). The lab's simulation is the same model without effects, its diffuse
+  physics: exact dielectric Fresnel (not Schlick), on the key light's half vector and, for the
+  sky's reflection, at the view angle; a clear coat's exact Fresnel transmission at the
+  light's and the view's angles; a GTR1 haze (Burley 2012) as the long tail; cos^4
+  vignetting about the frame's (not the crop's) centre; an exponential glare PSF; a shift of
+  the whole scene; and, outside the catalogue, a second light (a second highlight and
+  shading). The lab's simulation is the same model without effects, its diffuse
   and specular scales fitted to the photo by least squares.
 
 Cases (:data:`CASES`):
@@ -42,6 +43,7 @@ from __future__ import annotations
 import json
 import tempfile
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -61,6 +63,7 @@ __all__ = [
     "score_render_cases",
     "studio_photo",
     "write_analytic_fit",
+    "write_studio_fit",
 ]
 
 CASES = ("none", "co_occurring", "out_with_catalogue", "independent_none", "independent",
@@ -73,6 +76,7 @@ RENDER_TARGETS = {"top1": 0.95, "false_attribution": 0.05, "unexplained_out": 0.
 SECOND_LIGHT = 0.2
 _MATERIAL = ("fresnel", "clearcoat", "long_tail", "albedo_texture", "anisotropy")
 _CAMERA = ("veiling_glare", "vignetting")  # applied in this order to the composed photo
+_RENDERS: dict = {}  # the studio's renders in this process, by (material, seed, shift, spp)
 
 
 # --- the studio, several effects at once ------------------------------------------------------
@@ -81,8 +85,6 @@ class _CachedStudio:
     """The benchmark's Mitsuba studio seen from a camera shifted by ``shift`` (x, y) px, its
     renders cached per (material, seed, shift) for the whole run (a material holding a bitmap
     is rendered each time)."""
-
-    _cache: dict = {}
 
     def __init__(self, spp: int, shift=(0.0, 0.0)):
         self.studio = inject._Studio(spp)
@@ -97,9 +99,9 @@ class _CachedStudio:
             key = (json.dumps(material, sort_keys=True), seed, at, self.studio.spp)
         except TypeError:
             return self.studio.render(material, seed, shift=at)
-        if key not in self._cache:
-            self._cache[key] = self.studio.render(material, seed, shift=at)
-        return self._cache[key]
+        if key not in _RENDERS:
+            _RENDERS[key] = self.studio.render(material, seed, shift=at)
+        return _RENDERS[key]
 
     def background(self, shift=(0.0, 0.0)) -> np.ndarray:
         at = tuple(a + b for a, b in zip(self.shift, shift))
@@ -392,7 +394,7 @@ def write_analytic_fit(folder, effects: dict, rng: np.random.Generator) -> dict:
     for k, (rho_d, rho_s, alpha) in enumerate(_ANALYTIC_LEVELS):
         bg, d0, s0 = (_crop(c) for c in _components(k, {}))
         clean = analytic_photo(k, effects, rng)
-        masks_of = lambda s: _masks(_FRAME, s)  # noqa: E731
+        masks_of = partial(_masks, _FRAME)
         photo = _noisy(clean, masks_of(s0)["sphere"], _ANALYTIC_PHOTONS, _ANALYTIC_READ, rng)
         gloss = (20, 50, 80)[k]
         a, b = _write_level(folder, gloss, photo, bg, d0, s0, masks_of)

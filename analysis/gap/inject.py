@@ -11,22 +11,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.engine import OutOfCatalogue, catalogue, out_of_catalogue
+from analysis.gap.engine import OutOfCatalogue, catalogue, out_of_catalogue, strengths
 from analysis.gap.engine import effect as _effect
 from analysis.gap.engine import register_out_of_catalogue as _register_out
-from analysis.gap.engine import strengths
 from studydesign import rec709_luminance
 
+# Also public, derived when read (module __getattr__, see _DERIVED): OBSERVER_EFFECTS,
+# OUT_OF_CATALOGUE, OUT_OF_CATALOGUE_STRENGTH, DISPLAY_EFFECTS, DISPLAY_OUT_OF_CATALOGUE,
+# DISPLAY_STRENGTH, RENDER_EFFECTS, RENDER_OUT_OF_CATALOGUE, RENDER_STRENGTH.
 __all__ = [
-    "DISPLAY_EFFECTS",
-    "DISPLAY_OUT_OF_CATALOGUE",
-    "DISPLAY_STRENGTH",
-    "OBSERVER_EFFECTS",
-    "OUT_OF_CATALOGUE",
-    "OUT_OF_CATALOGUE_STRENGTH",
-    "RENDER_EFFECTS",
-    "RENDER_OUT_OF_CATALOGUE",
-    "RENDER_STRENGTH",
     "display_truth",
     "ideal_noise_sd",
     "lab_names",
