@@ -533,7 +533,8 @@ def run_render_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
                 f"{' + '.join(rec['steps']) or '-'}; gap {rec['gap_before']:.3f} -> "
                 f"{rec['gap_after']:.3f}; remaining {rem.get('gap', float('nan')):.3f} "
                 f"[{rem.get('ci', (np.nan, np.nan))[0]:.3f}, "
-                f"{rem.get('ci', (np.nan, np.nan))[1]:.3f}], flagged {rec['flagged']})")
+                f"{rem.get('ci', (np.nan, np.nan))[1]:.3f}], flagged {rec['flagged']}; "
+                f"seeds {rec['seed_verdicts']})")
     return records
 
 
