@@ -9,8 +9,10 @@ carries the gap. One entry point, :func:`diagnose`; each layer's catalogue is a 
 :class:`Candidate` objects registered with :func:`register` (:func:`catalogue`,
 :func:`candidate`). The blind benchmarks (``python -m analysis.gap benchmark``) live in
 :mod:`analysis.gap.benchmark` with their injectors in :mod:`analysis.gap.inject` and an
-independent observer generator in :mod:`analysis.gap.bench_observer`; the diagnosis imports
-none of them.
+independent generators in :mod:`analysis.gap.bench_observer`, :mod:`analysis.gap.bench_display`
+and :mod:`analysis.gap.bench_render` (``--harder``); out-of-catalogue effects are
+:class:`analysis.gap.engine.OutOfCatalogue` objects the injectors register beside the
+candidates. The diagnosis imports none of them.
 """
 
 from analysis.gap.diagnose import LAYERS, diagnose

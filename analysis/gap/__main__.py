@@ -12,9 +12,10 @@ LAYERS = ("observer", "display", "render")
 
 
 def _harder(args, design, layers) -> int:
-    """The harder benchmark: the observer part (``analysis.gap.bench_observer``) and the
+    """The harder benchmark: the observer part (``analysis.gap.bench_observer``), the
     display part (``analysis.gap.bench_display``: ``run_display_cases``,
-    ``score_display_cases``, ``format_display_scores``) where that module exists."""
+    ``score_display_cases``, ``format_display_scores``) where that module exists, and the
+    render part (``analysis.gap.bench_render``)."""
     from analysis.gap.bench_observer import format_harder, run_harder_observer
 
     log = None if args.quiet else print
@@ -34,7 +35,12 @@ def _harder(args, design, layers) -> int:
             print(bench_display.format_display_scores(
                 bench_display.score_display_cases(records)), flush=True)
         else:
-            print(f"{layer} (harder): no harder cases for this layer; use the plain benchmark")
+            from analysis.gap import bench_render
+
+            records = bench_render.run_render_cases(design, trials=args.trials, seed=args.seed,
+                                                    log=log)
+            print(bench_render.format_render_scores(
+                bench_render.score_render_cases(records)), flush=True)
     print(f"seed {args.seed}, {args.trials} cases per layer (harder benchmark)")
     return 0
 
@@ -110,8 +116,9 @@ def main(argv=None) -> int:
     b.add_argument("--harder", action="store_true",
                    help="the harder benchmark: human-like observers (in-catalogue effects always "
                         "present) with effects outside the catalogue on top, co-occurring "
-                        "effects, a generator written apart from the experiment's observers, "
-                        "verdict agreement across seeds; --trials cases")
+                        "effects, generators written apart from the diagnosis's own injectors "
+                        "(observers, display, an analytic render sphere), verdict agreement "
+                        "across seeds; --trials cases")
     d = sub.add_parser("diagnose", help="diagnose real data against the simulation")
     d.add_argument("--layer", choices=[*LAYERS, "all"], required=True)
     d.add_argument("--real", required=True,

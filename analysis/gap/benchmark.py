@@ -25,7 +25,9 @@ import pandas as pd
 
 from analysis.gap import inject
 from analysis.gap.diagnose import diagnose
-from analysis.gap.engine import candidate
+from analysis.gap.engine import OutOfCatalogue, candidate, catalogue, out_of_catalogue
+from analysis.gap.engine import effect as _effect
+from analysis.gap.engine import strengths as _strengths
 from analysis.gap.observer import observer_frame, observer_nll, read_session_csvs
 from analysis.gap.render import noise_sd
 
@@ -37,11 +39,9 @@ TARGETS = {"top1": 0.95, "false_attribution": 0.05, "unexplained_out": 0.90,
            "shrink_error": 0.10, "threshold_hit_rate": 0.80, "seed_agreement": 0.95}
 
 
-def _observer_strength() -> dict:
-    """Moderate strength per observer effect: the candidates' own, and the out-of-catalogue
-    ones'."""
-    out = {e: candidate("observer", e).default_strength for e in inject.OBSERVER_EFFECTS}
-    return out | dict(inject.OUT_OF_CATALOGUE_STRENGTH)
+def _is_out(layer: str, name: str) -> bool:
+    """True for an out-of-catalogue effect of ``layer`` (GapError for an unknown name)."""
+    return name != "none" and isinstance(_effect(layer, name), OutOfCatalogue)
 
 
 # --- observer -----------------------------------------------------------------------------
@@ -54,7 +54,7 @@ def _observer_trial(design, effect, strength, rng, tmp: Path, n_boot, n_particip
     inject.write_sessions(sim, tmp / "sim")
     diag, _ = diagnose("observer", tmp / "real", tmp / "sim", design,
                        seed=int(rng.integers(2**31)), n_boot=n_boot)
-    if effect == "none" or effect in inject.OUT_OF_CATALOGUE:
+    if effect == "none" or _is_out("observer", effect):
         return diag, float("nan")
     # The generating process: the effect's true parameters on the ideal observer, every trial
     # (each is held out once), at the ideal observer's noise.
@@ -74,7 +74,7 @@ def _display_trial(design, effect, strength, rng, tmp: Path, n_boot):
     inject.write_readings(real, tmp / "real")
     diag, _ = diagnose("display", tmp / "real", tmp / "sim", design,
                        seed=int(rng.integers(2**31)), n_boot=n_boot)
-    if effect in inject.DISPLAY_OUT_OF_CATALOGUE:
+    if _is_out("display", effect):
         return diag, float("nan")
     # The generating display's noiseless luminance, under the diagnosis's noise model.
     read = pd.read_csv(tmp / "real" / "readings.csv")
@@ -94,7 +94,7 @@ def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
     truth = inject.write_render_fit(tmp / "fit", rng, effect, strength)
     diag, _ = diagnose("render", tmp / "fit", None, design, seed=int(rng.integers(2**31)),
                        n_boot=n_boot)
-    if effect in inject.RENDER_OUT_OF_CATALOGUE:
+    if _is_out("render", effect):
         return diag, float("nan")
     photos, renders = {}, {}
     for name in truth:
@@ -113,14 +113,15 @@ def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
     return diag, float(diag.loss_before - np.mean(nll))
 
 
-_LAYERS = {
-    "observer": (inject.OBSERVER_EFFECTS, inject.OUT_OF_CATALOGUE, _observer_strength(),
-                 _observer_trial),
-    "display": (inject.DISPLAY_EFFECTS, inject.DISPLAY_OUT_OF_CATALOGUE,
-                inject.DISPLAY_STRENGTH, _display_trial),
-    "render": (inject.RENDER_EFFECTS, inject.RENDER_OUT_OF_CATALOGUE, inject.RENDER_STRENGTH,
-               _render_trial),
-}
+_TRIALS = {"observer": _observer_trial, "display": _display_trial, "render": _render_trial}
+
+
+def _layer(layer: str):
+    """(catalogue names, out-of-catalogue names, moderate strength per effect, trial) of a
+    layer, all from the effect objects (engine registry; inject registers the
+    out-of-catalogue ones)."""
+    return (tuple(c.name for c in catalogue(layer)),
+            tuple(e.name for e in out_of_catalogue(layer)), _strengths(layer), _TRIALS[layer])
 
 
 def _top(diag) -> str:
@@ -134,7 +135,7 @@ def _says_unexplained(diag) -> bool:
 
 
 def _run_one(design, layer, effect, strength, rng, n_boot):
-    _, _, _, trial = _LAYERS[layer]
+    trial = _TRIALS[layer]
     with tempfile.TemporaryDirectory() as tmp:
         diag, true_shrink = trial(design, effect, strength, rng, Path(tmp), n_boot)
     return {"layer": layer, "effect": effect, "strength": float(strength), "top": _top(diag),
@@ -165,7 +166,7 @@ def run_benchmark(design, layer: str, *, trials: int, seed: int, n_boot: int = 5
     """Score one layer over ``trials`` runs (:func:`draw_schedule`: none, out-of-catalogue and
     catalogue effects, the latter at 0.5-1.5 times their moderate strength); only the written
     files reach the diagnosis."""
-    effects, out, strength0, _ = _LAYERS[layer]
+    effects, out, strength0, _ = _layer(layer)
     rng = np.random.default_rng(seed)
     records = []
     for t, (effect, kind) in enumerate(draw_schedule(rng, trials, effects, out)):
@@ -191,7 +192,7 @@ def run_thresholds(design, layer: str, *, reps: int, seed: int,
 
     Returns ``{effect: {"threshold": strength or None, "hit_rate": {strength: rate}}}``.
     """
-    effects, _, strength0, _ = _LAYERS[layer]
+    effects, _, strength0, _ = _layer(layer)
     rng = np.random.default_rng(seed)
     out = {}
     for effect in effects:
@@ -222,13 +223,13 @@ def run_layer_benchmark(design, *, trials: int, seed: int, n_boot: int = 300,
     rng = np.random.default_rng(seed)
     hits = []
     for t in range(trials):
-        layer = str(rng.choice(list(_LAYERS)))
-        effects, _, strength0, _ = _LAYERS[layer]
+        layer = str(rng.choice(list(_TRIALS)))
+        effects, _, strength0, _ = _layer(layer)
         effect = str(rng.choice(effects))
         strength = strength0[effect] * rng.uniform(0.5, 1.5)
         diags = {}
         with tempfile.TemporaryDirectory() as tmp:
-            for name, (_, _, _, trial) in _LAYERS.items():
+            for name, trial in _TRIALS.items():
                 e, s = (effect, strength) if name == layer else ("none", 0.0)
                 (Path(tmp) / name).mkdir()
                 diags[name], _ = trial(design, e, s, rng, Path(tmp) / name, n_boot)

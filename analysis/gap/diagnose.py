@@ -116,6 +116,7 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
     diag = diagnose_losses("render", catalogue("render"), train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
                            min_share=RENDER_MIN_SHARE, ceiling=render_ceiling,
+                           ceiling_given_chosen=True,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
     local = localise_render(data, rng, n_boot=min(n_boot, 500))

@@ -24,8 +24,9 @@ from dataclasses import asdict, dataclass
 import numpy as np
 import pandas as pd
 
-__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "candidate", "catalogue",
-           "diagnose_losses", "holm", "register", "split_held_out"]
+__all__ = ["Candidate", "CandidateScore", "Diagnosis", "GapError", "OutOfCatalogue", "candidate",
+           "catalogue", "diagnose_losses", "effect", "holm", "out_of_catalogue", "register",
+           "register_out_of_catalogue", "split_held_out", "strengths"]
 
 #: Layers whose catalogue is registered by importing ``analysis.gap.<layer>``.
 _LAYER_MODULES = ("observer", "display", "render")
@@ -93,6 +94,9 @@ def register(layer: str, cand: Candidate) -> Candidate:
     """
     if not isinstance(cand, Candidate):
         raise GapError(f"register({layer!r}, ...): {cand!r} is not an engine.Candidate")
+    if cand.name in _OUT_REGISTRY.get(layer, {}):
+        raise GapError(f"layer {layer!r} has an out-of-catalogue effect {cand.name!r}; pick "
+                       "another name")
     table = _REGISTRY.setdefault(layer, {})
     old = table.get(cand.name)
     if old is not None and old != cand:
@@ -136,6 +140,88 @@ def candidate(layer: str, name: str) -> Candidate:
         raise GapError(f"unknown candidate {name!r} for layer {layer!r}; known: "
                        f"{', '.join(table)}")
     return table[name]
+
+
+@dataclass(frozen=True)
+class OutOfCatalogue:
+    """An effect outside a layer's catalogue: the blind benchmark injects it to check that the
+    diagnosis calls its gap unexplained; no candidate models it and the diagnosis never sees
+    it. Registered per layer with :func:`register_out_of_catalogue`, beside the candidates.
+
+    ================ ============ ======================================================
+    field            type         meaning
+    ================ ============ ======================================================
+    name             str          the effect's name in the benchmark's records
+    inject           callable     its injector, with the layer's candidates' signature
+    default_strength float        the benchmark's moderate strength
+    units            str          units of the strength
+    description      str          one line for reports
+    ================ ============ ======================================================
+    """
+
+    name: str
+    inject: Callable
+    default_strength: float
+    units: str = ""
+    description: str = ""
+
+
+_OUT_REGISTRY: dict[str, dict[str, OutOfCatalogue]] = {}
+
+
+def register_out_of_catalogue(layer: str, eff: OutOfCatalogue) -> OutOfCatalogue:
+    """Add ``eff`` to ``layer``'s out-of-catalogue effects (in registration order); returns it.
+
+    Raises
+    ------
+    GapError
+        If ``eff`` is not an OutOfCatalogue, or its name is taken by another out-of-catalogue
+        effect or by a candidate of the layer.
+    """
+    if not isinstance(eff, OutOfCatalogue):
+        raise GapError(f"register_out_of_catalogue({layer!r}, ...): {eff!r} is not an "
+                       "engine.OutOfCatalogue")
+    if eff.name in _REGISTRY.get(layer, {}):
+        raise GapError(f"layer {layer!r} has a candidate {eff.name!r}; an out-of-catalogue "
+                       "effect needs another name")
+    table = _OUT_REGISTRY.setdefault(layer, {})
+    old = table.get(eff.name)
+    if old is not None and old != eff:
+        raise GapError(f"layer {layer!r} already has an out-of-catalogue effect {eff.name!r}; "
+                       "pick another name")
+    table[eff.name] = eff
+    return eff
+
+
+def out_of_catalogue(layer: str) -> list[OutOfCatalogue]:
+    """The registered out-of-catalogue effects of ``layer``, in registration order (the
+    benchmark's injectors register theirs on import; empty before)."""
+    return list(_OUT_REGISTRY.get(layer, {}).values())
+
+
+def effect(layer: str, name: str) -> Candidate | OutOfCatalogue:
+    """The candidate or out-of-catalogue effect ``name`` of ``layer``.
+
+    Raises
+    ------
+    GapError
+        ``unknown effect ...; known: ...`` (the candidates, then the out-of-catalogue
+        effects) for a name in neither.
+    """
+    table = {c.name: c for c in catalogue(layer)} | _OUT_REGISTRY.get(layer, {})
+    if name not in table:
+        out = ", ".join(_OUT_REGISTRY.get(layer, {})) or "none registered"
+        raise GapError(f"unknown effect {name!r} for layer {layer!r}; known: candidates "
+                       f"{', '.join(c.name for c in catalogue(layer))}; out of catalogue "
+                       f"{out}")
+    return table[name]
+
+
+def strengths(layer: str) -> dict[str, float]:
+    """Moderate strength per effect of ``layer``: each candidate's and each out-of-catalogue
+    effect's ``default_strength`` (the one place it is written)."""
+    return ({c.name: float(c.default_strength) for c in catalogue(layer)}
+            | {e.name: float(e.default_strength) for e in out_of_catalogue(layer)})
 
 
 @dataclass(frozen=True)
@@ -311,6 +397,7 @@ def diagnose_losses(
     split: str = "",
     warnings: Sequence[str] = (),
     refit_rounds: int = 2,
+    ceiling_given_chosen: bool = False,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, measure the held-out gap before and after, and test
     what remains against a flexible ceiling.
@@ -333,6 +420,11 @@ def diagnose_losses(
         model that any systematic structure would fit. After the greedy combination the
         chosen model's held-out loss is compared with it (paired bootstrap, one-sided); a
         significant excess of at least ``min_gain`` is a gap the catalogue does not explain.
+    ceiling_given_chosen : bool
+        Call ``ceiling(train, test, fitted)`` with the fold's chosen candidates (fitted on its
+        training data), for a ceiling that models what the chosen model leaves (e.g. a smooth
+        of its residual): a ceiling of the plain simulation's residual alone can fall behind
+        a chosen model that fits sharp structure, and then hide a gap that remains beside it.
     where : callable ``where(fits) -> str``, optional
         Words for where the remaining gap lies (e.g. "in the depth response, rising with
         gloss"); ``fits`` is a list of ``(train, test, fitted)`` per fold, ``fitted`` the
@@ -444,7 +536,8 @@ def diagnose_losses(
     rem = None
     ceiling_share = float("nan")
     if ceiling is not None:
-        ceil = cv.per_unit([ceiling(tr, te) for tr, te, _ in cv.folds])
+        ceil = cv.per_unit([ceiling(tr, te, ch) if ceiling_given_chosen else ceiling(tr, te)
+                            for (tr, te, _), ch in zip(cv.folds, chosen)])
         r_gap, r_lo, r_hi, r_p = _test(current - ceil, idx)
         significant = bool(r_p < alpha and r_gap >= min_gain)
         rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": significant,

@@ -11,17 +11,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.gap.engine import OutOfCatalogue, catalogue, out_of_catalogue, strengths
+from analysis.gap.engine import effect as _effect
+from analysis.gap.engine import register_out_of_catalogue as _register_out
 from studydesign import rec709_luminance
 
+# Also public, derived when read (module __getattr__, see _DERIVED): OBSERVER_EFFECTS,
+# OUT_OF_CATALOGUE, OUT_OF_CATALOGUE_STRENGTH, DISPLAY_EFFECTS, DISPLAY_OUT_OF_CATALOGUE,
+# DISPLAY_STRENGTH, RENDER_EFFECTS, RENDER_OUT_OF_CATALOGUE, RENDER_STRENGTH.
 __all__ = [
-    "DISPLAY_EFFECTS",
-    "DISPLAY_OUT_OF_CATALOGUE",
-    "DISPLAY_STRENGTH",
-    "OBSERVER_EFFECTS",
-    "OUT_OF_CATALOGUE",
-    "RENDER_EFFECTS",
-    "RENDER_OUT_OF_CATALOGUE",
-    "RENDER_STRENGTH",
     "display_truth",
     "ideal_noise_sd",
     "lab_names",
@@ -34,12 +32,37 @@ __all__ = [
     "write_sessions",
 ]
 
-OBSERVER_EFFECTS = ("crosstalk", "central_tendency", "illumination_gain", "label_rounding",
-                    "lapses", "serial_dependence")
-# Out of catalogue: heteroscedastic noise growing with depth, and a gloss bias on odd stimuli.
-OUT_OF_CATALOGUE = ("depth_noise_scaling", "stimulus_bias")
-#: Moderate strength of the out-of-catalogue observer effects (catalogue effects carry theirs).
-OUT_OF_CATALOGUE_STRENGTH = {"depth_noise_scaling": 0.3, "stimulus_bias": 0.3}
+#: The tables the benchmark reads, each derived from the effect objects (the candidates
+#: registered with the engine by the layer modules, the out-of-catalogue effects registered
+#: below), so that an effect's name and strength are written once, in its object.
+_DERIVED = {
+    "OBSERVER_EFFECTS": lambda: _names("observer"),
+    "OUT_OF_CATALOGUE": lambda: _names("observer", out=True),
+    "OUT_OF_CATALOGUE_STRENGTH": lambda: _strength("observer", out=True),
+    "DISPLAY_EFFECTS": lambda: _names("display"),
+    "DISPLAY_OUT_OF_CATALOGUE": lambda: _names("display", out=True),
+    "DISPLAY_STRENGTH": lambda: strengths("display"),
+    "RENDER_EFFECTS": lambda: _names("render"),
+    "RENDER_OUT_OF_CATALOGUE": lambda: _names("render", out=True),
+    "RENDER_STRENGTH": lambda: strengths("render"),
+}
+
+
+def __getattr__(name: str):
+    """The derived tables (:data:`_DERIVED`), computed when read: the catalogues load their
+    layer modules on first use."""
+    if name in _DERIVED:
+        return _DERIVED[name]()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _names(layer: str, *, out: bool = False) -> tuple[str, ...]:
+    return tuple(e.name for e in (out_of_catalogue(layer) if out else catalogue(layer)))
+
+
+def _strength(layer: str, *, out: bool) -> dict[str, float]:
+    return {e.name: float(e.default_strength)
+            for e in (out_of_catalogue(layer) if out else catalogue(layer))}
 
 
 def ideal_noise_sd(design) -> dict:
@@ -71,17 +94,19 @@ def _stimulus_bias(ctx, s, rng):
     return {r: np.clip(mu[r] + ctx["noise"][r], ctx["lo"], ctx["hi"]) for r in ("gloss", "depth")}
 
 
-_OUT_INJECTORS = {"depth_noise_scaling": _depth_noise_scaling, "stimulus_bias": _stimulus_bias}
+_register_out("observer", OutOfCatalogue(
+    "depth_noise_scaling", _depth_noise_scaling, 0.3, "relative noise growth across depth",
+    "response noise growing with depth (heteroscedastic)"))
+_register_out("observer", OutOfCatalogue(
+    "stimulus_bias", _stimulus_bias, 0.3, "x 3 slider units",
+    "a gloss bias alternating between stimuli (a checkerboard)"))
 
 
-def observer_injector(effect: str):
-    """The injector of an observer effect: the catalogue candidate's own (engine registry) or
-    one of the out-of-catalogue ones here. Raises GapError for an unknown name."""
-    from analysis.gap.engine import candidate
-
-    if effect in _OUT_INJECTORS:
-        return _OUT_INJECTORS[effect]
-    return candidate("observer", effect).inject
+def observer_injector(name: str):
+    """The injector of an observer effect: the catalogue candidate's own or an
+    out-of-catalogue effect's (:func:`analysis.gap.engine.effect`). Raises GapError for an
+    unknown name, listing the known ones."""
+    return _effect("observer", name).inject
 
 
 def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
@@ -153,11 +178,6 @@ def write_sessions(frame: pd.DataFrame, folder: Path) -> None:
 # Pseudo-real photometer readings from calibration.SimulatedCRT with one effect changed; the
 # diagnosis reads only readings.csv and calibration.json.
 
-DISPLAY_EFFECTS = ("black_offset", "nonuniformity", "warmup_drift", "quantisation")
-DISPLAY_OUT_OF_CATALOGUE = ("gamma_change", "local_blemish")
-#: Moderate strength of each display effect (the benchmark draws 0.5-1.5 times this).
-DISPLAY_STRENGTH = {"black_offset": 0.05, "nonuniformity": 0.06, "warmup_drift": 0.03,
-                    "quantisation": 2.0, "gamma_change": 0.03, "local_blemish": 0.03}
 _SECONDS_PER_READING = 3.0
 _BLEMISH_AT = (0.6, 0.6)
 
@@ -178,20 +198,16 @@ def display_schedule(rng: np.random.Generator, *, grid: int = 3, extent: float =
     return pd.DataFrame(rows, columns=["x_norm", "y_norm", "level", "repeat"])
 
 
-def display_crt(effect: str = "none", strength: float = 0.0):
-    """The benchmark's display: the shipped simulated CRT with one effect changed (a catalogue
-    effect by its candidate's own injector, an out-of-catalogue one by
-    :data:`_DISPLAY_OUT_INJECTORS`)."""
-    import analysis.gap.display  # noqa: F401  (registers the display candidates)
-    from analysis.gap.engine import candidate
+def display_crt(name: str = "none", strength: float = 0.0):
+    """The benchmark's display: the shipped simulated CRT with one effect changed by its
+    object's injector (a candidate's or an out-of-catalogue effect's, ``(crt, strength) ->
+    display``; a display has ``luminance(level, x_norm, y_norm, t_s)``)."""
     from calibration import load_crt
 
     crt = load_crt()
-    if effect == "none":
+    if name == "none":
         return crt
-    if effect in _DISPLAY_OUT_INJECTORS:
-        return _DISPLAY_OUT_INJECTORS[effect](crt, strength)
-    return candidate("display", effect).inject(crt, strength)
+    return _effect("display", name).inject(crt, strength)
 
 
 def _scaled_gamma(crt, strength):
@@ -200,24 +216,35 @@ def _scaled_gamma(crt, strength):
     return replace(crt, gamma=crt.gamma * (1 + strength))
 
 
-#: Out-of-catalogue display effects as changes of the simulated CRT (the blemish is applied
-#: to the luminance in :func:`display_truth`, so it leaves the CRT as it is).
-_DISPLAY_OUT_INJECTORS = {"gamma_change": _scaled_gamma, "local_blemish": lambda crt, s: crt}
+class _Blemished:
+    """The CRT with a blemish at one measured position (``_BLEMISH_AT``): the light above
+    black there dimmed by a share ``strength``."""
+
+    def __init__(self, crt, strength: float):
+        self.crt, self.strength = crt, float(strength)
+
+    def luminance(self, level, x_norm, y_norm, t_s):
+        lum = self.crt.luminance(level, x_norm, y_norm, t_s)
+        at = np.isclose(x_norm, _BLEMISH_AT[0]) & np.isclose(y_norm, _BLEMISH_AT[1])
+        black = self.crt.black_total_cd_m2
+        return np.where(at, black + (lum - black) * (1 - self.strength), lum)
 
 
-def display_truth(effect: str, strength: float, schedule: pd.DataFrame,
+_register_out("display", OutOfCatalogue(
+    "gamma_change", _scaled_gamma, 0.03, "relative change of the gamma exponent",
+    "the display's gamma changed since the calibration"))
+_register_out("display", OutOfCatalogue(
+    "local_blemish", _Blemished, 0.03, "share of the light lost at one position",
+    "a blemish dimming one measured position"))
+
+
+def display_truth(name: str, strength: float, schedule: pd.DataFrame,
                   t_s: np.ndarray) -> np.ndarray:
     """Noiseless luminance (cd/m^2) of the benchmark's display with the effect."""
-    crt = display_crt(effect, strength)
-    t = t_s if effect == "warmup_drift" else np.full(len(schedule), np.inf)
-    lum = crt.luminance(schedule["level"].to_numpy(float), schedule["x_norm"].to_numpy(float),
-                        schedule["y_norm"].to_numpy(float), t)
-    if effect == "local_blemish":
-        at = (np.isclose(schedule["x_norm"].to_numpy(float), _BLEMISH_AT[0])
-              & np.isclose(schedule["y_norm"].to_numpy(float), _BLEMISH_AT[1]))
-        lum = np.where(at, crt.black_total_cd_m2 + (lum - crt.black_total_cd_m2)
-                       * (1 - strength), lum)
-    return lum
+    crt = display_crt(name, strength)
+    t = t_s if name == "warmup_drift" else np.full(len(schedule), np.inf)
+    return crt.luminance(schedule["level"].to_numpy(float), schedule["x_norm"].to_numpy(float),
+                         schedule["y_norm"].to_numpy(float), t)
 
 
 def display_noise_sd(lum: np.ndarray) -> np.ndarray:
@@ -313,12 +340,6 @@ def write_readings(frame: pd.DataFrame, folder: Path) -> Path:
 # the sphere's mean). Photos and sim share the effect-free renders, so effects made in the
 # camera carry no render noise at all.
 
-RENDER_EFFECTS = ("fresnel", "clearcoat", "vignetting", "veiling_glare", "misregistration",
-                  "long_tail")
-RENDER_OUT_OF_CATALOGUE = ("albedo_texture", "anisotropy")
-RENDER_STRENGTH = {"fresnel": 6.0, "clearcoat": 0.6, "vignetting": 0.5, "veiling_glare": 0.15,
-                   "misregistration": 0.6, "long_tail": 0.6, "albedo_texture": 0.06,
-                   "anisotropy": 0.6}
 #: (rho_d, rho_s, alpha) of the benchmark's three spheres: the synthetic Ward sets' 20, 50 and
 #: 80 % gloss levels (stimuli.glossfit.synth: rho_s = 0.01 + 0.09 g, alpha 0.30 -> 0.04).
 _LEVELS = ((0.4, 0.028, 0.200), (0.4, 0.055, 0.110), (0.4, 0.082, 0.060))
@@ -365,12 +386,12 @@ def _render(material: dict, spp: int, seed: int, *, background: bool = False,
 
 
 def _background(spp: int, shift=(0.0, 0.0)) -> np.ndarray:
-    """B: the render of a black sphere (the unshifted one cached per process)."""
-    if tuple(shift) != (0.0, 0.0):
-        return _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
-    if ("B", spp) not in _base_cache:
-        _base_cache[("B", spp)] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True)
-    return _base_cache[("B", spp)]
+    """B: the render of a black sphere (cached per process and camera shift)."""
+    shift = tuple(float(v) for v in shift)
+    key = ("B", spp) if shift == (0.0, 0.0) else ("B", spp, shift)
+    if key not in _base_cache:
+        _base_cache[key] = _render(_ward(0.0, 0.0, 0.1), spp, 7, background=True, shift=shift)
+    return _base_cache[key]
 
 
 def _ward(rho_d, rho_s, alpha, **extra):
@@ -485,22 +506,22 @@ def _inject_anisotropy(studio, level, s, rng):
     return studio.background() + d0 + (s0 + change)
 
 
-_RENDER_OUT_INJECTORS = {"albedo_texture": _inject_albedo_texture,
-                         "anisotropy": _inject_anisotropy}
+_register_out("render", OutOfCatalogue(
+    "albedo_texture", _inject_albedo_texture, 0.06, "relative albedo modulation",
+    "a surface texture: the diffuse albedo times 1 + s sin(6 pi u) sin(4 pi v)"))
+_register_out("render", OutOfCatalogue(
+    "anisotropy", _inject_anisotropy, 0.6, "alpha_u / alpha - 1",
+    "an anisotropic lobe: alpha (1 + s) along u, alpha / (1 + s) along v"))
 
 
-def _clean_photo(level: int, effect: str, strength: float, spp: int,
+def _clean_photo(level: int, name: str, strength: float, spp: int,
                  rng: np.random.Generator) -> np.ndarray:
-    """The noiseless photo of one level with the effect (a catalogue effect by its
-    candidate's own injector, an out-of-catalogue one by :data:`_RENDER_OUT_INJECTORS`)."""
-    import analysis.gap.render  # noqa: F401  (registers the render candidates)
-    from analysis.gap.engine import candidate
-
+    """The noiseless photo of one level with the effect, drawn by its object's injector (a
+    candidate's or an out-of-catalogue effect's)."""
     studio = _Studio(spp)
-    if effect == "none":
+    if name == "none":
         return studio.plain(level)
-    inject = _RENDER_OUT_INJECTORS.get(effect) or candidate("render", effect).inject
-    return inject(studio, level, float(strength), rng)
+    return _effect("render", name).inject(studio, level, float(strength), rng)
 
 
 def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none",

@@ -43,8 +43,9 @@ gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) 
 Each candidate is one object registered with the engine (``register("render", ...)``): its fit,
 its term (``apply``, in the registration order), its injector (the effect built into a Mitsuba
 material or the camera, drawn with the benchmark's renderer), its default strength and the
-parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is a local smooth of the
-residual; a chosen model that stays significantly above it leaves a gap outside the catalogue.
+parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is the chosen model plus a
+local smooth of what it leaves; a chosen model that stays significantly above it leaves a gap
+outside the catalogue.
 """
 
 from __future__ import annotations
@@ -416,16 +417,20 @@ def _local_mean(res: np.ndarray, w: np.ndarray, sigma: float) -> np.ndarray:
     return np.where(den > 1e-12 * max(float(w.max()), 1e-30), num / np.maximum(den, 1e-300), 0.0)
 
 
-def render_ceiling(train: RenderData, test: RenderData) -> np.ndarray:
+def render_ceiling(train: RenderData, test: RenderData, fitted=()) -> np.ndarray:
     """Held-out loss of a flexible data-driven model of the photos: the ceiling.
 
-    Per gloss level, the residual of the plain render, photo - (B + D + S), is smoothed
+    Per gloss level, the residual of the render extended by ``fitted`` (the chosen
+    candidates, fitted on the training pixels; none: the plain render B + D + S) is smoothed
     locally over the training pixels (a Gaussian local mean weighted by 1 / sd^2, i.e.
-    normalised convolution) and added to the render at the held-out pixels. Any systematic
-    structure larger than the smooth's width (a texture, an anisotropic highlight, an effect
-    outside the catalogue) is fitted by it. The width is chosen per level from
-    ``_CEIL_SIGMAS_PX`` by two-fold cross-validation within the training pixels (rows of 4 px
-    blocks alternating between the folds).
+    normalised convolution) and added to that render at the held-out pixels. Any systematic
+    structure larger than the smooth's width that the render leaves (a texture, an
+    anisotropic highlight, a second light, an effect outside the catalogue) is fitted by it.
+    Starting from the chosen model, not the plain render, matters when a catalogue effect
+    leaves sharp structure (a shift, a Fresnel rim) that a local smooth cannot follow: the
+    plain render's smooth then falls behind the chosen model and hides what remains beside
+    it. The width is chosen per level from ``_CEIL_SIGMAS_PX`` by two-fold cross-validation
+    within the training pixels (rows of 4 px blocks alternating between the folds).
 
     Returns
     -------
@@ -434,7 +439,7 @@ def render_ceiling(train: RenderData, test: RenderData) -> np.ndarray:
     """
     out = []
     for lt, le in zip(train.levels, test.levels):
-        r0 = lt["B"] + lt["D"] + lt["S"]
+        r0 = _predict(lt, list(fitted))
         res = lt["P"] - r0
         w = np.where(lt["use"], 1 / lt["sd"] ** 2, 0.0)
         yy = np.mgrid[0:res.shape[0], 0:res.shape[1]][0]

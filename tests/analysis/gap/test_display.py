@@ -8,6 +8,7 @@ import pytest
 from analysis.gap import GapError, diagnose, inject
 from analysis.gap.__main__ import main
 from analysis.gap.benchmark import run_benchmark
+from analysis.gap.engine import catalogue, strengths
 from studydesign import load_design
 
 
@@ -18,9 +19,9 @@ def _diag(tmp_path, effect, strength, seed):
     return diagnose("display", tmp_path / "real", tmp_path / "sim", load_design(), seed=seed, n_boot=300)
 
 
-@pytest.mark.parametrize("effect", inject.DISPLAY_EFFECTS)
+@pytest.mark.parametrize("effect", [c.name for c in catalogue("display")])
 def test_injected_display_effect_is_identified(tmp_path, effect):
-    diag, local = _diag(tmp_path, effect, inject.DISPLAY_STRENGTH[effect], 4)
+    diag, local = _diag(tmp_path, effect, strengths("display")[effect], 4)
     assert diag.verdict.split(" + ")[0] == effect
     assert diag.shrink_pct > 50
     assert {"luminance fraction", "screen position (x, y norm)"} == set(local["axis"])
@@ -34,7 +35,7 @@ def test_black_offset_recovered(tmp_path):
 @pytest.mark.parametrize("effect,verdict", [("none", "unexplained"),
                                             ("gamma_change", "unexplained")])
 def test_nothing_or_out_of_catalogue_is_unexplained(tmp_path, effect, verdict):
-    diag, _ = _diag(tmp_path, effect, inject.DISPLAY_STRENGTH.get(effect, 0.0), 8)
+    diag, _ = _diag(tmp_path, effect, strengths("display").get(effect, 0.0), 8)
     assert diag.verdict == verdict
 
 

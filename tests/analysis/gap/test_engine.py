@@ -193,3 +193,21 @@ def test_harder_benchmark_scores_remaining_gaps_and_seed_agreement():
     assert r["seed_agreement"][0] == pytest.approx(5 / 6)
     assert r["shrink_error"][0] == pytest.approx(0.05 / 0.55)
     assert "NOT met" in format_harder(r)
+
+
+def test_ceiling_given_chosen_sees_each_folds_chosen_candidates():
+    """A ceiling that models what the chosen model leaves is called with the chosen list; it
+    then stays at or below the chosen model's loss, so a gap beside the catalogue shows."""
+    cands, loss = _problem({"a": 0.3})
+    seen = []
+
+    def ceiling(_train, _test, fitted):
+        seen.append([n for n, _ in fitted])
+        return loss(None, fitted) - 0.05  # 0.05 nats per unit the catalogue leaves
+
+    diag = diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
+                           rng=np.random.default_rng(1), seed=1, n_boot=400, ceiling=ceiling,
+                           ceiling_given_chosen=True)
+    assert seen == [["a"]]
+    assert diag.verdict == "a" and diag.remaining["significant"]
+    assert diag.remaining["gap"] == pytest.approx(0.05, abs=1e-9)

@@ -8,16 +8,17 @@ import pytest
 from analysis.gap import GapError, diagnose, inject
 from analysis.gap.__main__ import main
 from analysis.gap.benchmark import run_benchmark
+from analysis.gap.engine import catalogue, strengths
 from studydesign import load_design
 
 
 def _diag(tmp_path, effect, seed):
     rng = np.random.default_rng(seed)
-    inject.write_render_fit(tmp_path / "fit", rng, effect, inject.RENDER_STRENGTH.get(effect, 0))
+    inject.write_render_fit(tmp_path / "fit", rng, effect, strengths("render").get(effect, 0))
     return diagnose("render", tmp_path / "fit", tmp_path / "fit", load_design(), seed=seed, n_boot=300)
 
 
-@pytest.mark.parametrize("effect", inject.RENDER_EFFECTS)
+@pytest.mark.parametrize("effect", [c.name for c in catalogue("render")])
 def test_injected_render_effect_is_identified(tmp_path, effect):
     diag, local = _diag(tmp_path, effect, 5)
     assert diag.verdict.split(" + ")[0] == effect

@@ -83,10 +83,11 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
     held-out loss stays significantly above the local smooth of the residual."""
     from analysis.gap import inject
     from analysis.gap.diagnose import diagnose
+    from analysis.gap.engine import effect
 
     rng = np.random.default_rng(7)
     inject.write_render_fit(tmp_path / "fit", rng, "albedo_texture",
-                            inject.RENDER_STRENGTH["albedo_texture"])
+                            effect("render", "albedo_texture").default_strength)
     diag, _ = diagnose("render", tmp_path / "fit", tmp_path / "fit", None, seed=7, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0
