@@ -311,6 +311,7 @@ def diagnose_losses(
     split: str = "",
     warnings: Sequence[str] = (),
     refit_rounds: int = 2,
+    ceiling_of_chosen: bool = False,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, measure the held-out gap before and after, and test
     what remains against a flexible ceiling.
@@ -353,6 +354,10 @@ def diagnose_losses(
         nats per unit.
     loss_info : dict, optional
         Parameters of the loss itself (e.g. the noise model), recorded as given.
+    ceiling_of_chosen : bool
+        Call ``ceiling(train, test, fitted)`` with the chosen candidates fitted on that
+        fold's training data: a ceiling built as a flexible extension of the chosen model
+        (then it can only fall short of that model by the cost of its own estimation).
     refit_rounds : int
         After each greedy step, rounds of backfitting: every chosen candidate re-fitted given
         the others (their parameters in the report are the re-fitted ones). 0: none.
@@ -444,7 +449,8 @@ def diagnose_losses(
     rem = None
     ceiling_share = float("nan")
     if ceiling is not None:
-        ceil = cv.per_unit([ceiling(tr, te) for tr, te, _ in cv.folds])
+        ceil = cv.per_unit([ceiling(tr, te, ch) if ceiling_of_chosen else ceiling(tr, te)
+                            for (tr, te, _), ch in zip(cv.folds, chosen)])
         r_gap, r_lo, r_hi, r_p = _test(current - ceil, idx)
         significant = bool(r_p < alpha and r_gap >= min_gain)
         rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": significant,

@@ -106,6 +106,23 @@ def test_a_floor_above_the_loss_is_reported_as_misestimated_never_as_no_gap():
     assert "mis-estimated" in diag.summary and "No significant gap" not in diag.summary
 
 
+def test_a_ceiling_of_the_chosen_model_is_given_the_chosen_candidates():
+    """With ceiling_of_chosen the ceiling is called with the chosen model (here 'a'), so it
+    can be built on it; its loss is what the chosen model leaves minus what it adds."""
+    cands, loss = _problem({"a": 0.3})
+    seen = []
+
+    def ceiling(_tr, _te, fitted):
+        seen.append([n for n, _ in fitted])
+        return loss(None, fitted) - 0.1
+    diag = diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
+                           rng=np.random.default_rng(1), seed=1, n_boot=400, min_gain=0.02,
+                           ceiling=ceiling, ceiling_of_chosen=True)
+    assert seen == [["a"]]
+    assert diag.remaining["gap"] == pytest.approx(0.1, abs=1e-9)
+    assert diag.unexplained_remains
+
+
 def test_cross_fitting_averages_each_unit_over_repeats():
     """Two repeats of a 2-fold split: every unit's loss is the mean of its two held-out
     values, in sorted unit order."""
