@@ -675,18 +675,22 @@ def _cv_log_variance(res, x, w, groups) -> np.ndarray:
     return _fit_log_variance(res, x, w, _RIDGE_GRID[_one_se_choice(losses)])
 
 
-def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray) -> dict:
+def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray,
+                  weights: np.ndarray | None = None) -> dict:
     """Per-cell mean residuals shrunk across participants (empirical Bayes, one-way random
     effects by the method of moments): the between-cell variance ``tau2`` is the part that
     replicates *across* participants (the mean product of two different participants' means
     in the same cell), so one participant's own pattern is not taken as the population's; the
     noise of a cell mean is the spread of the participants' means about it, ``v / n``. Each
-    cell mean is shrunk by tau2 / (tau2 + v / n)."""
+    cell mean is shrunk by tau2 / (tau2 + v / n). ``weights`` (default 1) weight the
+    responses within a participant's cell mean (a lapse's chance of being none)."""
     cells, cell_of = np.unique(keys, return_inverse=True)
     _, pair_of = np.unique(np.char.add(np.char.add(keys.astype(str), "\x1f"),
                                        participants.astype(str)), return_inverse=True)
     # Per (cell, participant): the participant's mean residual in that cell.
-    m_cp = np.bincount(pair_of, weights=res) / np.bincount(pair_of)
+    w = np.ones(res.size) if weights is None else np.asarray(weights, float)
+    w_cp = np.bincount(pair_of, weights=w)
+    m_cp = np.bincount(pair_of, weights=w * res) / np.maximum(w_cp, 1e-12)
     cell_of_pair = np.zeros(m_cp.size, int)
     cell_of_pair[pair_of] = cell_of
     n_c = np.bincount(cell_of_pair, minlength=cells.size).astype(float)
@@ -701,6 +705,34 @@ def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray) -
     m_c = s_c / np.maximum(n_c, 1)
     v = max(float(((m_cp - m_c[cell_of_pair]) ** 2).sum()) / float((n_c - 1).sum()), 1e-6)
     return dict(zip(cells.tolist(), (m_c * tau2 / (tau2 + v / np.maximum(n_c, 1))).tolist()))
+
+
+def _two_level_offsets(res, stim, keys, who, w) -> tuple[dict, dict]:
+    """Offsets per stimulus (gloss x depth level, pooled over illuminations), then per cell
+    (x illumination) on what the stimulus offsets leave (:func:`_cell_offsets`)."""
+    stim_off = _cell_offsets(res, stim, who, w)
+    cell_off = _cell_offsets(res - _offsets_at(stim_off, {}, stim, keys), keys, who, w)
+    return stim_off, cell_off
+
+
+def _offsets_at(stim_off: dict, cell_off: dict, stim, keys) -> np.ndarray:
+    return (pd.Series(stim).map(stim_off).fillna(0.0).to_numpy(float)
+            + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float))
+
+
+def _cv_offsets(res, stim, keys, who, w, groups) -> tuple[dict, dict]:
+    """Stimulus and cell offsets (:func:`_two_level_offsets`), kept only where they lower the
+    held-out weighted squared error over ``groups`` by more than one standard error (paired
+    over units): with few participants the between-cell variance is estimated from few
+    pairs, and a chance positive estimate would fit their noise."""
+    losses = np.empty((2, res.size))
+    for g in np.unique(groups):
+        m = groups == g
+        s_off, c_off = _two_level_offsets(res[~m], stim[~m], keys[~m], who[~m], w[~m])
+        losses[0, m] = w[m] * (res[m] - _offsets_at(s_off, c_off, stim[m], keys[m])) ** 2
+        losses[1, m] = w[m] * res[m] ** 2
+    return _two_level_offsets(res, stim, keys, who, w) if _one_se_choice(losses) == 0 else (
+        {}, {})
 
 
 def _gauss_share(res: np.ndarray, sd: np.ndarray, lapse: float, width: float) -> np.ndarray:
@@ -760,10 +792,8 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
             res = _censored_fill(y, m_r, s_r, lo, hi) - m0
             b = _cv_ridge(mx, res, w, groups)
             res = res - mx @ b
-            stim_off = _cell_offsets(res, stim, who)
-            off = pd.Series(stim).map(stim_off).fillna(0.0).to_numpy(float)
-            cell_off = _cell_offsets(res - off, keys, who)
-            off = off + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float)
+            stim_off, cell_off = _cv_offsets(res, stim, keys, who, w, groups)
+            off = _offsets_at(stim_off, cell_off, stim, keys)
             lv = _cv_log_variance((res - off) / s0, vx, w, groups)
             m_r = m0 + mx @ b + off
             s_r = s0 * np.sqrt(np.exp(vx @ lv))
@@ -950,14 +980,31 @@ def _resid(train: pd.DataFrame, chosen: list) -> tuple[dict, dict]:
     return pred, {r: train[f"{r}_match"].to_numpy(float) - pred["mu"][r] for r in RESP}
 
 
-def _ls(y, x) -> float:
-    return float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
+def _ls(y, x, w=None) -> float:
+    """Weighted least-squares slope through the origin."""
+    w = np.ones(len(y)) if w is None else w
+    return float(np.dot(w * x, y) / max(np.dot(w * x, x), 1e-12))
 
 
 def _inside(train: pd.DataFrame, r: str) -> np.ndarray:
     lo, hi = train.attrs["range"]
     x = train[f"{r}_match"].to_numpy(float)
     return (x > lo + 1e-9) & (x < hi - 1e-9)
+
+
+def _weights(train: pd.DataFrame, pred: dict, res: dict, r: str) -> np.ndarray:
+    """Weights of the responses in a least-squares fit of response ``r``: responses inside the
+    slider, each weighted by its chance of being no lapse under ``pred`` (the E-step of the
+    lapse mixture, noise SD from the residuals' median absolute deviation), so that lapses,
+    whose mean is the slider's middle, do not pass for central tendency."""
+    keep = _inside(train, r)
+    w = keep.astype(float)
+    if pred["lapse"] <= 0 or not keep.any():
+        return w
+    lo, hi = train.attrs["range"]
+    x = res[r][keep]
+    sd = max(1.4826 * float(np.median(np.abs(x - np.median(x)))), 1e-3)
+    return w * _gauss_share(res[r], np.full(len(w), sd), float(pred["lapse"]), hi - lo)
 
 
 def _with_mu(pred: dict, mu: dict) -> dict:
@@ -971,10 +1018,10 @@ def _respond(ctx: dict, mu: dict, rng: np.random.Generator | None = None) -> dic
 
 # crosstalk: deeper arrays look glossier (gloss slider units per depth slider unit).
 def _fit_crosstalk(train, chosen):
-    _, res = _resid(train, chosen)
-    keep = _inside(train, "gloss")
+    pred, res = _resid(train, chosen)
+    w = _weights(train, pred, res, "gloss")
     x = train["depth_u"].to_numpy(float) - train.attrs["mid"]
-    return {"c": _ls(res["gloss"][keep], x[keep])}
+    return {"c": _ls(res["gloss"], x, w)}
 
 
 def _apply_crosstalk(data, pred, p):
@@ -993,8 +1040,7 @@ def _fit_central(train, chosen):
     pred, res = _resid(train, chosen)
     out = {}
     for r in RESP:
-        keep = _inside(train, r)
-        out[r] = _ls(res[r][keep], -(pred["mu"][r] - train.attrs["mid"])[keep])
+        out[r] = _ls(res[r], -(pred["mu"][r] - train.attrs["mid"]), _weights(train, pred, res, r))
     return out
 
 
@@ -1009,13 +1055,13 @@ def _inject_central(ctx, s, rng):
 
 # illumination gain: the gloss gain differs by illumination (one gain per illumination name).
 def _fit_illumination(train, chosen):
-    _, res = _resid(train, chosen)
-    keep = _inside(train, "gloss")
+    pred, res = _resid(train, chosen)
+    w = _weights(train, pred, res, "gloss")
     x = train["gloss_u"].to_numpy(float) - train.attrs["mid"]
     gain = {}
     for ill, idx in train.groupby("illumination").indices.items():
-        idx = idx[keep[idx]]
-        gain[str(ill)] = _ls(res["gloss"][idx], x[idx]) if idx.size else 0.0
+        idx = idx[w[idx] > 0]
+        gain[str(ill)] = _ls(res["gloss"][idx], x[idx], w[idx]) if idx.size else 0.0
     return {"gain": gain}
 
 
@@ -1047,8 +1093,7 @@ def _fit_serial(train, chosen):
     pred, res = _resid(train, chosen)
     out = {}
     for r in RESP:
-        keep = _inside(train, r)
-        out[r] = _ls(res[r][keep], _prev_x(train, pred, r)[keep])
+        out[r] = _ls(res[r], _prev_x(train, pred, r), _weights(train, pred, res, r))
     return out
 
 
