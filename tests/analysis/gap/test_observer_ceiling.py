@@ -77,10 +77,24 @@ def test_noise_growing_with_depth_is_a_remaining_gap_in_the_spread_of_depth():
     assert diag.remaining["where"] == "in the spread of the depth response, rising with depth"
 
 
+def test_lapses_alone_leave_no_remaining_gap():
+    """Lapses (mean at the slider's middle) must not pass for extra central tendency in the
+    catalogue's fits, which the ceiling would then correct and flag."""
+    case = HarderCase("catalogue", base=True, added={"lapses": 0.15})
+    frame, _ = generate_sessions(DESIGN, case, 4, np.random.default_rng(16))
+    diag = diagnose("observer", frame, _ideal(), DESIGN, seed=16, n_boot=500)[0]
+    assert {s["added"] for s in diag.steps} == {"lapses", "central_tendency", "crosstalk"}
+    central = next(s for s in diag.steps if s["added"] == "central_tendency")["params"]
+    assert central["gloss"] == pytest.approx(0.10, abs=0.04)
+    assert central["depth"] == pytest.approx(0.30, abs=0.04)
+    assert not diag.unexplained_remains
+
+
 def test_a_stimulus_bias_beside_lapses_is_a_remaining_gap():
     """Lapses chosen from the catalogue must not hide a per-stimulus gloss bias: the ceiling
     is built on the chosen lapse model (a ceiling fitted apart, its noise SD widened by the
-    lapses, lay 0.18 nats per trial *below* the chosen model on such data)."""
+    lapses, lay 0.18 nats per trial *below* the chosen model on such a case of the harder
+    benchmark, seed 1)."""
     case = HarderCase("both", base=True, added={"lapses": 0.15, "stimulus_bias": 0.5})
     frame, _ = generate_sessions(DESIGN, case, 4, np.random.default_rng(3))
     diag = diagnose("observer", frame, _ideal(), DESIGN, seed=3, n_boot=500)[0]
