@@ -21,7 +21,8 @@ def _harder(args, design, layers) -> int:
     log = None if args.quiet else print
     for layer in layers:
         if layer == "observer":
-            r = run_harder_observer(design, trials=args.trials, seed=args.seed, log=log)
+            r = run_harder_observer(design, trials=args.trials, seed=args.seed,
+                                    n_participants=args.participants, log=log)
             print(format_harder(r), flush=True)
         elif layer == "display":
             try:
@@ -41,7 +42,8 @@ def _harder(args, design, layers) -> int:
                                                     log=log)
             print(bench_render.format_render_scores(
                 bench_render.score_render_cases(records)), flush=True)
-    print(f"seed {args.seed}, {args.trials} cases per layer (harder benchmark)")
+    print(f"seed {args.seed}, {args.trials} cases per layer, {args.participants} observers per "
+          "observer case (harder benchmark)")
     return 0
 
 
@@ -119,6 +121,9 @@ def main(argv=None) -> int:
                         "effects, generators written apart from the diagnosis's own injectors "
                         "(observers, display, an analytic render sphere), verdict agreement "
                         "across seeds; --trials cases")
+    b.add_argument("--participants", type=int, default=4,
+                   help="harder benchmark: observers per observer case (the seed study has 11 "
+                        "participants x 162 trials)")
     d = sub.add_parser("diagnose", help="diagnose real data against the simulation")
     d.add_argument("--layer", choices=[*LAYERS, "all"], required=True)
     d.add_argument("--real", required=True,
@@ -140,6 +145,8 @@ def main(argv=None) -> int:
         if args.cmd == "benchmark":
             if args.trials < 1:
                 raise GapError(f"--trials {args.trials}: use at least 1")
+            if args.participants < 1:
+                raise GapError(f"--participants {args.participants}: use at least 1")
             return _benchmark(args, design)
         return _diagnose(args, design)
     except GapError as exc:

@@ -47,18 +47,22 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
     data = observer_frame(frame, design, base)
     folds, text = observer_folds(data, k_folds)
     rng = np.random.default_rng(seed)
-    ceil, floor = {}, {}
+    floor, shared = {}, {}
     for tr, te in folds:
-        shared = bool(set(tr["participant"]) & set(te["participant"]))
+        shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
         adapt_base(tr, te, base)
-        model = fit_ceiling(tr, by_participant=shared)
-        ceil[id(te)] = ceiling_loss(model, te)
+        # The floor: the noise of the ceiling over the plain simulation (data-driven).
+        model = fit_ceiling(tr, by_participant=shared[id(te)])
         floor[id(te)] = ceiling_floor(model, te, rng)
+
+    def ceiling(tr, te, fitted):
+        # The ceiling over the chosen model: what a flexible extension of it still gains.
+        return ceiling_loss(fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted), te)
     diag = diagnose_losses(
         "observer", catalogue("observer"), None, None, observer_loss,
         lambda te: floor[id(te)], rng=rng, seed=seed, n_boot=n_boot,
         unit_ids=observer_unit_ids, min_gain=OBSERVER_MIN_GAIN,
-        ceiling=lambda tr, te: ceil[id(te)], folds=folds, where=observer_where, split=text,
+        ceiling=ceiling, ceiling_given_chosen=True, folds=folds, where=observer_where, split=text,
         warnings=notes,
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},

@@ -10,12 +10,17 @@ of both responses (nats), Gaussian noise censored at the slider ends. The noise 
 on the training data for every model, so a uniformly noisier lab is no gap; noise that changes
 with the stimulus is (the ceiling models it).
 
-The *ceiling* (:func:`fit_ceiling`) is a flexible model fitted to the real data alone: per
-response a quadratic surface in gloss x depth with illumination-specific terms and the previous
-response, cross-validated per-cell means (stimulus gloss x depth x illumination) shrunk toward
-that surface across participants (empirical Bayes), a smooth noise SD and lapse and
-label-rounding shares. The noise *floor* is the loss the ceiling model has on data it generates
-itself (its own noise, estimated from the data), not an assumed noise of an ideal observer.
+The *ceiling* (:func:`fit_ceiling`) is a flexible extension of a model, fitted to the real
+data: the model's mean plus a ridge-penalised correction (a quadratic surface in gloss x depth
+with illumination-specific terms and the previous response), per-cell offsets (stimulus gloss
+x depth x illumination) shrunk across participants (empirical Bayes), a log-linear noise
+variance shrunk toward the model's constant one, and lapse and label-rounding shares; each
+penalty is chosen by held-out loss within the training data. The remaining gap is tested with
+the ceiling built on the *chosen* model, so that the ceiling loses next to nothing where the
+chosen model is right and a shortfall is not hidden by the cost of fitting the flexible model
+from scratch. The noise *floor* is the loss the ceiling over the plain simulation has on data
+it generates itself (its own noise, estimated from the data), not an assumed noise of an ideal
+observer.
 """
 
 from __future__ import annotations
@@ -511,12 +516,23 @@ def observer_folds(data: pd.DataFrame, k: int = 5) -> tuple[list, str]:
     return folds, text
 
 
-# --- the ceiling: a flexible model of the data alone --------------------------------------
+# --- the ceiling: a flexible extension of a model, fitted to the real data -----------------
+
+#: Ridge penalties tried for the ceiling's corrections, per training trial (chosen by held-out
+#: loss within the training data; the largest leaves the model it extends all but unchanged).
+_RIDGE_GRID = (1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0, 1e3)
+_INNER_FOLDS = 5  # inner folds by trial where participants cannot be held out
+
 
 @dataclass(frozen=True)
 class Ceiling:
-    """A fitted ceiling model (see :func:`fit_ceiling`)."""
+    """A fitted ceiling model (see :func:`fit_ceiling`): the model it extends (``fitted``, its
+    noise SDs ``sigma``) and, per response, the mean correction's coefficients (``coef``), the
+    log-variance coefficients of the standardised residuals (``var_coef``) and the shrunk
+    stimulus and cell offsets (``cells``); lapse rate and label-rounding weight."""
 
+    fitted: tuple
+    sigma: dict
     coef: dict
     var_coef: dict
     cells: dict
@@ -530,11 +546,13 @@ class Ceiling:
 
 def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
               parts: tuple = ()):
+    """Regressors of the ceiling's mean correction and of its log variance (gloss and depth
+    in half slider spans from the middle)."""
     g = (data["gloss_u"].to_numpy(float) - mid) / span
     d = (data["depth_u"].to_numpy(float) - mid) / span
     prev = data[f"{r}_prev"].to_numpy(float)
     truth = data[f"{r}_u"].to_numpy(float)
-    x_prev = np.where(np.isnan(prev), 0.0, prev - truth)
+    x_prev = np.where(np.isnan(prev), 0.0, prev - truth) / span
     ill = data["illumination"].to_numpy(str)
     dummies = [(ill == name).astype(float) for name in ills[1:]]
     who = data["participant"].to_numpy(str)
@@ -542,9 +560,9 @@ def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
     # average), where the same participants are in the training and the held-out part.
     own = [(who == q).astype(float) - (who == parts[-1]) for q in parts[:-1]]
     mean_x = np.c_[np.ones(len(g)), g, d, g * d, g * g, d * d, x_prev,
-                   *[u * v for u in dummies for v in (np.ones(len(g)), g)],
+                   *[u * v for u in dummies for v in (np.ones(len(g)), g, d)],
                    *[u * v for u in own for v in (np.ones(len(g)), g, d)]]
-    var_x = np.c_[np.ones(len(g)), g, d, *dummies]
+    var_x = np.c_[np.ones(len(g)), g, d, g * g, d * d, g * d, *dummies]
     return mean_x, var_x
 
 
@@ -557,129 +575,255 @@ def _cell_keys(data: pd.DataFrame) -> np.ndarray:
             + data["illumination"].astype(str)).to_numpy()
 
 
-def _tobit_fill(y: np.ndarray, x: np.ndarray, lo: float, hi: float,
-                n_iter: int = 6) -> np.ndarray:
-    """Responses at the slider ends replaced by their expected value beyond the end under the
-    current linear fit (EM for censored regression, Tobin 1958), so the surface is not pulled
-    in at the ends."""
-    at_lo, at_hi = y <= lo + 1e-9, y >= hi - 1e-9
-    inside = ~(at_lo | at_hi)
-    if inside.all():
-        return y
-    b = np.linalg.lstsq(x[inside], y[inside], rcond=None)[0]
+def _censored_fill(y: np.ndarray, mu: np.ndarray, sd: np.ndarray, lo: float,
+                   hi: float) -> np.ndarray:
+    """Responses at the slider ends replaced by their expected value beyond the end under
+    N(mu, sd^2) (the E-step of censored regression, Tobin 1958), so a fit to them is not
+    pulled in at the ends."""
     out = y.copy()
-    for _ in range(n_iter):
-        mu = x @ b
-        sd = max(float(np.sqrt(np.mean((y[inside] - mu[inside]) ** 2))), 1e-3)
-        a_hi, a_lo = (hi - mu[at_hi]) / sd, (lo - mu[at_lo]) / sd
-        out[at_hi] = mu[at_hi] + sd * _phi(a_hi) / np.maximum(1 - ndtr(a_hi), 1e-12)
-        out[at_lo] = mu[at_lo] - sd * _phi(a_lo) / np.maximum(ndtr(a_lo), 1e-12)
-        b = np.linalg.lstsq(x, out, rcond=None)[0]
+    at_lo, at_hi = y <= lo + 1e-9, y >= hi - 1e-9
+    a_hi, a_lo = (hi - mu[at_hi]) / sd[at_hi], (lo - mu[at_lo]) / sd[at_lo]
+    out[at_hi] = mu[at_hi] + sd[at_hi] * _phi(a_hi) / np.maximum(1 - ndtr(a_hi), 1e-12)
+    out[at_lo] = mu[at_lo] - sd[at_lo] * _phi(a_lo) / np.maximum(ndtr(a_lo), 1e-12)
     return out
-
-
-def _fit_log_variance(res: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Maximum-likelihood log-linear variance, log s^2 = x b, of zero-mean Gaussian residuals
-    (Fisher scoring of the gamma GLM with log link on the squared residuals)."""
-    r2 = res ** 2
-    b = np.zeros(x.shape[1])
-    b[0] = np.log(max(float(np.mean(r2)), 1e-8))
-    for _ in range(25):
-        w = r2 / np.exp(x @ b) - 1.0
-        step = np.linalg.lstsq(x, w, rcond=None)[0]
-        b = b + step
-        if np.max(np.abs(step)) < 1e-6:
-            break
-    return b
 
 
 def _phi(z):
     return np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
 
 
-def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray) -> dict:
-    """Per-cell mean residuals shrunk across participants (empirical Bayes): the between-cell
-    variance is the part that replicates *across* participants (the mean product of two
-    different participants' residuals in the same cell), so one participant's own pattern is
-    not taken as the population's; each cell mean is shrunk by tau^2 / (tau^2 + s_w^2 / n)."""
-    frame = pd.DataFrame({"cell": keys, "p": participants, "res": res})
-    per = frame.groupby(["cell", "p"])["res"].mean().reset_index()
-    by_cell = per.groupby("cell")["res"]
-    s_c, q_c, n_c = by_cell.sum(), (per["res"] ** 2).groupby(per["cell"]).sum(), by_cell.size()
+def _penalty(x: np.ndarray, intercept: bool = True) -> np.ndarray:
+    """Ridge penalty matrix, each column scaled by its mean square so one penalty suits all;
+    ``intercept=False`` leaves the first column (the intercept) free."""
+    ms = np.mean(x * x, axis=0)
+    pen = np.where(ms > 0, ms, 1.0)
+    if not intercept:
+        pen[0] = 0.0
+    return np.diag(pen)
+
+
+def _ridge(x, y, w, lam):
+    k = x.shape[1]
+    a = x.T @ (w[:, None] * x) + lam * w.sum() * _penalty(x) + 1e-9 * np.eye(k)
+    return np.linalg.solve(a, x.T @ (w * y))
+
+
+def _fit_log_variance(res: np.ndarray, x: np.ndarray, w: np.ndarray, lam: float) -> np.ndarray:
+    """Penalised maximum-likelihood log-linear variance, log s^2 = x b, of zero-mean Gaussian
+    residuals with weights ``w`` (Fisher scoring; ridge penalty ``lam`` per unit weight on
+    every term but the intercept, so the variance is shrunk toward a constant)."""
+    r2 = res ** 2
+    pen = lam * w.sum() * _penalty(x, intercept=False)
+    b = np.zeros(x.shape[1])
+    b[0] = np.log(max(float(np.sum(w * r2) / w.sum()), 1e-8))
+    info = 0.5 * x.T @ (w[:, None] * x) + pen + 1e-9 * np.eye(x.shape[1])
+    for _ in range(30):
+        score = 0.5 * x.T @ (w * (r2 * np.exp(-x @ b) - 1.0)) - pen @ b
+        step = np.linalg.solve(info, score)
+        b = b + np.clip(step, -2.0, 2.0)
+        if np.max(np.abs(step)) < 1e-6:
+            break
+    return b
+
+
+def _inner_groups(train: pd.DataFrame, by_participant: bool) -> np.ndarray:
+    """Inner folds for choosing penalties, held out the way the outer folds are: by
+    participant, or by trial where the held-out trials' participants are trained on."""
+    parts = train["participant"].to_numpy(str)
+    if not by_participant and len(np.unique(parts)) >= 3:
+        return parts
+    rank = train.groupby(["participant", "session"])["order"].rank(method="first")
+    return ((rank.to_numpy(int) - 1) % _INNER_FOLDS).astype(str)
+
+
+def _one_se_choice(losses: np.ndarray) -> int:
+    """Index of the penalty to use, given held-out per-unit losses (rows: penalties in
+    increasing order): the largest penalty whose mean loss lies within one standard error
+    (paired, over units) of the best one's (the one-standard-error rule; Hastie, Tibshirani &
+    Friedman 2009, sec. 7.10), so a correction the data barely support is left out."""
+    best = int(np.argmin(losses.mean(axis=1)))
+    n = losses.shape[1]
+    for k in range(losses.shape[0] - 1, best, -1):
+        diff = losses[k] - losses[best]
+        if diff.mean() <= diff.std(ddof=1) / np.sqrt(n):
+            return k
+    return best
+
+
+def _cv_ridge(x, y, w, groups) -> np.ndarray:
+    """Ridge coefficients (intercept penalised too: the model extended fixes it), the penalty
+    chosen from :data:`_RIDGE_GRID` by held-out weighted squared error over ``groups``
+    (:func:`_one_se_choice`)."""
+    losses = np.empty((len(_RIDGE_GRID), y.size))
+    for k, lam in enumerate(_RIDGE_GRID):
+        for g in np.unique(groups):
+            m = groups == g
+            b = _ridge(x[~m], y[~m], w[~m], lam)
+            losses[k, m] = w[m] * (y[m] - x[m] @ b) ** 2
+    return _ridge(x, y, w, _RIDGE_GRID[_one_se_choice(losses)])
+
+
+def _cv_log_variance(res, x, w, groups) -> np.ndarray:
+    """Log-linear variance, the penalty chosen by held-out Gaussian NLL over ``groups``
+    (:func:`_one_se_choice`)."""
+    losses = np.empty((len(_RIDGE_GRID), res.size))
+    for k, lam in enumerate(_RIDGE_GRID):
+        for g in np.unique(groups):
+            m = groups == g
+            b = _fit_log_variance(res[~m], x[~m], w[~m], lam)
+            losses[k, m] = 0.5 * w[m] * (x[m] @ b + res[m] ** 2 * np.exp(-x[m] @ b))
+    return _fit_log_variance(res, x, w, _RIDGE_GRID[_one_se_choice(losses)])
+
+
+def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray,
+                  weights: np.ndarray | None = None) -> dict:
+    """Per-cell mean residuals shrunk across participants (empirical Bayes, one-way random
+    effects by the method of moments): the between-cell variance ``tau2`` is the part that
+    replicates *across* participants (the mean product of two different participants' means
+    in the same cell), so one participant's own pattern is not taken as the population's; the
+    noise of a cell mean is the spread of the participants' means about it, ``v / n``. Each
+    cell mean is shrunk by tau2 / (tau2 + v / n). ``weights`` (default 1) weight the
+    responses within a participant's cell mean (a lapse's chance of being none)."""
+    cells, cell_of = np.unique(keys, return_inverse=True)
+    _, pair_of = np.unique(np.char.add(np.char.add(keys.astype(str), "\x1f"),
+                                       participants.astype(str)), return_inverse=True)
+    # Per (cell, participant): the participant's mean residual in that cell.
+    w = np.ones(res.size) if weights is None else np.asarray(weights, float)
+    w_cp = np.bincount(pair_of, weights=w)
+    m_cp = np.bincount(pair_of, weights=w * res) / np.maximum(w_cp, 1e-12)
+    cell_of_pair = np.zeros(m_cp.size, int)
+    cell_of_pair[pair_of] = cell_of
+    n_c = np.bincount(cell_of_pair, minlength=cells.size).astype(float)
+    s_c = np.bincount(cell_of_pair, weights=m_cp, minlength=cells.size)
+    q_c = np.bincount(cell_of_pair, weights=m_cp ** 2, minlength=cells.size)
     pairs = float((n_c * (n_c - 1)).sum())
     if pairs == 0:
         return {}
     tau2 = max(0.0, float((s_c ** 2 - q_c).sum()) / pairs)
     if tau2 == 0:
         return {}
-    s_w2 = max(float(np.mean(res ** 2)) - tau2, 1e-6)
-    m_c = s_c / n_c
-    return (m_c * tau2 / (tau2 + s_w2 / n_c)).to_dict()
+    m_c = s_c / np.maximum(n_c, 1)
+    v = max(float(((m_cp - m_c[cell_of_pair]) ** 2).sum()) / float((n_c - 1).sum()), 1e-6)
+    return dict(zip(cells.tolist(), (m_c * tau2 / (tau2 + v / np.maximum(n_c, 1))).tolist()))
 
 
-def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False) -> Ceiling:
-    """Fit the flexible model to ``train`` (a frame from :func:`observer_frame`).
+def _two_level_offsets(res, stim, keys, who, w) -> tuple[dict, dict]:
+    """Offsets per stimulus (gloss x depth level, pooled over illuminations), then per cell
+    (x illumination) on what the stimulus offsets leave (:func:`_cell_offsets`)."""
+    stim_off = _cell_offsets(res, stim, who, w)
+    cell_off = _cell_offsets(res - _offsets_at(stim_off, {}, stim, keys), keys, who, w)
+    return stim_off, cell_off
 
-    Per response: least squares on a quadratic surface in gloss and depth (with their product),
-    illumination-specific intercept and slopes, and the pull of the previous response; then
-    per-cell mean residuals (stimulus gloss level x depth level x illumination) shrunk toward
-    the surface by their reliability across participants (empirical Bayes, method of
-    moments); then a log-linear noise SD (gloss, depth, their squares, illumination), scaled
-    so the standardised residuals have unit variance (degrees of freedom corrected); finally
-    lapse rate and label-rounding weight on a grid (maximum likelihood).
 
-    Responses at the slider ends enter the surface at their expected value beyond the end
-    (censored regression). The cell means come in two levels, the stimulus (gloss x depth
-    level, pooled over illuminations) and then the cell, each shrunk by how far it replicates
-    across participants. ``by_participant`` (folds by trial: the held-out trials' participants
-    are in ``train``): each participant's own intercept and gloss and depth slopes as well.
+def _offsets_at(stim_off: dict, cell_off: dict, stim, keys) -> np.ndarray:
+    return (pd.Series(stim).map(stim_off).fillna(0.0).to_numpy(float)
+            + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float))
+
+
+def _cv_offsets(res, stim, keys, who, w, groups) -> tuple[dict, dict]:
+    """Stimulus and cell offsets (:func:`_two_level_offsets`), kept only where they lower the
+    held-out weighted squared error over ``groups`` by more than one standard error (paired
+    over units): with few participants the between-cell variance is estimated from few
+    pairs, and a chance positive estimate would fit their noise."""
+    losses = np.empty((2, res.size))
+    for g in np.unique(groups):
+        m = groups == g
+        s_off, c_off = _two_level_offsets(res[~m], stim[~m], keys[~m], who[~m], w[~m])
+        losses[0, m] = w[m] * (res[m] - _offsets_at(s_off, c_off, stim[m], keys[m])) ** 2
+        losses[1, m] = w[m] * res[m] ** 2
+    return _two_level_offsets(res, stim, keys, who, w) if _one_se_choice(losses) == 0 else (
+        {}, {})
+
+
+def _gauss_share(res: np.ndarray, sd: np.ndarray, lapse: float, width: float) -> np.ndarray:
+    """Posterior probability that a response is no lapse (the E-step of the lapse mixture)."""
+    if lapse <= 0:
+        return np.ones(res.size)
+    g = (1 - lapse) * _phi(res / sd) / sd
+    return g / (g + lapse / width)
+
+
+def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
+                fitted: list | tuple = ()) -> Ceiling:
+    """Fit the flexible model to ``train`` (a frame from :func:`observer_frame`): the model
+    ``fitted`` (``[(candidate, params), ...]``; default the plain simulation) extended by
+    corrections estimated from the real data, each shrunk toward no correction.
+
+    Per response, on the residual from that model (responses at the slider ends at their
+    expected value beyond the end, censored regression, three EM rounds):
+
+    1. a mean correction: a quadratic surface in gloss and depth (with their product), the
+       previous response, illumination-specific intercept and slopes and (``by_participant``)
+       each participant's own intercept and slopes, by ridge regression;
+    2. per-cell offsets in two levels, the stimulus (gloss x depth level, pooled over
+       illuminations) and the cell (x illumination), each shrunk by how far it replicates
+       across participants (:func:`_cell_offsets`);
+    3. a log-linear noise variance in gloss, depth, their squares and product and the
+       illumination, relative to the model's own noise SD, ridge-penalised toward a
+       constant (responses weighted by their chance of being no lapse);
+
+    then lapse rate and label-rounding weight on a grid (maximum likelihood). Each ridge
+    penalty is chosen by held-out loss within ``train`` (inner folds held out as the outer
+    ones are: by participant, or by trial with ``by_participant``), so a correction the data
+    do not support costs next to nothing on held-out data: the ceiling is at least about as
+    good as the model it extends, and better wherever the data hold structure that model
+    lacks (Hastie, Tibshirani & Friedman 2009, sec. 3.4 and 7.10).
     """
     mid = train.attrs["mid"]
     lo, hi = train.attrs["range"]
     span = 0.5 * (hi - lo)
+    fitted = tuple(fitted)
     ills = tuple(sorted(train["illumination"].unique()))
     keys, stim = _cell_keys(train), _stimulus_keys(train)
     parts = tuple(sorted(train["participant"].unique())) if by_participant else ()
-    coef, var_coef, cells = {}, {}, {}
-    mu, sd = {}, {}
+    groups = _inner_groups(train, by_participant)
+    who = train["participant"].to_numpy(str)
+    pred0 = predict(train, list(fitted))
+    sigma = _fit_sigma(train, pred0)
+    coef, var_coef, cells, mu, sd = {}, {}, {}, {}, {}
     for r in RESP:
         mx, vx = _features(train, ills, mid, span, r, parts)
-        y = _tobit_fill(train[f"{r}_match"].to_numpy(float), mx, lo, hi)
-        b = np.linalg.lstsq(mx, y, rcond=None)[0]
-        res = y - mx @ b
-        # Two levels: the stimulus (gloss x depth, over illuminations), then the cell.
-        who = train["participant"].to_numpy(str)
-        stim_off = _cell_offsets(res, stim, who)
-        off = pd.Series(stim).map(stim_off).fillna(0.0).to_numpy(float)
-        cell_off = _cell_offsets(res - off, keys, who)
-        off = off + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float)
-        cells[r] = {"stimulus": stim_off, "cell": cell_off}
-        res = res - off
-        lv = _fit_log_variance(res, vx)
-        lv[0] += np.log(len(y) / max(len(y) - mx.shape[1], 1))  # degrees of freedom
+        y = train[f"{r}_match"].to_numpy(float)
+        s0 = sigma[r] * np.broadcast_to(pred0["sd"][r], y.shape)
+        m0 = pred0["mu"][r]
+        w = _gauss_share(y - m0, s0, float(pred0["lapse"]), hi - lo)
+        m_r, s_r = m0, s0
+        for _ in range(3):
+            res = _censored_fill(y, m_r, s_r, lo, hi) - m0
+            b = _cv_ridge(mx, res, w, groups)
+            res = res - mx @ b
+            stim_off, cell_off = _cv_offsets(res, stim, keys, who, w, groups)
+            off = _offsets_at(stim_off, cell_off, stim, keys)
+            lv = _cv_log_variance((res - off) / s0, vx, w, groups)
+            m_r = m0 + mx @ b + off
+            s_r = s0 * np.sqrt(np.exp(vx @ lv))
         coef[r], var_coef[r] = b, lv
-        mu[r] = mx @ b + off
-        sd[r] = np.sqrt(np.exp(vx @ lv))
+        cells[r] = {"stimulus": stim_off, "cell": cell_off}
+        mu[r], sd[r] = m_r, s_r
     best = (np.inf, 0.0, 0.0)
-    for lam in (0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3):
-        for w in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6):
-            pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": w}
+    lapses = sorted({0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, float(pred0["lapse"])})
+    labels = sorted({0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, float(pred0["label"])})
+    for lam in lapses:
+        for wl in labels:
+            pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": wl}
             v = float(_nll(train, pred, sd).sum())
             if v < best[0]:
-                best = (v, lam, w)
-    return Ceiling(coef=coef, var_coef=var_coef, cells=cells, ills=ills, lapse=best[1],
-                   label=best[2], mid=mid, span=span, parts=parts)
+                best = (v, lam, wl)
+    return Ceiling(fitted=fitted, sigma=sigma, coef=coef, var_coef=var_coef, cells=cells,
+                   ills=ills, lapse=best[1], label=best[2], mid=mid, span=span, parts=parts)
 
 
 def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
     keys, stim = pd.Series(_cell_keys(data)), pd.Series(_stimulus_keys(data))
+    base = predict(data, list(model.fitted))
     mu, sd = {}, {}
     for r in RESP:
         mx, vx = _features(data, model.ills, model.mid, model.span, r, model.parts)
         off = (stim.map(model.cells[r]["stimulus"]).fillna(0.0).to_numpy(float)
                + keys.map(model.cells[r]["cell"]).fillna(0.0).to_numpy(float))
-        mu[r] = mx @ model.coef[r] + off
-        sd[r] = np.sqrt(np.exp(vx @ model.var_coef[r]))
+        mu[r] = base["mu"][r] + mx @ model.coef[r] + off
+        sd[r] = (model.sigma[r] * np.broadcast_to(base["sd"][r], mu[r].shape)
+                 * np.sqrt(np.exp(vx @ model.var_coef[r])))
     return ({"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": model.lapse,
              "label": model.label}, sd)
 
@@ -723,7 +867,7 @@ def observer_where(fits: list) -> str:
     rows = []
     for train, test, fitted in fits:
         model = fit_ceiling(train, by_participant=bool(
-            set(train["participant"]) & set(test["participant"])))
+            set(train["participant"]) & set(test["participant"])), fitted=fitted)
         chosen = predict(test, fitted)
         sig = _fit_sigma(train, predict(train, fitted))
         c_pred, c_sd = _ceiling_pred(model, test)
@@ -836,14 +980,31 @@ def _resid(train: pd.DataFrame, chosen: list) -> tuple[dict, dict]:
     return pred, {r: train[f"{r}_match"].to_numpy(float) - pred["mu"][r] for r in RESP}
 
 
-def _ls(y, x) -> float:
-    return float(np.dot(x, y) / max(np.dot(x, x), 1e-12))
+def _ls(y, x, w=None) -> float:
+    """Weighted least-squares slope through the origin."""
+    w = np.ones(len(y)) if w is None else w
+    return float(np.dot(w * x, y) / max(np.dot(w * x, x), 1e-12))
 
 
 def _inside(train: pd.DataFrame, r: str) -> np.ndarray:
     lo, hi = train.attrs["range"]
     x = train[f"{r}_match"].to_numpy(float)
     return (x > lo + 1e-9) & (x < hi - 1e-9)
+
+
+def _weights(train: pd.DataFrame, pred: dict, res: dict, r: str) -> np.ndarray:
+    """Weights of the responses in a least-squares fit of response ``r``: responses inside the
+    slider, each weighted by its chance of being no lapse under ``pred`` (the E-step of the
+    lapse mixture, noise SD from the residuals' median absolute deviation), so that lapses,
+    whose mean is the slider's middle, do not pass for central tendency."""
+    keep = _inside(train, r)
+    w = keep.astype(float)
+    if pred["lapse"] <= 0 or not keep.any():
+        return w
+    lo, hi = train.attrs["range"]
+    x = res[r][keep]
+    sd = max(1.4826 * float(np.median(np.abs(x - np.median(x)))), 1e-3)
+    return w * _gauss_share(res[r], np.full(len(w), sd), float(pred["lapse"]), hi - lo)
 
 
 def _with_mu(pred: dict, mu: dict) -> dict:
@@ -857,10 +1018,10 @@ def _respond(ctx: dict, mu: dict, rng: np.random.Generator | None = None) -> dic
 
 # crosstalk: deeper arrays look glossier (gloss slider units per depth slider unit).
 def _fit_crosstalk(train, chosen):
-    _, res = _resid(train, chosen)
-    keep = _inside(train, "gloss")
+    pred, res = _resid(train, chosen)
+    w = _weights(train, pred, res, "gloss")
     x = train["depth_u"].to_numpy(float) - train.attrs["mid"]
-    return {"c": _ls(res["gloss"][keep], x[keep])}
+    return {"c": _ls(res["gloss"], x, w)}
 
 
 def _apply_crosstalk(data, pred, p):
@@ -879,8 +1040,7 @@ def _fit_central(train, chosen):
     pred, res = _resid(train, chosen)
     out = {}
     for r in RESP:
-        keep = _inside(train, r)
-        out[r] = _ls(res[r][keep], -(pred["mu"][r] - train.attrs["mid"])[keep])
+        out[r] = _ls(res[r], -(pred["mu"][r] - train.attrs["mid"]), _weights(train, pred, res, r))
     return out
 
 
@@ -895,13 +1055,13 @@ def _inject_central(ctx, s, rng):
 
 # illumination gain: the gloss gain differs by illumination (one gain per illumination name).
 def _fit_illumination(train, chosen):
-    _, res = _resid(train, chosen)
-    keep = _inside(train, "gloss")
+    pred, res = _resid(train, chosen)
+    w = _weights(train, pred, res, "gloss")
     x = train["gloss_u"].to_numpy(float) - train.attrs["mid"]
     gain = {}
     for ill, idx in train.groupby("illumination").indices.items():
-        idx = idx[keep[idx]]
-        gain[str(ill)] = _ls(res["gloss"][idx], x[idx]) if idx.size else 0.0
+        idx = idx[w[idx] > 0]
+        gain[str(ill)] = _ls(res["gloss"][idx], x[idx], w[idx]) if idx.size else 0.0
     return {"gain": gain}
 
 
@@ -933,8 +1093,7 @@ def _fit_serial(train, chosen):
     pred, res = _resid(train, chosen)
     out = {}
     for r in RESP:
-        keep = _inside(train, r)
-        out[r] = _ls(res[r][keep], _prev_x(train, pred, r)[keep])
+        out[r] = _ls(res[r], _prev_x(train, pred, r), _weights(train, pred, res, r))
     return out
 
 

@@ -1,0 +1,106 @@
+"""The observer layer's ceiling: a flexible extension of the chosen model that costs next to
+nothing where that model is right, and the test of what remains on effects outside the
+catalogue that an independently fitted ceiling missed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from analysis.gap import diagnose
+from analysis.gap.bench_observer import HarderCase, generate_sessions
+from analysis.gap.engine import candidate
+from analysis.gap.observer import (
+    _cell_offsets,
+    base_from_params,
+    ceiling_loss,
+    fit_ceiling,
+    observer_folds,
+    observer_frame,
+    observer_loss,
+)
+from experiment import load_observer_params
+from studydesign import load_design
+
+DESIGN = load_design()
+
+
+def _ideal():
+    return base_from_params(load_observer_params()["ideal"], "ideal", DESIGN.slider)
+
+
+def _diagnose_case(added: dict, seed: int, n_participants: int = 4):
+    case = HarderCase("out", base=True, added=added)
+    frame, _ = generate_sessions(DESIGN, case, n_participants, np.random.default_rng(seed))
+    return diagnose("observer", frame, _ideal(), DESIGN, seed=seed, n_boot=500)[0]
+
+
+def test_cell_offsets_are_shrunk_by_the_reliability_of_a_cell_mean():
+    """81 cells with true offsets N(0, 0.5^2), 4 participants with 2 trials each per cell,
+    trial noise SD 0.9: a cell mean over 8 trials has noise variance 0.81 / 8, so the
+    empirical-Bayes factor is 0.25 / (0.25 + 0.81 / 8) = 0.71 (one-way random effects)."""
+    rng = np.random.default_rng(4)
+    cells = np.repeat(np.arange(81), 8)
+    who = np.tile(np.repeat(np.arange(4), 2), 81).astype(str)
+    truth = rng.normal(0.0, 0.5, 81)
+    res = truth[cells] + rng.normal(0.0, 0.9, cells.size)
+    off = _cell_offsets(res, cells.astype(str), who)
+    means = np.array([res[cells == c].mean() for c in range(81)])
+    factor = np.array([off[str(c)] for c in range(81)]) / means
+    assert np.ptp(factor) < 1e-9  # one factor for cells of equal size
+    assert factor[0] == pytest.approx(0.25 / (0.25 + 0.81 / 8), abs=0.08)
+
+
+def test_ceiling_over_a_right_model_costs_next_to_nothing_on_held_out_observers():
+    """Human-like observers with the catalogue's central tendency and crosstalk only: the
+    ceiling built on those fitted effects loses less than 0.015 nats per held-out trial
+    against them (an independently fitted flexible model lost 0.02 to 0.06 on such data; a
+    remaining gap must be at least 0.02 to count)."""
+    case = HarderCase("base", base=True)
+    frame, _ = generate_sessions(DESIGN, case, 4, np.random.default_rng(6))
+    data = observer_frame(frame, DESIGN, _ideal())
+    folds, _ = observer_folds(data)
+    excess = []
+    for tr, te in folds:
+        chosen = []
+        for name in ("central_tendency", "crosstalk"):
+            chosen.append((name, candidate("observer", name).fit(tr, chosen)))
+        own = observer_loss(tr)(te, chosen)
+        excess.append(ceiling_loss(fit_ceiling(tr, fitted=chosen), te).mean() - own.mean())
+    assert np.mean(excess) < 0.015
+
+
+def test_noise_growing_with_depth_is_a_remaining_gap_in_the_spread_of_depth():
+    diag = _diagnose_case({"depth_noise": 0.6}, seed=1)
+    assert {s["added"] for s in diag.steps} == {"central_tendency", "crosstalk"}
+    assert diag.unexplained_remains
+    assert diag.remaining["where"] == "in the spread of the depth response, rising with depth"
+
+
+def test_lapses_alone_leave_no_remaining_gap():
+    """Lapses (mean at the slider's middle) must not pass for extra central tendency in the
+    catalogue's fits, which the ceiling would then correct and flag."""
+    case = HarderCase("catalogue", base=True, added={"lapses": 0.15})
+    frame, _ = generate_sessions(DESIGN, case, 4, np.random.default_rng(16))
+    diag = diagnose("observer", frame, _ideal(), DESIGN, seed=16, n_boot=500)[0]
+    assert {s["added"] for s in diag.steps} == {"lapses", "central_tendency", "crosstalk"}
+    central = next(s for s in diag.steps if s["added"] == "central_tendency")["params"]
+    assert central["gloss"] == pytest.approx(0.10, abs=0.04)
+    assert central["depth"] == pytest.approx(0.30, abs=0.04)
+    assert not diag.unexplained_remains
+
+
+@pytest.mark.xfail(strict=True, reason="known shortfall: with lapses the ceiling's cell offsets "
+                   "rarely beat none by one standard error in the inner folds over three "
+                   "participants, so this bias (remaining gap about 0.01 nats) is missed")
+def test_a_stimulus_bias_beside_lapses_is_a_remaining_gap():
+    """Lapses chosen from the catalogue must not hide a per-stimulus gloss bias: the ceiling
+    is built on the chosen lapse model (a ceiling fitted apart, its noise SD widened by the
+    lapses, lay 0.18 nats per trial *below* the chosen model on such a case of the harder
+    benchmark, seed 1)."""
+    case = HarderCase("both", base=True, added={"lapses": 0.15, "stimulus_bias": 0.5})
+    frame, _ = generate_sessions(DESIGN, case, 4, np.random.default_rng(3))
+    diag = diagnose("observer", frame, _ideal(), DESIGN, seed=3, n_boot=500)[0]
+    assert "lapses" in {s["added"] for s in diag.steps}
+    assert diag.unexplained_remains
+    assert "gloss response" in diag.remaining["where"]
