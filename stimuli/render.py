@@ -14,7 +14,18 @@ physical size.
 The scene is built once per (array, light probe) and re-rendered for each gloss level by updating
 the Ward parameters in place with ``mi.traverse`` (no re-load, and the compiled kernel is reused
 because the parameters are opaque). Each render may take its own sample count (the spp of its
-gloss level, :mod:`stimuli.noise`). Sampler: ``multijitter``. The film stores CIE Y
+gloss level, :mod:`stimuli.noise`); Dr.Jit compiles one kernel per sample count (a constant in
+the kernel) and caches it.
+
+What is left per image is Dr.Jit tracing the render again, the Python Ward BSDF included, to find
+the cached kernel. Freezing the render (``dr.freeze``, which replays the recorded kernel launches
+without tracing) is not used because it buys nothing worth its constraints (a recording per scene
+and per sample count): ``bench/stimuli_scene_reuse.py``, interleaved image by image at 128 px and
+16 spp (the cheapest render, where tracing weighs most), llvm_ad_mono, load average 7 on 2 cores,
+measured re-use 1.152 s/image, frozen 1.121 s/image (identical images): 1.03x, i.e. tracing costs
+about 30 ms per image, < 1 % of a 256 px render at the planned spp. Re-loading the scene per image
+instead took 1.67x as long as re-use; the first render at a new sample count took 3.2 s, the next
+1.4 s (compile, then cache). Sampler: ``multijitter``. The film stores CIE Y
 (``pixel_format = "luminance"``): in a monochrome variant (the default for the grey stimuli) the
 scene is lit by the probe's luminance and the render *is* Y, exactly; in the spectral variant the
 film integrates the spectrum against the CIE 1931 Y matching function; in the RGB variant Y is
