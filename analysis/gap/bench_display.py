@@ -41,6 +41,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.gap.scoring import per_case, score_line, seed_agreement, shrink_errors
+from analysis.gap.scoring import rate as _rate
 from labfiles import atomic_write_text
 
 __all__ = [
@@ -485,26 +487,17 @@ def score_display_cases(records: list[dict]) -> dict:
     first seed's.
     """
     def rate(cases, ok):
-        sel = [r for r in records if r["case"] in cases]
-        return (float(np.mean([ok(r) for r in sel])) if sel else float("nan")), len(sel)
+        return _rate(records, cases, ok)
     top1, n_in = rate(("single", "drift_repeats"), _right)
     false_attr, n_none = rate(("none", "in_sample"), lambda r: not _right(r))
     unexpl, n_out = rate(("out_of_catalogue", "out_with_catalogue"), _right)
     both, n_co = rate(("co_occurring",), _right)
-    errs = [abs(r["pred_shrink"] - r["true_shrink"]) / r["true_shrink"] for r in records
-            if r["case"] in ("single", "drift_repeats") and _right(r) and r["true_shrink"] > 0]
-    agree = [np.mean([v == r["seed_verdicts"][0] for v in r["seed_verdicts"]])
-             for r in records]
-    per_case = {}
-    for r in records:
-        k = per_case.setdefault(r["case"], [0, 0])
-        k[0] += _right(r)
-        k[1] += 1
+    errs = shrink_errors(records, ("single", "drift_repeats"), _right)
     return {"top1": top1, "n_in": n_in, "false_attribution": false_attr, "n_none": n_none,
             "unexplained_out": unexpl, "n_out": n_out, "co_occurring": both, "n_co": n_co,
             "shrink_error": float(np.median(errs)) if errs else float("nan"),
-            "seed_agreement": float(np.mean(agree)) if agree else float("nan"),
-            "per_case": per_case, "records": records}
+            "seed_agreement": seed_agreement(records),
+            "per_case": per_case(records, _right), "records": records}
 
 
 def format_display_scores(s: dict) -> str:
@@ -512,8 +505,7 @@ def format_display_scores(s: dict) -> str:
     t = DISPLAY_TARGETS
 
     def line(name, value, n, target, ok):
-        mark = "n/a (no runs)" if n == 0 else ("met" if ok else "NOT met")
-        return f"display (independent GOG display): {name} {value:.3f} (n={n}; target {target}) {mark}"
+        return score_line("display (independent GOG display)", name, value, n, target, ok)
     n_all = len(s["records"])
     return "\n".join([
         line("top-1", s["top1"], s["n_in"], f">= {t['top1']}", s["top1"] >= t["top1"]),

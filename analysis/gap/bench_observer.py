@@ -266,9 +266,11 @@ def run_harder_observer(design, *, trials: int, seed: int, n_participants: int =
 
 def score_harder(records: list[dict]) -> dict:
     """Rates over the records of :func:`run_harder_observer` (NaN where a kind has no case)."""
+    from analysis.gap.scoring import rate as _rate
+    from analysis.gap.scoring import shrink_errors
+
     def rate(sel, ok):
-        sub = [r for r in records if sel(r)]
-        return (float(np.mean([ok(r) for r in sub])) if sub else float("nan")), len(sub)
+        return _rate(records, sel, ok)
 
     def added_cat(r):
         return [n for n in r["added"] if n in CATALOGUE_ADDED]
@@ -283,9 +285,8 @@ def score_harder(records: list[dict]) -> dict:
     unexpl_both = rate(lambda r: r["case"] == "both", lambda r: r["remains"])
     wrong_rem = rate(lambda r: r["case"] in ("base", "catalogue"), lambda r: r["remains"])
     agree = rate(lambda r: True, lambda r: r["agree"])
-    errs = [abs(r["pred_shrink"] - r["true_shrink"]) / r["true_shrink"] for r in records
-            if r["case"] in ("base", "catalogue") and r["true_shrink"] > 0
-            and set(r["chosen"]) == set(r["expected"])]
+    errs = shrink_errors(records, ("base", "catalogue"),
+                         lambda r: set(r["chosen"]) == set(r["expected"]))
     return {"top1": top1, "exact": exact, "false_attribution": false_attr,
             "unexplained_out": unexpl, "unexplained_out_with_catalogue": unexpl_both,
             "wrong_remaining": wrong_rem, "seed_agreement": agree,
@@ -296,14 +297,13 @@ def score_harder(records: list[dict]) -> dict:
 def format_harder(r: dict) -> str:
     """What was measured, beside the targets, one line each."""
     from analysis.gap.benchmark import TARGETS
+    from analysis.gap.scoring import score_line
 
     def line(label, key, target, higher=True):
         v, n = r[key]
-        if n == 0:
-            return f"observer (harder): {label}: n/a (no cases)"
-        ok = v >= target if higher else v <= target
-        return (f"observer (harder): {label} {v:.3f} (n={n}; target {'>=' if higher else '<='} "
-                f"{target}) {'met' if ok else 'NOT met'}")
+        return score_line("observer (harder)", label, v, n,
+                          f"{'>=' if higher else '<='} {target}",
+                          v >= target if higher else v <= target)
     lines = [
         line("top-1, added catalogue effect among the chosen", "top1", TARGETS["top1"]),
         line("exact verdicts (base effects + added, nothing remaining)", "exact",

@@ -52,6 +52,14 @@ from scipy.signal import fftconvolve
 
 from analysis.gap import inject
 from analysis.gap.engine import catalogue, effect, out_of_catalogue
+from analysis.gap.scoring import (
+    per_case,
+    render_true_shrink,
+    score_line,
+    seed_agreement,
+    shrink_errors,
+)
+from analysis.gap.scoring import rate as _rate
 
 __all__ = [
     "CASES",
@@ -459,27 +467,6 @@ def _case_plan(case: str, rng: np.random.Generator) -> dict:
             "effects": effects}
 
 
-def _true_shrink(diag, folder: Path, truth: dict) -> float:
-    """Held-out loss of the plain simulation minus that of the generating photo (noiseless),
-    under the diagnosis's noise model, on the same held-out pixels."""
-    from analysis.gap.render import noise_sd
-
-    photos, renders = {}, {}
-    for name in truth:
-        with np.load(folder / "residuals" / f"{name}.npz") as a:
-            photos[name] = a["photo"][..., 0].astype(float)
-            renders[name] = a["render"][..., 0].astype(float)
-    noise = diag.loss_info["noise_a2_b"]
-    nll = []
-    for u in diag.heldout:
-        name, y, x = u.split("|")
-        at = (int(y), int(x))
-        sd = float(noise_sd(renders[name][at], *noise[name]))
-        r = (photos[name][at] - truth[name][at]) / sd
-        nll.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * r**2)
-    return float(diag.loss_before - np.mean(nll))
-
-
 def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
               spp: int) -> dict:
     from analysis.gap.diagnose import diagnose
@@ -498,7 +485,7 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
                           n_boot=n_boot)[0] for _ in range(seeds)]
         diag = diags[0]
         single = case == "independent"
-        true_shrink = _true_shrink(diag, folder, truth) if single else float("nan")
+        true_shrink = render_true_shrink(diag, folder, truth) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
     named = [] if diag.verdict == "unexplained" else diag.verdict.split(" + ")
     return {"layer": "render", "case": case, "generator": plan["generator"],
@@ -563,8 +550,7 @@ def score_render_cases(records: list[dict]) -> dict:
     seed_agreement: share of (case, seed) verdicts (names and flag) equal to the first seed's.
     """
     def rate(cases, ok):
-        sel = [r for r in records if r["case"] in cases]
-        return (float(np.mean([ok(r) for r in sel])) if sel else float("nan")), len(sel)
+        return _rate(records, cases, ok)
     top1, n_in = rate(("independent",), _right)
     false_attr, n_none = rate(("none", "independent_none"), lambda r: not _right(r))
     unexpl, n_out = rate(("out_with_catalogue", "independent_out"), _right)
@@ -572,22 +558,13 @@ def score_render_cases(records: list[dict]) -> dict:
     cat_named, _ = rate(("out_with_catalogue", "independent_out"),
                         lambda r: set(r["inside"]) <= set(r["steps"]))
     both, n_co = rate(("co_occurring",), _right)
-    errs = [abs(r["pred_shrink"] - r["true_shrink"]) / r["true_shrink"] for r in records
-            if r["case"] == "independent" and _right(r) and r["true_shrink"] > 0]
-    agree = [np.mean([v == r["seed_verdicts"][0] for v in r["seed_verdicts"]])
-             for r in records]
-    per_case = {}
-    for r in records:
-        k = per_case.setdefault(r["case"], [0, 0])
-        k[0] += _right(r)
-        k[1] += 1
+    errs = shrink_errors(records, ("independent",), _right)
     return {"top1": top1, "n_in": n_in, "false_attribution": false_attr, "n_none": n_none,
             "unexplained_out": unexpl, "n_out": n_out, "out_flagged": flagged,
             "out_catalogue_named": cat_named, "co_occurring": both, "n_co": n_co,
             "shrink_error": float(np.median(errs)) if errs else float("nan"),
-            "n_shrink": len(errs),
-            "seed_agreement": float(np.mean(agree)) if agree else float("nan"),
-            "per_case": per_case, "records": records}
+            "n_shrink": len(errs), "seed_agreement": seed_agreement(records),
+            "per_case": per_case(records, _right), "records": records}
 
 
 def format_render_scores(s: dict) -> str:
@@ -595,8 +572,7 @@ def format_render_scores(s: dict) -> str:
     t = RENDER_TARGETS
 
     def line(name, value, n, target, ok):
-        mark = "n/a (no runs)" if n == 0 else ("met" if ok else "NOT met")
-        return f"render (harder): {name} {value:.3f} (n={n}; target {target}) {mark}"
+        return score_line("render (harder)", name, value, n, target, ok)
     return "\n".join([
         line("top-1 (analytic sphere, one catalogue effect)", s["top1"], s["n_in"],
              f">= {t['top1']}", s["top1"] >= t["top1"]),

@@ -29,7 +29,8 @@ from analysis.gap.engine import OutOfCatalogue, candidate, catalogue, out_of_cat
 from analysis.gap.engine import effect as _effect
 from analysis.gap.engine import strengths as _strengths
 from analysis.gap.observer import observer_frame, observer_nll, read_session_csvs
-from analysis.gap.render import noise_sd
+from analysis.gap.scoring import rate as _rate
+from analysis.gap.scoring import render_true_shrink
 
 __all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
            "run_observer_benchmark", "run_thresholds"]
@@ -96,21 +97,7 @@ def _render_trial(design, effect, strength, rng, tmp: Path, n_boot):
                        n_boot=n_boot)
     if _is_out("render", effect):
         return diag, float("nan")
-    photos, renders = {}, {}
-    for name in truth:
-        with np.load(tmp / "fit" / "residuals" / f"{name}.npz") as a:
-            photos[name] = a["photo"][..., 0].astype(float)
-            renders[name] = a["render"][..., 0].astype(float)
-    # The diagnosis's noise model (read and shot noise, reported in loss_info) at each pixel.
-    noise = diag.loss_info["noise_a2_b"]
-    nll = []
-    for u in diag.heldout:
-        name, y, x = u.split("|")
-        at = (int(y), int(x))
-        sd = float(noise_sd(renders[name][at], *noise[name]))
-        r = (photos[name][at] - truth[name][at]) / sd
-        nll.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * r**2)
-    return diag, float(diag.loss_before - np.mean(nll))
+    return diag, render_true_shrink(diag, tmp / "fit", truth)
 
 
 _TRIALS = {"observer": _observer_trial, "display": _display_trial, "render": _render_trial}
@@ -243,8 +230,7 @@ def run_layer_benchmark(design, *, trials: int, seed: int, n_boot: int = 300,
 
 def _score(records):
     def rate(sel, ok):
-        sel = [r for r in records if sel(r)]
-        return (sum(ok(r) for r in sel) / len(sel) if sel else float("nan")), len(sel)
+        return _rate(records, sel, ok)
     top1, n_in = rate(lambda r: r["kind"] == "in", lambda r: r["top"] == r["effect"])
     false_attr, n_none = rate(lambda r: r["kind"] == "none",
                               lambda r: r["top"] != "unexplained" or r.get("remains", False))

@@ -92,18 +92,24 @@ def register(layer: str, cand: Candidate) -> Candidate:
     GapError
         If ``cand`` is not a Candidate, or another candidate of that name is registered.
     """
-    if not isinstance(cand, Candidate):
-        raise GapError(f"register({layer!r}, ...): {cand!r} is not an engine.Candidate")
-    if cand.name in _OUT_REGISTRY.get(layer, {}):
-        raise GapError(f"layer {layer!r} has an out-of-catalogue effect {cand.name!r}; pick "
-                       "another name")
-    table = _REGISTRY.setdefault(layer, {})
-    old = table.get(cand.name)
-    if old is not None and old != cand:
-        raise GapError(f"layer {layer!r} already has a candidate {cand.name!r}; pick another "
+    return _add(layer, cand, Candidate, "register", _REGISTRY, "a candidate",
+                _OUT_REGISTRY, "an out-of-catalogue effect")
+
+
+def _add(layer, obj, kind, caller, registry, what, others, other_what):
+    """Put ``obj`` into ``registry[layer]`` unless its name is taken (by another object there,
+    or by one in ``others[layer]``)."""
+    if not isinstance(obj, kind):
+        raise GapError(f"{caller}({layer!r}, ...): {obj!r} is not an engine.{kind.__name__}")
+    if obj.name in others.get(layer, {}):
+        raise GapError(f"layer {layer!r} has {other_what} {obj.name!r}; {what} needs another "
                        "name")
-    table[cand.name] = cand
-    return cand
+    table = registry.setdefault(layer, {})
+    old = table.get(obj.name)
+    if old is not None and old != obj:
+        raise GapError(f"layer {layer!r} already has {what} {obj.name!r}; pick another name")
+    table[obj.name] = obj
+    return obj
 
 
 def catalogue(layer: str) -> list[Candidate]:
@@ -178,19 +184,8 @@ def register_out_of_catalogue(layer: str, eff: OutOfCatalogue) -> OutOfCatalogue
         If ``eff`` is not an OutOfCatalogue, or its name is taken by another out-of-catalogue
         effect or by a candidate of the layer.
     """
-    if not isinstance(eff, OutOfCatalogue):
-        raise GapError(f"register_out_of_catalogue({layer!r}, ...): {eff!r} is not an "
-                       "engine.OutOfCatalogue")
-    if eff.name in _REGISTRY.get(layer, {}):
-        raise GapError(f"layer {layer!r} has a candidate {eff.name!r}; an out-of-catalogue "
-                       "effect needs another name")
-    table = _OUT_REGISTRY.setdefault(layer, {})
-    old = table.get(eff.name)
-    if old is not None and old != eff:
-        raise GapError(f"layer {layer!r} already has an out-of-catalogue effect {eff.name!r}; "
-                       "pick another name")
-    table[eff.name] = eff
-    return eff
+    return _add(layer, eff, OutOfCatalogue, "register_out_of_catalogue", _OUT_REGISTRY,
+                "an out-of-catalogue effect", _REGISTRY, "a candidate")
 
 
 def out_of_catalogue(layer: str) -> list[OutOfCatalogue]:
