@@ -95,6 +95,20 @@ def _read_meta(out_dir: Path) -> dict:
     return meta
 
 
+def _usable_rows(table, path: Path, progress, why_empty: str):
+    """``table`` (a :func:`read_readings` result) when it has usable rows; its notes are
+    passed to ``progress`` as warnings. ``why_empty`` ends the error for a file with none
+    (what it holds, then the fix)."""
+    if table.n_rows == 0:
+        raise CalibrationError(f"{path} holds no readings {why_empty}")
+    for note in table.notes:
+        progress(f"warning: {note}")
+    if table.frame.empty:
+        raise CalibrationError(f"{path}: none of its {table.n_rows} rows is usable (see the "
+                               "warnings above)")
+    return table
+
+
 def refit(out_dir, *, progress=print, lock: bool = True):
     """Fit again from ``out_dir``'s readings (no window, no photometer) and rewrite the outputs.
 
@@ -120,16 +134,9 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     meta = _read_meta(out_dir)
     cal_id = meta["calibration_id"]
     path = out_dir / "readings.csv"
-    table = read_readings(path, own_file=True)
-    if table.n_rows == 0:
-        raise CalibrationError(
-            f"{path} holds no readings ({'empty' if path.is_file() else 'missing'}); run "
-            "`python -m calibration run` with the same --out to measure them")
-    for note in table.notes:
-        progress(f"warning: {note}")
-    if table.frame.empty:
-        raise CalibrationError(f"{path}: none of its {table.n_rows} rows is usable (see the "
-                               "warnings above)")
+    table = _usable_rows(read_readings(path, own_file=True), path, progress,
+                         f"({'empty' if path.is_file() else 'missing'}); run `python -m "
+                         "calibration run` with the same --out to measure them")
     notes = tuple(meta.get("source_notes", ())) + table.notes
     readings = select_calibration(table.frame, cal_id, source=path)
     others = table.frame[table.frame["calibration_id"] != cal_id]
@@ -250,17 +257,10 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         raise CalibrationError(f"readings file {readings_path} not found")
     with _lock(out_dir):
         table = read_readings(readings_path, level_scale=level_scale)
-        if table.n_rows == 0:
-            raise CalibrationError(
-                f"{readings_path} holds no readings "
-                f"({'a header only' if table.columns else 'it is empty'}); "
-                f"a readings file needs the columns {list(REQUIRED_COLUMNS)} and one row per "
-                "reading")
-        for note in table.notes:
-            progress(f"warning: {note}")
-        if table.frame.empty:
-            raise CalibrationError(f"{readings_path}: none of its {table.n_rows} rows is "
-                                   "usable (see the warnings above)")
+        table = _usable_rows(table, readings_path, progress,
+                             f"({'a header only' if table.columns else 'it is empty'}); a "
+                             f"readings file needs the columns {list(REQUIRED_COLUMNS)} and "
+                             "one row per reading")
         frame = select_calibration(table.frame, calibration_id, source=readings_path)
         if position is not None:
             frame = select_position(frame, position)
