@@ -27,7 +27,6 @@ Usage: ``.venv/bin/python bench/stimuli_dask_scaling.py [--size 128] [--spp 16] 
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import sys
 import tempfile
@@ -35,6 +34,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+
+from _workers import clients, worker_configs
 
 from calibration import default_calibration
 from stimuli import (
@@ -56,7 +57,6 @@ def _warm(job, row, folder):
 
 
 def main() -> None:
-    from dask.distributed import Client, LocalCluster
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--size", type=int, default=128)
@@ -72,39 +72,27 @@ def main() -> None:
                           {"illumination": [design.illuminations[0].name],
                            "depth_level": depths})
     cores = os.cpu_count() or 1
-    configs = {"1 worker x 1 thread": (1, 1), f"{cores} workers x 1 thread": (cores, 1),
-               f"1 worker x {cores} threads": (1, cores)}
+    configs = worker_configs(cores)
     jobs = {name: RenderJob(camera=camera_geometry(design, cal), size_px=args.size, spp=args.spp,
                             variant=variant, design_path=str(design.source), threads=threads)
             for name, (_, threads) in configs.items()}
-    clusters, clients = {}, {}
     elapsed = dict.fromkeys(configs, 0.0)
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            for name, (n, _) in configs.items():
-                clusters[name] = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                              dashboard_address=":0", silence_logs=logging.ERROR)
-                clients[name] = Client(clusters[name])
-                row = dict(table.iloc[0]) | {"rho_d": 0.3, "rho_s": 0.05, "alpha": 0.1,
-                                             "exr_path": "exr/warm.exr"}
-                clients[name].run(_warm, jobs[name], row, tmp)
-            names = list(configs)
-            for rnd in range(args.rounds):
-                order = names[rnd % len(names):] + names[:rnd % len(names)]
-                for i, name in enumerate(order):
-                    summary = render_set(table, Path(tmp) / f"r{rnd}_{i}", job=jobs[name],
-                                         gloss_table=default_gloss_table(), calibration=cal,
-                                         tonemap_spec=design.tonemap, client=clients[name],
-                                         progress=False)
-                    elapsed[name] += summary["render_s"]
-                print(f"round {rnd}: " + ", ".join(f"{n} {elapsed[n]:.1f} s" for n in names)
-                      + f" (cumulative), load average {os.getloadavg()[0]:.1f}")
-        finally:
-            logging.getLogger("distributed").setLevel(logging.ERROR)  # no shutdown chatter
-            for c in clients.values():
-                c.close()
-            for c in clusters.values():
-                c.close()
+    with tempfile.TemporaryDirectory() as tmp, clients(configs) as client:
+        for name in configs:
+            row = dict(table.iloc[0]) | {"rho_d": 0.3, "rho_s": 0.05, "alpha": 0.1,
+                                         "exr_path": "exr/warm.exr"}
+            client[name].run(_warm, jobs[name], row, tmp)
+        names = list(configs)
+        for rnd in range(args.rounds):
+            order = names[rnd % len(names):] + names[:rnd % len(names)]
+            for i, name in enumerate(order):
+                summary = render_set(table, Path(tmp) / f"r{rnd}_{i}", job=jobs[name],
+                                     gloss_table=default_gloss_table(), calibration=cal,
+                                     tonemap_spec=design.tonemap, client=client[name],
+                                     progress=False)
+                elapsed[name] += summary["render_s"]
+            print(f"round {rnd}: " + ", ".join(f"{n} {elapsed[n]:.1f} s" for n in names)
+                  + f" (cumulative), load average {os.getloadavg()[0]:.1f}")
     n_images = len(table) * args.rounds
     per_hour = {name: 3600 * n_images / t for name, t in elapsed.items()}
     print(f"variant {variant}, {len(table)} images x {args.rounds} rounds per set-up, "

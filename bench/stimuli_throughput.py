@@ -37,7 +37,6 @@ Usage: ``.venv/bin/python bench/stimuli_throughput.py [--size PX] [--baseline-sp
 from __future__ import annotations
 
 import argparse
-import logging
 import os
 import sys
 import tempfile
@@ -48,6 +47,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 os.environ.setdefault("DRJIT_LIBLLVM_PATH", "/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1")
+
+from _workers import clients, worker_configs
 
 from calibration import default_calibration
 from stimuli import (
@@ -210,8 +211,6 @@ def main() -> None:
 
 
 def _workers(args, design, cam, variant, levels, spp, cores, per_hour):
-    from dask.distributed import Client, LocalCluster
-
     table = default_gloss_table()
     rho = ward_params_for_gloss(table, design.gloss.pct(np.asarray(levels)))
     groups = []
@@ -223,40 +222,28 @@ def _workers(args, design, cam, variant, levels, spp, cores, per_hour):
                         "rho_d": float(rho[0][i]), "rho_s": float(rho[1][i]),
                         "alpha": float(rho[2][i]), "exr_path": f"exr/d{depth}_g{g:02d}.exr"}
                        for i, g in enumerate(levels)])
-    configs = {"1 worker x 1 thread": (1, 1), f"{cores} workers x 1 thread": (cores, 1),
-               f"1 worker x {cores} threads": (1, cores)}
-    clusters, clients = {}, {}
-    with tempfile.TemporaryDirectory() as tmp:
-        try:
-            for name, (n, threads) in configs.items():
-                clusters[name] = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                              dashboard_address=":0", silence_logs=logging.ERROR)
-                clients[name] = Client(clusters[name])
-            elapsed = dict.fromkeys(configs, 0.0)
-            elapsed["in-process"] = 0.0  # the in-process renderer once more, beside the workers
-            from stimuli.pipeline import render_group
+    from stimuli.pipeline import render_group
 
-            for rnd in range(args.rounds):
-                for name in [*configs, "in-process"]:
-                    threads = configs.get(name, (0, cores))[1]
-                    job = RenderJob(camera=cam, size_px=args.size, spp=max(spp),
-                                    variant=variant, design_path=str(design.source),
-                                    threads=threads, spp_by_gloss_level=tuple(spp))
-                    t = time.perf_counter()
-                    if name == "in-process":
-                        for rows in groups:
-                            render_group(job, rows, tmp)
-                    else:
-                        futures = [clients[name].submit(_worker_render, job, rows, tmp,
-                                                        pure=False) for rows in groups]
-                        clients[name].gather(futures)
-                    if rnd > 0 or args.rounds == 1:
-                        elapsed[name] += time.perf_counter() - t
-        finally:
-            for c in clients.values():
-                c.close()
-            for c in clusters.values():
-                c.close()
+    configs = worker_configs(cores)
+    elapsed = dict.fromkeys(configs, 0.0)
+    elapsed["in-process"] = 0.0  # the in-process renderer once more, beside the workers
+    with tempfile.TemporaryDirectory() as tmp, clients(configs) as client:
+        for rnd in range(args.rounds):
+            for name in [*configs, "in-process"]:
+                threads = configs.get(name, (0, cores))[1]
+                job = RenderJob(camera=cam, size_px=args.size, spp=max(spp),
+                                variant=variant, design_path=str(design.source),
+                                threads=threads, spp_by_gloss_level=tuple(spp))
+                t = time.perf_counter()
+                if name == "in-process":
+                    for rows in groups:
+                        render_group(job, rows, tmp)
+                else:
+                    futures = [client[name].submit(_worker_render, job, rows, tmp, pure=False)
+                               for rows in groups]
+                    client[name].gather(futures)
+                if rnd > 0 or args.rounds == 1:
+                    elapsed[name] += time.perf_counter() - t
     n_images = sum(len(g) for g in groups) * max(1, args.rounds - 1)
     used = {name: n * threads for name, (n, threads) in configs.items()} | {"in-process": cores}
     out = dict(per_hour)

@@ -95,32 +95,46 @@ def _interrupted(out, what: str) -> int:
     return 130
 
 
-def _cmd_run(args) -> int:
+def _measure(what: str, out, work):
+    """``(work(), None)``, or ``(None, exit code)`` after saying why a measuring command
+    stopped: a lab error or a write that failed (2; the readings so far are kept), Ctrl-C (130,
+    :func:`_interrupted`)."""
     from calibration.errors import CalibrationError
-    from calibration.run import run_calibration
     from labfiles import LabFileError
+
+    try:
+        return work(), None
+    except (CalibrationError, LabFileError) as exc:
+        print(f"{what} stopped: {exc}", file=sys.stderr)
+        return None, 2
+    except OSError as exc:
+        print(f"{what} stopped: {exc}; check that --out is writable and the disk has space "
+              "(readings so far are kept)", file=sys.stderr)
+        return None, 2
+    except KeyboardInterrupt:
+        return None, _interrupted(out, what)
+
+
+def _cmd_run(args) -> int:
+    from calibration.run import run_calibration
     from studydesign import load_design
 
     timeout_s = args.timeout_s or (2.0 if args.fast else 30.0)
-    try:
+
+    def work():
         design = load_design(args.design) if args.design else load_design()
         settings, given = _settings(
             args, out=args.out, defaults=RUN_DEFAULTS,
             default_id=lambda: datetime.now(UTC).strftime("cal-%Y%m%dT%H%M%SZ"))
-        _cal, paths = run_calibration(
+        return run_calibration(
             design, device=args.device, port=args.port, out_dir=args.out,
             settings=settings, width_cm=args.width_cm, monitor_name=args.monitor_name,
             timeout_s=timeout_s, retries=args.retries, fullscr=not args.windowed,
             refresh_hz=args.refresh_hz, sim_aim=args.sim_aim, given=given)
-    except (CalibrationError, LabFileError) as exc:
-        print(f"calibration stopped: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"calibration stopped: {exc}; check that --out is writable and the disk has "
-              "space (readings so far are kept)", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return _interrupted(args.out, "calibration")
+    done, rc = _measure("calibration", args.out, work)
+    if rc is not None:
+        return rc
+    _cal, paths = done
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
@@ -206,32 +220,25 @@ def _cmd_fit(args) -> int:
 
 def _cmd_check(args) -> int:
     from calibration.check import CHECK_DEFAULTS, WarmupRule, default_check_id, run_check
-    from calibration.errors import CalibrationError
     from calibration.record import load_calibration
-    from labfiles import LabFileError
 
     timeout_s = args.timeout_s or (2.0 if args.fast else 30.0)
-    try:
+
+    def work():
         cal = load_calibration(args.calibration)
         settings, given = _settings(args, out=args.out, defaults=CHECK_DEFAULTS,
                                     default_id=lambda: default_check_id(cal.calibration_id))
         rule = WarmupRule(interval_s=args.warmup_interval_s, window_s=args.warmup_window_s,
                           tolerance_pct=args.warmup_tolerance_pct, max_s=args.warmup_max_s)
-        result = run_check(args.calibration, device=args.device, port=args.port,
-                           out_dir=args.out, settings=settings, rule=rule,
-                           tolerance_pct=args.tolerance_pct,
-                           tolerance_cd_m2=args.tolerance_cd_m2, timeout_s=timeout_s,
-                           retries=args.retries, fullscr=not args.windowed,
-                           sim_aim=args.sim_aim, given=given)
-    except (CalibrationError, LabFileError) as exc:
-        print(f"check stopped: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"check stopped: {exc}; check that --out is writable and the disk has space "
-              "(readings so far are kept)", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return _interrupted(args.out, "check")
+        return run_check(args.calibration, device=args.device, port=args.port,
+                         out_dir=args.out, settings=settings, rule=rule,
+                         tolerance_pct=args.tolerance_pct,
+                         tolerance_cd_m2=args.tolerance_cd_m2, timeout_s=timeout_s,
+                         retries=args.retries, fullscr=not args.windowed,
+                         sim_aim=args.sim_aim, given=given)
+    result, rc = _measure("check", args.out, work)
+    if rc is not None:
+        return rc
     print(f"check: {args.out}/check.json")
     return 0 if result["passed"] else 1
 

@@ -35,7 +35,6 @@ bits                -      8         DAC bits per gun
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
@@ -170,13 +169,10 @@ def load_crt(path=None) -> SimulatedCRT:
     CalibrationError
         If the file is missing, not TOML, or holds an unknown or invalid parameter.
     """
+    from calibration.tomlfile import read_toml
+
     path = Path(path) if path is not None else default_crt_path()
-    if not path.is_file():
-        raise CalibrationError(f"display file {path} not found; pass --display crt.toml")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"display file {path} is not valid TOML ({exc})") from exc
+    data = read_toml(path, "display file", missing_fix="pass --display crt.toml")
     if "crt" not in data:
         raise CalibrationError(f"display file {path} has no [crt] table")
     try:

@@ -183,16 +183,10 @@ def load_display_file(path) -> dict:
     CalibrationError
         If the file is missing or not TOML, has no ``[display]`` table, or an unknown key.
     """
-    import tomllib
+    from calibration.tomlfile import read_toml
 
     path = Path(path)
-    if not path.is_file():
-        raise CalibrationError(f"display file {path} not found")
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationError(f"display file {path} is not valid TOML ({exc})") from exc
-    table = data.get("display")
+    table = read_toml(path, "display file").get("display")
     if not isinstance(table, dict):
         raise CalibrationError(
             f"display file {path} has no [display] table; write e.g. [display] width_cm = 32.4, "

@@ -63,3 +63,20 @@ def test_unknown_toml_key_is_named(tmp_path):
 def test_drive_outside_range_is_rejected():
     with pytest.raises(CalibrationError, match=r"drive must lie in \[0, 1\]"):
         SimulatedCRT().luminance(1.2)
+
+
+@pytest.mark.parametrize("reader", ["crt", "display"])
+def test_a_missing_or_broken_display_file_is_named_with_the_fix(tmp_path, reader):
+    from calibration.run import load_display_file
+
+    read = load_crt if reader == "crt" else load_display_file
+    with pytest.raises(CalibrationError, match=r"display file .*nothere\.toml not found"):
+        read(tmp_path / "nothere.toml")
+    broken = tmp_path / "broken.toml"
+    broken.write_text("[crt\ngamma = 2.2\n")
+    with pytest.raises(CalibrationError, match=r"broken\.toml is not valid TOML"):
+        read(broken)
+    empty = tmp_path / "empty.toml"
+    empty.write_text("[other]\nx = 1\n")
+    with pytest.raises(CalibrationError, match=rf"has no \[{reader}\] table"):
+        read(empty)

@@ -247,16 +247,22 @@ def test_read_readings_fills_the_optional_columns(tmp_path):
     assert table.notes == ()
 
 
+def _clean_readings(path, levels, fmt: str, **crt):
+    """A readings file (level, luminance) of a noiseless CRT, gamma 2.3, black 0.15 cd/m^2 at
+    ``levels``, luminance written with format ``fmt``."""
+    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
+                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0, **crt)
+    path.write_text("level,luminance_cd_m2\n" + "".join(
+        f"{float(x)!r},{float(crt.luminance(x)):{fmt}}\n" for x in levels))
+    return path
+
+
 def test_dac_bits_none_fits_levels_a_finer_lookup_table_showed(tmp_path, cli):
     """A display behind a 10-bit lookup table shows 17 evenly spaced levels as requested;
     rounded to the 8-bit default they are fitted where the display never was. `--dac-bits
     none` fits them as given, and the folder's refit keeps that."""
-    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
-                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0, bits=16)
-    levels = np.repeat(np.linspace(0, 1, 17), 2)
-    src = tmp_path / "lut10.csv"
-    src.write_text("level,luminance_cd_m2\n" + "".join(
-        f"{float(x)!r},{float(crt.luminance(x)):.4e}\n" for x in levels))
+    src = _clean_readings(tmp_path / "lut10.csv", np.repeat(np.linspace(0, 1, 17), 2), ".4e",
+                          bits=16)
     out = tmp_path / "cal"
     res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--dac-bits", "none"])
     assert res.returncode == 0, res.stderr
@@ -276,13 +282,8 @@ def test_floor_option_fits_a_clean_display_without_repeats_exactly(tmp_path, cli
     """Without repeats the default floor (0.2 % of white) censors a black of 0.15 cd/m^2 on a
     100 cd/m^2 white and pulls the fit (black 0.133, gamma 2.298); given the meter's real floor
     the clean display (gamma 2.3, black 0.15) is fitted exactly, refits included."""
-    crt = SimulatedCRT(gamma=2.3, black_cd_m2=0.15, ambient_cd_m2=0.0, cutoff=0.0,
-                       falloff=0.0, tilt_x=0.0, noise_rel=0.0, noise_abs=0.0,
-                       white_cd_m2=99.85)
-    levels = np.round(np.linspace(0, 1, 17) * 255) / 255
-    src = tmp_path / "clean.csv"
-    src.write_text("level,luminance_cd_m2\n" + "".join(
-        f"{float(x)!r},{float(crt.luminance(x)):.6g}\n" for x in levels))
+    src = _clean_readings(tmp_path / "clean.csv", np.round(np.linspace(0, 1, 17) * 255) / 255,
+                          ".6g", white_cd_m2=99.85)
     out = tmp_path / "cal"
     res = cli(["fit", src, "--out", out, "--measured-utc", T0, "--floor-cd-m2", "0.01"])
     assert res.returncode == 0, res.stderr

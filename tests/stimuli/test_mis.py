@@ -16,27 +16,21 @@ import numpy as np
 import pytest
 
 from stimuli import camera_geometry, draw_array, setup_mitsuba, stimulus_seed
-from stimuli.illumination import LightProbe
 from stimuli.noise import compare_renders
 from stimuli.render import StimulusRenderer
 
 GLOSSY = (0.2, 0.3, 0.05)  # rho_d, rho_s, alpha: a sharp lobe
 
 
-def _sun_probe(h: int = 32) -> LightProbe:
-    theta = (np.arange(h) + 0.5) / h * np.pi
-    phi = (np.arange(2 * h) + 0.5) / (2 * h) * 2 * np.pi
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    y = 0.2 + 0.5 * np.cos(t / 2) ** 2 + 60.0 * np.exp(-((t - np.radians(60)) ** 2
-                                                         + (p - np.pi) ** 2) / 0.01)
-    return LightProbe(name="sun", path="", sha256="sun", rgb=np.repeat(y[..., None], 3, axis=2)
-                      .astype(np.float32), rotation_deg=0.0, scale=1.0)
+@pytest.fixture
+def sun(sun_probe):
+    """This module's probe: a bright, small sun (sharp highlights)."""
+    return sun_probe(0.2, 60.0, 0.01)
 
 
-def _stack(design, integrator, seeds, spp=16, mis_compensation=None):
+def _stack(design, probe, integrator, seeds, spp=16, mis_compensation=None):
     from calibration import default_calibration
 
-    probe = _sun_probe()
     if mis_compensation is not None:  # the renderer's emitter, with the option overridden
         emitter = probe.emitter()
         probe = type("P", (), {"emitter": lambda self: emitter | {"mis_compensation":
@@ -56,12 +50,13 @@ def _mono(mitsuba_variant):
     setup_mitsuba(mitsuba_variant, smoke_test=False)
 
 
-def test_bsdf_sampling_emitter_sampling_and_mis_agree(design):
+def test_bsdf_sampling_emitter_sampling_and_mis_agree(design, sun):
     # plain emitter sampling: compensated emitter sampling alone is biased by construction (it
     # never draws the dim texels; see the next test)
     def direct(emitter_samples, bsdf_samples, seeds):
-        return _stack(design, {"type": "direct", "emitter_samples": emitter_samples,
-                               "bsdf_samples": bsdf_samples}, seeds, mis_compensation=False)
+        return _stack(design, sun, {"type": "direct", "emitter_samples": emitter_samples,
+                                    "bsdf_samples": bsdf_samples}, seeds,
+                      mis_compensation=False)
 
     bsdf_only = direct(0, 4, range(24))
     emitter_only = direct(4, 0, range(100, 124))
@@ -78,17 +73,17 @@ def test_bsdf_sampling_emitter_sampling_and_mis_agree(design):
     assert sd["mis"] < min(sd["bsdf"], sd["emitter"])
 
 
-def test_mis_compensation_is_unbiased_and_helps(design):
+def test_mis_compensation_is_unbiased_and_helps(design, sun):
     """Compensated emitter sampling is only unbiased inside MIS, which the path tracer uses."""
     path = {"type": "path", "max_depth": 3}
-    on = _stack(design, path, range(24), mis_compensation=True)
-    off = _stack(design, path, range(100, 124), mis_compensation=False)
+    on = _stack(design, sun, path, range(24), mis_compensation=True)
+    off = _stack(design, sun, path, range(100, 124), mis_compensation=False)
     agree = compare_renders(on, off)
     print(f"MIS compensation on vs off: chi2/df {agree.chi2_per_df:.2f}, "
           f"mean {100 * agree.mean_rel_diff:+.2f} %; per-pixel SD on "
           f"{np.mean(on.std(axis=0, ddof=1)):.4f}, off {np.mean(off.std(axis=0, ddof=1)):.4f}")
     assert agree.chi2_per_df < 2.5 and abs(agree.mean_z) < 4.0
-    alone = _stack(design, {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+    alone = _stack(design, sun, {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
                    range(8), mis_compensation=True)
     assert alone.mean() < 0.8 * off.mean()  # the test can tell a biased strategy
     assert np.mean(on.std(axis=0, ddof=1)) < np.mean(off.std(axis=0, ddof=1))

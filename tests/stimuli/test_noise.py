@@ -10,7 +10,6 @@ import pytest
 
 from stimuli import camera_geometry, load_manifest, setup_mitsuba, tone_curve
 from stimuli.__main__ import main
-from stimuli.illumination import LightProbe
 from stimuli.noise import displayed_error, plan_spp, spp_for_displayed_error
 
 
@@ -41,25 +40,15 @@ def test_spp_for_displayed_error_follows_the_variance_law(mitsuba_variant):
         spp_for_displayed_error(0.01, 16, 0.0)
 
 
-def _sun_probe(h=32):
-    theta = (np.arange(h) + 0.5) / h * np.pi
-    phi = (np.arange(2 * h) + 0.5) / (2 * h) * 2 * np.pi
-    t, p = np.meshgrid(theta, phi, indexing="ij")
-    y = 0.3 + 0.5 * np.cos(t / 2) ** 2 + 30.0 * np.exp(-((t - np.radians(60)) ** 2
-                                                         + (p - np.pi) ** 2) / 0.02)
-    return LightProbe(name="sun", path="", sha256="sun", rgb=np.repeat(y[..., None], 3, axis=2)
-                      .astype(np.float32), rotation_deg=0.0, scale=1.0)
-
-
 @pytest.mark.slow
-def test_plan_spp_meets_the_target_by_measurement(design, mitsuba_variant):
+def test_plan_spp_meets_the_target_by_measurement(design, mitsuba_variant, sun_probe):
     """Real renders (24 px): each chosen count was rendered and met the target; a stricter
     target needs more samples; the glossiest level needs more than the matte one."""
     from calibration import default_calibration
 
     setup_mitsuba("llvm_ad_mono", smoke_test=False)
     cam = camera_geometry(design, default_calibration(design))
-    kw = {"size_px": 24, "pilot_spp": 4, "repeats": 3, "probes": [_sun_probe()],
+    kw = {"size_px": 24, "pilot_spp": 4, "repeats": 3, "probes": [sun_probe(0.3, 30.0, 0.02)],
           "gloss_levels": [1, 11], "max_spp": 200}
     loose = plan_spp(design, cam, target=0.03, **kw)
     strict = plan_spp(design, cam, target=0.015, **kw)
