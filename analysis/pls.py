@@ -22,6 +22,7 @@ one grouping factor and three random coefficients (the source study's) uses the 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -36,10 +37,16 @@ __all__ = ["Problem", "Solution", "deviance", "make_problem", "solve", "term_fac
            "theta_lower", "theta_start", "with_y"]
 
 
+@functools.cache
 def _tril(q: int):
-    """Row and column of each theta element of a q x q factor (column-major lower triangle)."""
+    """Row and column of each theta element of a q x q factor (column-major lower triangle).
+
+    Cached (the bootstrap asks for them in every refit), so read-only."""
     upper = np.triu_indices(q)
-    return upper[1], upper[0]
+    rows, cols = upper[1], upper[0]
+    rows.flags.writeable = False
+    cols.flags.writeable = False
+    return rows, cols
 
 
 @dataclass(frozen=True)

@@ -10,7 +10,10 @@ per-stimulus intercepts):
 
 on the same cores: ours with joblib, bootMer with ``parallel = "multicore"``. Each refit
 computes the same things on both sides: fixed effects, random-effect SDs, sigma and the Type II
-Wald chi-squares (``car::Anova`` in R). bootMer runs a subset of the runs; the time per refit is
+Wald chi-squares (``car::Anova`` in R); bootMer minimises with BOBYQA from the original theta,
+ours the source model with SLSQP and the deviance's analytic gradient (the crossed model with
+BOBYQA), reaching bootMer's optimum or a better one (`analysis.bootstrap.refit`;
+tests/analysis/test_lmm.py). bootMer runs a subset of the runs; the time per refit is
 compared (R's start-up and the original fit are not timed, nor is the start of our worker
 processes). Percentile 95 % CIs of the fixed
 effects are printed side by side with the Monte-Carlo standard error of a 2.5 % quantile from

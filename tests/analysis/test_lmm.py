@@ -240,8 +240,63 @@ def test_unrolled_schur_complement_equals_the_loop():
     XtXy = (A.T @ A).tolist()
     R = (0.1 * rng.random((3, 5))).tolist()
     m_yy = XtXy[4][4] - 0.01
-    assert _schur5(XtXy, *R, 2, m_yy) == pytest.approx(
-        _schur_loop(XtXy, [(*R, 2)], m_yy), rel=1e-12)
+    r2, beta = _schur5(XtXy, *R, 2, m_yy)
+    r2_loop, beta_loop = _schur_loop(XtXy, [(*R, 2)], m_yy)
+    assert r2 == pytest.approx(r2_loop, rel=1e-12)
+    assert beta == pytest.approx(beta_loop, rel=1e-12)
+
+
+@pytest.mark.parametrize("case", ["gloss", "unbalanced_5"])
+def test_deviance_gradient_equals_central_differences(case):
+    """The analytic gradient (one pattern; five, where beta moves with theta) against central
+    differences of the general deviance, at the start, boundary and random thetas."""
+    from analysis.deviance import deviance_gradient
+
+    pr = _problem(_data(case))
+    general = dataclasses.replace(pr, cp=None)
+    for theta in sample_thetas(np.random.default_rng(5))[[0, 1, 3, 4, 5]]:
+        dev, grad = deviance_gradient(theta.tolist(), pr.cp)
+        assert dev == pytest.approx(deviance(theta, general), rel=1e-12)
+        h = 1e-5
+        fd = [(deviance(theta + h * e, general) - deviance(theta - h * e, general)) / (2 * h)
+              for e in np.eye(6)]
+        assert grad == pytest.approx(fd, rel=1e-5, abs=1e-3)
+
+
+@pytest.mark.parametrize("case", ["depth_bc", "singular_tiny", "unbalanced_5"])
+def test_bootstrap_refits_reach_bootmers_optimum_or_a_better_one(case):
+    """The bootstrap's gradient refits against bootMer's procedure (BOBYQA from the original
+    theta, lme4's tolerances), on simulated responses of a fitted model; and SLSQP needs fewer
+    deviance evaluations than BOBYQA from the same start."""
+    from analysis.bootstrap import BOOT_FTOL_ABS, BOOT_XTOL_ABS, refit, simulate_responses
+    from analysis.lmm import fit_problem
+    from analysis.pls import with_y
+
+    frame = _data(case)
+    result = fit(FORMULA, frame)
+    pr = _problem(frame)
+    theta0 = np.asarray(result.theta)
+    ys = simulate_responses(pr, result.fixef_array(), theta0, result.sigma,
+                            np.random.default_rng(1), 20)
+    kw = {"starts": [(theta0, 0.1)], "ftol_abs": BOOT_FTOL_ABS, "xtol_abs": BOOT_XTOL_ABS}
+    evals_b = evals_g = 0
+    for y in ys:
+        prb = with_y(pr, y)
+        _, dev_bootmer, n_b = fit_problem(prb, **kw)
+        _, dev_refit = refit(prb, theta0)
+        assert dev_refit <= dev_bootmer + 1e-6
+        evals_b += n_b
+        evals_g += fit_problem(prb, gradient=True, **kw)[2]
+    assert evals_g < 0.7 * evals_b
+
+
+def test_gradient_fit_needs_the_scalar_kernel(design):
+    from analysis.lmm import fit_problem
+
+    pr = make_problem(build_model(FORMULA, _data("gloss")), reml=True)
+    assert pr.cp is None
+    with pytest.raises(ValueError, match="BOBYQA"):
+        fit_problem(pr, starts=[(np.ones(6), None)], gradient=True)
 
 
 @pytest.mark.parametrize("formula", [FORMULA, FORMULA + " + (1 | stimulus)"])
