@@ -258,24 +258,30 @@ def test_a_truncated_part_is_named_moved_aside_and_measured_again(tmp_path, rng,
 
 @pytest.mark.slow
 def test_ctrl_c_ends_the_run_cleanly_and_it_resumes(tmp_path, rng, scheduler, design):
-    folder = tmp_path / "r"
-    params = write_render_set(folder, rng, n_images=40)
-    out = tmp_path / "stats.parquet"
-    parts = tmp_path / "stats.parquet.partial"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
-         "--scheduler", scheduler, "--batch-size", "2", "--quiet"],
-        cwd=REPO, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 120
-    while not list(parts.glob("part-*.parquet")):
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.monotonic() < deadline, "no batch was written within 120 s"
-        time.sleep(0.005)
-    os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
-    err = proc.communicate(timeout=60)[1]
-    assert not out.exists(), "the run finished before Ctrl-C; the test proves nothing"
+    # Ctrl-C must come while batches are still running. On a loaded machine the remaining
+    # batches of a small set can all finish between the first part file and the signal (the
+    # test would then prove nothing): then the same is tried on a set four times as large.
+    for attempt, n_images in enumerate((40, 160)):
+        folder = tmp_path / f"r{attempt}"
+        params = write_render_set(folder, rng, n_images=n_images)
+        out = tmp_path / f"stats{attempt}.parquet"
+        parts = tmp_path / f"stats{attempt}.parquet.partial"
+        env = {**os.environ, "PYTHONPATH": str(REPO)}
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
+             "--scheduler", scheduler, "--batch-size", "2", "--quiet"],
+            cwd=REPO, env=env, start_new_session=True, stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 120
+        while not list(parts.glob("part-*.parquet")):
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, "no batch was written within 120 s"
+            time.sleep(0.005)
+        os.killpg(proc.pid, signal.SIGINT)  # what Ctrl-C in the terminal does
+        err = proc.communicate(timeout=60)[1]
+        if not out.exists():
+            break
+    assert not out.exists(), "the run finished before Ctrl-C twice; the test proves nothing"
     assert proc.returncode == 130, err
     assert "Traceback" not in err
     assert f"finished batch(es) are kept in {parts}; run the same command to resume" in err
