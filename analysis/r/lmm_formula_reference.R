@@ -10,9 +10,11 @@
 #     contrasts  a header row of coefficient names plus "term"; each row one row of a hypothesis
 #                matrix L; lmerTest::contest(..., ddf = "Satterthwaite") per term ("contest")
 #     start      one theta (no header): the fit takes the better of lme4's start and this one
-#   OUT.csv rows key,name,value: fixef, se, vcov, theta, sigma, loglik, deviance, sd, cor,
-#     chisq and chisq_df (car::Anova type 2), singular, dev_at, satt_df and satt_t (lmerTest's
-#     summary), contest_F / contest_numdf / contest_dendf.
+#                ("dev_cold" / "dev_warm": the criterion at the optimum from each, unpolished)
+#   OUT.csv rows key,name,value: fixef, se, vcov, theta, sigma, loglik, deviance, sd and cor
+#     (named group|coefficient), chisq and chisq_df (car::Anova type 2), singular, dev_at,
+#     dev_cold, dev_warm, satt_df and satt_t (lmerTest's summary), contest_F / contest_numdf /
+#     contest_dendf.
 # The fit uses nloptwrap's BOBYQA with tolerances far tighter than lme4's defaults, then Newton
 # steps on lme4's own devfun (numDeriv's Richardson derivatives, parameters on their bound left
 # there; a step kept if the criterion does not rise beyond its rounding error): on flat
@@ -42,9 +44,11 @@ ctrl <- lmerControl(optimizer = "nloptwrap", calc.derivs = FALSE,
                     check.conv.singular = "ignore")
 fitter <- if (have_lmertest) lmerTest::lmer else lme4::lmer
 fit <- fitter(form, data = d, REML = reml, control = ctrl)
+starts <- NULL
 if (!is.na(kv["start"])) {
   st <- as.numeric(read.csv(kv[["start"]], header = FALSE)[1, ])
   hot <- fitter(form, data = d, REML = reml, control = ctrl, start = list(theta = st))
+  starts <- c(cold = deviance(fit, REML = reml), warm = deviance(hot, REML = reml))
   if (deviance(hot, REML = reml) < deviance(fit, REML = reml)) fit <- hot
 }
 polish <- function(fit) {
@@ -100,6 +104,10 @@ if (!is.na(kv["thetas"])) {
   devfun <- lme4::lmer(form, data = d, REML = reml, devFunOnly = TRUE)
   thetas <- as.matrix(read.csv(kv[["thetas"]], header = FALSE))
   for (k in seq_len(nrow(thetas))) add("dev_at", k, devfun(thetas[k, ]))
+}
+if (!is.null(starts)) {
+  add("dev_cold", "", starts[["cold"]])
+  add("dev_warm", "", starts[["warm"]])
 }
 if (have_lmertest) {
   s <- summary(fit, ddf = "Satterthwaite")$coefficients

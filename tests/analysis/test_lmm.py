@@ -2,17 +2,15 @@
 
 Reference files in tests/analysis/reference/ come from
 ``.venv/bin/python tests/analysis/reference/regenerate.py``, which simulates each data set of
-``lmmdata.CASES`` with a fixed seed and runs ``analysis/r/lmm_reference.R`` on it: lme4's
+``lmmdata.CASES`` with a fixed seed and runs ``analysis/r/lmm_formula_reference.R`` on it: lme4's
 ``devFunOnly`` deviance at given thetas, and ``lmer(REML = FALSE)`` with nloptwrap BOBYQA at
 xtol_abs 1e-10 / ftol_abs 1e-12 from lme4's default start and from ``moment_start`` (the better
-one kept), then ``car::Anova(type = 2)``.
+one kept, then polished by Newton steps on lme4's devfun), then ``car::Anova(type = 2)``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import shutil
-import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +25,7 @@ from analysis.pls import deviance, make_problem
 from analysis.typeii import hypothesis_matrix, type2_wald
 
 from .lmmdata import CASES, sample_thetas, simulate_case
+from .lmmref import r_reference, read_reference
 from .sessions import write_sessions
 
 FORMULA = "y ~ gloss * depth + (1 + gloss + depth | participant)"
@@ -40,12 +39,15 @@ def _data(case):
     return pd.read_csv(REF / f"{case}_data.csv", dtype={"participant": str})
 
 
+def _by_coefficient(ref: dict) -> dict:
+    """R's SDs and correlations keyed by coefficient alone (one grouping factor)."""
+    for key in ("sd", "cor"):
+        ref[key] = {name.split("|", 1)[1]: v for name, v in ref.get(key, {}).items()}
+    return ref
+
+
 def _ref(path: Path) -> dict:
-    t = pd.read_csv(path, dtype={"name": str}, keep_default_na=False)
-    out = {}
-    for key, grp in t.groupby("key", sort=False):
-        out[key] = dict(zip(grp["name"], grp["value"].astype(float)))
-    return out
+    return _by_coefficient(read_reference(path))
 
 
 def _problem(frame):
@@ -118,19 +120,12 @@ def test_better_of_two_starts_escapes_lme4s_local_optimum():
 @pytest.mark.r
 def test_live_r_matches(tmp_path, design):
     """Runs R now, on a fresh data set; fails (does not skip) when R is missing."""
-    rscript = shutil.which("Rscript")
-    assert rscript, "Rscript not found: install r-base-core r-cran-lme4 r-cran-car (make test does)"
     rng = np.random.default_rng(99)
     frame = simulate_case("gloss", design, rng)
-    frame.to_csv(tmp_path / "data.csv", index=False, float_format="%.17g")
     thetas = sample_thetas(rng)
-    np.savetxt(tmp_path / "thetas.csv", thetas, delimiter=",", fmt="%.17g")
-    np.savetxt(tmp_path / "start.csv", moment_start(build_model(FORMULA, frame))[None, :],
-               delimiter=",", fmt="%.17g")
-    subprocess.run([rscript, str(ROOT / "analysis/r/lmm_reference.R"), str(tmp_path / "data.csv"),
-                    str(tmp_path / "thetas.csv"), str(tmp_path / "start.csv"),
-                    str(tmp_path / "out.csv")], check=True, capture_output=True, timeout=120)
-    ref = _ref(tmp_path / "out.csv")
+    ref = _by_coefficient(r_reference(tmp_path, frame, FORMULA, reml=False,
+                                      factors=["participant"], thetas=thetas,
+                                      start=moment_start(build_model(FORMULA, frame))))
     pr = _problem(frame)
     assert [deviance(t, pr) for t in thetas] == pytest.approx(
         [ref["dev_at"][str(k + 1)] for k in range(len(thetas))], rel=1e-10)
