@@ -102,6 +102,7 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
     """Render layer: photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss
     fit's output folder, usually the same), or loaded residual files."""
     from analysis.gap.render import (
+        RENDER_MIN_GAIN,
         RENDER_MIN_SHARE,
         load_render,
         localise_render,
@@ -119,8 +120,14 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
     train, test = split_render(data, rng)
     diag = diagnose_losses("render", catalogue("render"), train, test, render_loss, render_floor,
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
-                           min_share=RENDER_MIN_SHARE, ceiling=render_ceiling,
+                           min_share=RENDER_MIN_SHARE, min_gain=RENDER_MIN_GAIN,
+                           ceiling=render_ceiling,
                            ceiling_given_chosen=True,
+                           # Each held-out pixel its own cluster: the tests' normal limit, with
+                           # no Monte-Carlo error (the split is fixed, so the verdict does not
+                           # depend on the seed). Under the null of nothing systematic left,
+                           # the pixels' camera noise is independent.
+                           cluster_of=str,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
     local = localise_render(data, rng, n_boot=min(n_boot, 500))

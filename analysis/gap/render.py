@@ -20,13 +20,15 @@ clearcoat          D * (1 + c (T(t) / T(0) - 1)), T = (1 - F_0.04(t))^k: diffuse
                    k = 1 (light from a diffuse surround, whose own entry loss goes into rho_d)
                    or 2 (light along the view), chosen by the fit
 vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
-veiling_glare      R + c G_s * R: a blurred copy of the image (Gaussian, s from a grid of large
-                   widths) spread by the lens
+veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
+                   from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
+                   narrow core w, from a grid)
 misregistration    R shifted by (dx, dy) px per gloss level: the radiance by cubic splines, the
                    silhouette's pixel coverage recomputed at the shifted sphere
 long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
-                   blurred (Gaussian, 2-8 px) or raised to a power k < 1 (a Ward lobe of
-                   alpha / sqrt(k)) at the same energy; c and the form (from a grid) per
+                   blurred (Gaussian, 1-8 px, or a GTR1 haze's kernel 1 / (1 + (r / w)^2),
+                   w 2-16 px) or raised to a power k < 1 (a Ward lobe of alpha / sqrt(k))
+                   at the same energy; c and the form (from a grid) per
                    gloss level, as the tails' width follows the lobe's
 =================  ===========================================================================
 
@@ -55,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy import ndimage, optimize
+from scipy import ndimage, optimize, signal
 
 from analysis.gap.engine import Candidate, GapError, catalogue, register
 from studydesign import rec709_luminance
@@ -64,6 +66,7 @@ __all__ = [
     "NPZ_ARRAYS",
     "NPZ_MASKS",
     "RENDER_CANDIDATES",
+    "RENDER_MIN_GAIN",
     "RENDER_MIN_SHARE",
     "RenderData",
     "load_render",
@@ -83,14 +86,22 @@ NPZ_MASKS = ("highlight", "body", "rim", "background", "sphere")
 REGIONS = ("highlight", "body", "rim", "background")
 #: An attribution must remove >= 80 % of the held-out gap (as for the display layer).
 RENDER_MIN_SHARE = 0.8
+#: A step, or a gap left beyond the catalogue, counts only from 0.02 nats per pixel (the
+#: observer layer's tolerance per trial): a misfit of about 0.2 noise SDs per pixel
+#: (0.5 z^2 = 0.02). Photos of thousands of pixels make far smaller misfits significant --
+#: an approximate form's leftovers, not an effect worth naming.
+RENDER_MIN_GAIN = 0.02
 _BLOCK = 4
-_GLARE_SIGMAS = (0.125, 0.25, 0.5)  # x image width
+#: Glare spreads (x image width): a Gaussian's SD (> 0) or a power-law kernel's core (< 0).
+_GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: Caps kappa on the view cosine of the Fresnel rise (a grid; 0 = plain Schlick at the view
 #: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
 _COAT_PATHS = (1.0, 2.0)  # passes through the coat at the view angle (see _coat_t)
-_TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12)  # blur px (>= 1) or lobe power (< 1)
+#: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
+#: of that many px half width (< 0).
+_TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
 
 
 def _lum(a: np.ndarray) -> np.ndarray:
@@ -274,7 +285,18 @@ def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
     the sphere (``inside``: the share of each pixel the sphere covers; a wider lobe moves light
     across the sphere, not onto the background); ``width`` in (0, 1): the lobe raised to that
     power (Ward's lobe exp(-tan^2 / alpha^2) raised to alpha^2 / alpha_t^2 is the lobe of the
-    wider alpha_t), rescaled to the same energy."""
+    wider alpha_t), rescaled to the same energy; ``width`` < 0: the lobe spread within the
+    sphere (as the Gaussian) by a kernel 1 / (1 + (r / w)^2), w = -width px: the GTR1 haze
+    of Burley (2012, eq. 4), whose tails fall as the square of the angle (tan^-2) where a Ward
+    lobe's fall as a Gaussian -- with angle ~ distance on the sphere near the highlight."""
+    if width < 0:
+        h, w = S.shape
+        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+        kern = 1 / (1 + (yy**2 + xx**2) / width**2)
+        kern /= kern.sum()
+        blurred = signal.fftconvolve(S * inside, kern, mode="same")
+        weight = signal.fftconvolve(inside, kern, mode="same")
+        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
     if width >= 1:
         blurred = ndimage.gaussian_filter(S * inside, width)
         weight = ndimage.gaussian_filter(inside, width)
@@ -326,8 +348,22 @@ def _apply_clearcoat(lv, im, q):
 
 def _apply_glare(lv, im, q):
     # The image-space effects are linear: apply them to each component.
-    return {k: v + q["c"] * ndimage.gaussian_filter(v, q["sigma_frac"] * lv["width"],
-                                                    mode="constant") for k, v in im.items()}
+    return {k: v + q["c"] * _glare_blur(v, q["sigma_frac"] * lv["width"])
+            for k, v in im.items()}
+
+
+def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
+    """``img`` spread by a unit-sum glare kernel, zero outside the frame: a Gaussian of SD
+    ``width_px`` (> 0), or (< 0) a power law (1 + (r / w)^2)^(-3/2) of core w = -width_px: a
+    lens's stray light falls off as a power of the angle with a narrow core (inverse-cube
+    spread functions, e.g. the CIE 1999 glare spread function's dominant term), which no one
+    Gaussian follows both near and far."""
+    if width_px > 0:
+        return ndimage.gaussian_filter(img, width_px, mode="constant")
+    h, w = img.shape
+    yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+    kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
+    return signal.fftconvolve(img, kern / kern.sum(), mode="same")
 
 
 def _apply_vignetting(lv, im, q):

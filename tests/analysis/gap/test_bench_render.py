@@ -124,6 +124,23 @@ def test_scores_follow_the_cases_rules():
     assert "top-1 (analytic sphere, one catalogue effect) 0.500 (n=2; target >= 0.95) NOT met" in text
 
 
+def test_a_remaining_gap_flagged_with_catalogue_effects_only_is_scored_wrong():
+    records = [
+        _rec("independent", ["fresnel"], "fresnel", flagged=True, pred=1.0, true=1.0),
+        _rec("independent", ["clearcoat"], "clearcoat", pred=1.0, true=1.0),
+        _rec("co_occurring", ["fresnel", "vignetting"], "vignetting + fresnel", flagged=True),
+        _rec("co_occurring", ["fresnel", "vignetting"], "vignetting + fresnel"),
+        # Flags where they belong (outside the catalogue) or false alarms on a null are
+        # counted by their own scores, not by this one.
+        _rec("independent_out", ["fresnel"], "fresnel", flagged=True),
+        _rec("none", [], "unexplained", flagged=True),
+    ]
+    s = br.score_render_cases(records)
+    assert s["wrong_remaining"] == 0.5 and s["n_catalogue_only"] == 4
+    assert ("remaining gap wrongly flagged (catalogue effects only) 0.500 (n=4; target <= "
+            "0.05) NOT met") in br.format_render_scores(s)
+
+
 def test_cli_runs_the_harder_render_cases(monkeypatch, capsys):
     from analysis.gap.__main__ import main
 

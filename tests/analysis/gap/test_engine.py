@@ -74,11 +74,11 @@ def test_greedy_re_tests_candidates_that_were_not_significant_at_first():
     assert [s["added"] for s in diag.steps] == ["a", "b"]
 
 
-def _with_ceiling(ceiling_drop: float, floor_shift: float = 0.0):
+def _with_ceiling(ceiling_drop: float, floor_shift: float = 0.0, **kw):
     cands, loss = _problem({"a": 0.3})
     return diagnose_losses("test", cands, None, None, loss,
                            lambda _d: np.full(N_UNITS, floor_shift), rng=np.random.default_rng(1),
-                           seed=1, n_boot=400, min_gain=0.02,
+                           seed=1, n_boot=400, min_gain=0.02, **kw,
                            ceiling=lambda _tr, _te: loss(None, []) - ceiling_drop,
                            where=lambda fits: "in the depth response, rising with gloss")
 
@@ -98,6 +98,41 @@ def test_a_catalogue_that_beats_the_ceiling_explains_at_most_everything():
     assert not diag.unexplained_remains
     assert diag.explained_share == 1.0 and diag.shrink_pct <= 100.0
     assert "nothing significant remains" in diag.summary
+
+
+@pytest.mark.parametrize("ceiling_drop", [0.0, -0.1])
+def test_a_catalogue_where_the_ceiling_removes_nothing_explains_everything(ceiling_drop):
+    """The ceiling removes nothing (or loses): the catalogue reaches all it allows. The share
+    once fell back to the floor's (0.3 of a gap of 1), and min_share refused the attribution."""
+    diag = _with_ceiling(ceiling_drop, min_share=0.8)
+    assert diag.explained_share == 1.0
+    assert diag.verdict == "a" and not diag.unexplained_remains
+
+
+def test_cluster_robust_tests_do_not_depend_on_the_seed_and_count_clusters():
+    """With ``cluster_of`` the p-values are deterministic; units that move together (20 per
+    cluster, one shared gain each) count as one: a gain that 2000 independent units would
+    make certain is uncertain from 100 clusters."""
+    rng = np.random.default_rng(0)
+    shared = np.repeat(rng.normal(0.01, 0.1, 100), 20)  # per-cluster gain, mean ~0.01
+    base = np.full(N_UNITS, 1.0)
+
+    def loss(_data, fitted):
+        return base - (shared if fitted else 0.0)
+    units = [f"u{k:04d}" for k in range(N_UNITS)]
+
+    def run(seed, **kw):
+        return diagnose_losses("test", [Candidate("a", lambda _t, _c: {})], None, None, loss,
+                               lambda _d: np.zeros(N_UNITS), rng=np.random.default_rng(seed),
+                               seed=seed, n_boot=300, unit_ids=lambda _d: units, **kw)
+    clustered = [run(s, cluster_of=lambda u: str(int(u[1:]) // 20)) for s in (0, 1, 2)]
+    p = {d.ranking[0]["p_one_sided"] for d in clustered}
+    assert len(p) == 1  # the same p under every seed
+    se = np.std(shared[::20]) / np.sqrt(100)
+    assert p.pop() == pytest.approx(__import__("scipy").stats.norm.sf(shared.mean() / se),
+                                    rel=0.05)
+    # Per unit, the bootstrap sees 2000 independent gains: a far smaller p.
+    assert run(0).ranking[0]["p_one_sided"] < clustered[0].ranking[0]["p_one_sided"] / 3
 
 
 def test_a_floor_above_the_loss_is_reported_as_misestimated_never_as_no_gap():

@@ -91,3 +91,33 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
     diag, _ = diagnose("render", tmp_path / "fit", tmp_path / "fit", None, seed=7, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0
+
+
+def test_power_law_glare_keeps_its_known_profile():
+    """A point of light spread by the glare's power-law form (core w = 2 px) follows
+    (1 + (r / w)^2)^(-3/2) from its centre: tails a Gaussian of the same core lacks."""
+    from analysis.gap.render import _glare_blur
+
+    point = np.zeros((65, 65))
+    point[32, 32] = 1.0
+    out = _glare_blur(point, -2.0)
+    r = np.array([2, 4, 8, 16])
+    np.testing.assert_allclose(out[32, 32 + r] / out[32, 32], (1 + (r / 2.0) ** 2) ** -1.5,
+                               rtol=1e-6)
+    gauss = _glare_blur(point, 2.0)
+    assert out[32, 48] > 1e6 * gauss[32, 48]
+
+
+def test_gtr1_wings_spread_a_lobe_over_the_sphere_only_with_inverse_square_tails():
+    from analysis.gap.render import _wings
+
+    yy, xx = np.mgrid[0:SIZE, 0:SIZE].astype(float)
+    inside = (np.hypot(yy - 31.5, xx - 31.5) < 28).astype(float)
+    lobe = np.zeros((SIZE, SIZE))
+    lobe[31:33, 31:33] = 1.0
+    wings = _wings(lobe, -4.0, inside)
+    assert np.all(wings[inside == 0] == 0)  # no light onto the background
+    # 20 px from the lobe: ~ (1 + 25)^-1 of the centre's, where a 4 px Gaussian has nothing.
+    far = wings[32, 52] / wings[32, 32]
+    assert 0.02 < far < 0.08
+    assert _wings(lobe, 4.0, inside)[32, 52] < 1e-3 * wings[32, 52]
