@@ -107,10 +107,11 @@ def test_a_stimulus_bias_beside_lapses_is_a_remaining_gap():
 
 
 def test_noise_growing_with_depth_beside_label_rounding_is_a_remaining_gap():
-    """Label rounding leaves less of each response to tell the noise's spread by, and a
-    variance penalty chosen by the one-standard-error rule left a depth-dependent noise at
-    0.015 nats per trial, below the 0.02 a remaining gap needs (harder benchmark draw, seed
-    200); the penalty with the least held-out loss finds about 0.03."""
+    """Label rounding leaves less of each response to tell the noise's spread by; with the
+    ceiling's noise fitted to what offsets fitted to the same responses leave, a depth-
+    dependent noise beside it came out at 0.015 nats per trial, below the 0.02 a remaining
+    gap needs (harder benchmark draw, seed 200); fitted to what offsets fitted without each
+    response leave, 0.026."""
     diag = _diagnose_case({"label_rounding": 0.4, "depth_noise": 0.6}, seed=200)
     assert "label_rounding" in {s["added"] for s in diag.steps}
     assert diag.unexplained_remains
