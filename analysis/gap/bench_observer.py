@@ -213,13 +213,19 @@ def _true_loss(design, frame: pd.DataFrame, truth: pd.DataFrame, case: HarderCas
 
 def _schedule(rng: np.random.Generator, n: int) -> list[HarderCase]:
     """A shuffled schedule: a fifth each of null, base only, base + catalogue effect, base +
-    out-of-catalogue effect, base + both (each effect as often as the others)."""
+    out-of-catalogue effect, base + both (each effect as often as the others).
+
+    In 'both' cases the out-of-catalogue effect turns one further against the catalogue
+    effect every four pairs, so 80 cases hold each of the 16 pairs once and the first 20
+    the four that share a rotation (among them label rounding + depth noise and lapses +
+    stimulus bias, which an earlier ceiling missed)."""
     cats, outs = list(CATALOGUE_ADDED), list(OUT_EFFECTS)
     cases = []
     for k in range(n):
         kind = ("null", "base", "catalogue", "out", "both")[k % 5]
-        c = cats[(k // 5) % len(cats)]
-        o = outs[(k // 5) % len(outs)]
+        j = k // 5
+        c = cats[j % len(cats)]
+        o = outs[(j + j // len(cats)) % len(outs)]
         added = {"null": {}, "base": {}, "catalogue": {c: CATALOGUE_ADDED[c]},
                  "out": {o: OUT_EFFECTS[o]},
                  "both": {c: CATALOGUE_ADDED[c], o: OUT_EFFECTS[o]}}[kind]
