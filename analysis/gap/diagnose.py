@@ -110,6 +110,7 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
         render_floor,
         render_loss,
         render_unit_ids,
+        render_where,
         residual_maps,
         split_render,
     )
@@ -122,7 +123,7 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
                            rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
                            min_share=RENDER_MIN_SHARE, min_gain=RENDER_MIN_GAIN,
                            ceiling=render_ceiling,
-                           ceiling_given_chosen=True,
+                           ceiling_given_chosen=True, where=render_where,
                            # Each held-out pixel its own cluster: the tests' normal limit, with
                            # no Monte-Carlo error (the split is fixed, so the verdict does not
                            # depend on the seed). Under the null of nothing systematic left,

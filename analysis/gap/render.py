@@ -496,6 +496,39 @@ def render_ceiling(train: RenderData, test: RenderData, fitted=()) -> np.ndarray
     return np.concatenate(out)
 
 
+def render_where(fits: list) -> str:
+    """Words for where the chosen model falls short of the ceiling: the gloss level and the
+    region of the sphere (highlight, body, rim, background) that carry most of the held-out
+    excess loss, whether the photo is brighter or darker than the extended render there, and
+    that cell's share of the excess.
+
+    ``fits``: ``[(train, test, fitted), ...]`` per fold (see engine.diagnose_losses).
+    """
+    cells: dict = {}
+    for train, test, fitted in fits:
+        excess = render_loss(test, list(fitted)) - render_ceiling(train, test, fitted)
+        start = 0
+        for lv in test.levels:
+            m = lv["use"]
+            n = int(m.sum())
+            ex = excess[start:start + n]
+            res = (lv["P"] - _predict(lv, list(fitted)))[m]
+            start += n
+            for reg in REGIONS:
+                r = lv["regions"][reg][m]
+                if r.any():
+                    c = cells.setdefault((lv["name"], reg), [0.0, 0.0])
+                    c[0] += float(ex[r].sum())
+                    c[1] += float(res[r].sum())
+    total = sum(max(v[0], 0.0) for v in cells.values())
+    if not cells or total <= 0:
+        return ""
+    (name, reg), (ex, res) = max(cells.items(), key=lambda kv: kv[1][0])
+    side = "brighter" if res > 0 else "darker"
+    return (f"mostly in the {reg} of level {name} (the photo {side} than the extended render "
+            f"there; {100 * max(ex, 0.0) / total:.0f} % of the excess)")
+
+
 def render_unit_ids(data: RenderData) -> list[str]:
     """Pixel names ``level|y|x``."""
     ids = []

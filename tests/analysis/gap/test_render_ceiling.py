@@ -6,6 +6,8 @@ SDs, period 16 px), so the ceiling's gain over the plain render is known to be l
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -91,6 +93,10 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
     diag, _ = diagnose("render", tmp_path / "fit", tmp_path / "fit", None, seed=7, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0
+    # The summary says where: a level, a region of the sphere, the sign and its share.
+    assert re.search(r"unexplained by the catalogue, mostly in the (highlight|body|rim|"
+                     r"background) of level \S+ \(the photo (brighter|darker) than the extended "
+                     r"render there; \d+ % of the excess\) \(", diag.summary), diag.summary
 
 
 def test_power_law_glare_keeps_its_known_profile():
