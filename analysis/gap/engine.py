@@ -440,8 +440,10 @@ def diagnose_losses(
         a chosen model that fits sharp structure, and then hide a gap that remains beside it.
     where : callable ``where(fits) -> str``, optional
         Words for where the remaining gap lies (e.g. "in the depth response, rising with
-        gloss"); ``fits`` is a list of ``(train, test, fitted)`` per fold, ``fitted`` the
-        chosen candidates fitted on that fold's training data.
+        gloss"); ``fits`` is a list of ``(train, test, fitted, ceiling_loss)`` per fold,
+        ``fitted`` the chosen candidates fitted on that fold's training data and
+        ``ceiling_loss`` the ceiling's held-out loss per unit of that fold (as ``ceiling``
+        returned it).
     unit_ids : callable ``unit_ids(test) -> sequence of str``, optional
         Names of the held-out units, recorded in ``Diagnosis.heldout`` (in the order of the
         per-unit vectors).
@@ -559,14 +561,16 @@ def diagnose_losses(
     rem = None
     ceiling_share = float("nan")
     if ceiling is not None:
-        ceil = cv.per_unit([ceiling(tr, te, ch) if ceiling_given_chosen else ceiling(tr, te)
-                            for (tr, te, _), ch in zip(cv.folds, chosen)])
+        ceil_folds = [ceiling(tr, te, ch) if ceiling_given_chosen else ceiling(tr, te)
+                      for (tr, te, _), ch in zip(cv.folds, chosen)]
+        ceil = cv.per_unit(ceil_folds)
         r_gap, r_lo, r_hi, r_p = _test(current - ceil, idx, groups)
         significant = bool(r_p < alpha and r_gap >= min_gain)
         rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": significant,
                "loss_ceiling": float(ceil.mean()), "where": ""}
         if significant and where is not None:
-            rem["where"] = where([(tr, te, ch) for (tr, te, _), ch in zip(cv.folds, chosen)])
+            rem["where"] = where([(tr, te, ch, cf) for (tr, te, _), ch, cf
+                                  in zip(cv.folds, chosen, ceil_folds)])
         reach = float((base - ceil).mean())
         if gb > 0:
             ceiling_share = float(np.clip(reach / gb, 0.0, 1.0))

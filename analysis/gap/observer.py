@@ -883,9 +883,10 @@ def observer_where(fits: list) -> str:
     its spread, and the trend (rising or falling with gloss, depth, their product, the previous
     response, or differing between illuminations) that best describes the shortfall.
 
-    ``fits``: ``[(train, test, fitted), ...]`` per fold (see engine.diagnose_losses)."""
+    ``fits``: ``[(train, test, fitted, ceiling_loss), ...]`` per fold (see
+    engine.diagnose_losses; the ceiling is refitted here for its predictions)."""
     rows = []
-    for train, test, fitted in fits:
+    for train, test, fitted, *_ in fits:
         model = fit_ceiling(train, by_participant=bool(
             set(train["participant"]) & set(test["participant"])), fitted=fitted)
         chosen = predict(test, fitted)

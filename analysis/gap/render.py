@@ -502,11 +502,12 @@ def render_where(fits: list) -> str:
     excess loss, whether the photo is brighter or darker than the extended render there, and
     that cell's share of the excess.
 
-    ``fits``: ``[(train, test, fitted), ...]`` per fold (see engine.diagnose_losses).
+    ``fits``: ``[(train, test, fitted, ceiling_loss), ...]`` per fold (see
+    engine.diagnose_losses; ``ceiling_loss`` from `render_ceiling`, in `render_loss`'s order).
     """
     cells: dict = {}
-    for train, test, fitted in fits:
-        excess = render_loss(test, list(fitted)) - render_ceiling(train, test, fitted)
+    for _train, test, fitted, ceiling_loss in fits:
+        excess = render_loss(test, list(fitted)) - ceiling_loss
         start = 0
         for lv in test.levels:
             m = lv["use"]
