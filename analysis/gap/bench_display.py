@@ -41,7 +41,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.scoring import per_case, score_line, seed_agreement, shrink_errors
+from analysis.gap.scoring import (
+    balanced_draw,
+    per_case,
+    score_line,
+    seed_agreement,
+    shrink_errors,
+)
 from analysis.gap.scoring import rate as _rate
 from labfiles import atomic_write_text
 
@@ -444,8 +450,7 @@ def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
     ``design`` is accepted for the benchmark driver's common signature (the display layer
     does not use the study design). Returns one record per trial."""
     rng = np.random.default_rng(seed)
-    reps = -(-trials // len(CASES))
-    order = [c for _ in range(reps) for c in rng.permutation(CASES)][:trials]
+    order = balanced_draw(rng, CASES, trials)
     records = []
     for k, case in enumerate(rng.permutation(order)):
         rec = _run_case(str(case), rng, n_boot, seeds)

@@ -58,6 +58,7 @@ from scipy.signal import fftconvolve
 from analysis.gap import inject
 from analysis.gap.engine import catalogue, effect, out_of_catalogue
 from analysis.gap.scoring import (
+    balanced_draw,
     per_case,
     render_true_shrink,
     score_line,
@@ -514,8 +515,7 @@ def run_render_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
     random order), each diagnosed under ``seeds`` bootstrap seeds. ``design`` is accepted for
     the benchmark driver's common signature (the render layer does not use it)."""
     rng = np.random.default_rng(seed)
-    reps = -(-trials // len(CASES))
-    order = [c for _ in range(reps) for c in rng.permutation(CASES)][:trials]
+    order = balanced_draw(rng, CASES, trials)
     records = []
     for k, case in enumerate(rng.permutation(order)):
         rec = _run_case(str(case), rng, n_boot, seeds, spp)

@@ -29,8 +29,8 @@ from analysis.gap.engine import OutOfCatalogue, candidate, catalogue, out_of_cat
 from analysis.gap.engine import effect as _effect
 from analysis.gap.engine import strengths as _strengths
 from analysis.gap.observer import observer_frame, observer_nll, read_session_csvs
+from analysis.gap.scoring import balanced_draw, render_true_shrink
 from analysis.gap.scoring import rate as _rate
-from analysis.gap.scoring import render_true_shrink
 
 __all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
            "run_observer_benchmark", "run_thresholds"]
@@ -138,13 +138,8 @@ def draw_schedule(rng: np.random.Generator, trials: int, effects, out) -> list[t
     (up to one; which ones get the extra runs is drawn), so that every effect is scored."""
     n_none, n_out = trials // 4, trials // 4
     n_in = trials - n_none - n_out
-
-    def balanced(names, n):
-        reps = -(-n // len(names)) if n else 0
-        pool = [str(e) for _ in range(reps) for e in rng.permutation(list(names))]
-        return pool[:n]
-    runs = ([("none", "none")] * n_none + [(e, "out") for e in balanced(out, n_out)]
-            + [(e, "in") for e in balanced(effects, n_in)])
+    runs = ([("none", "none")] * n_none + [(e, "out") for e in balanced_draw(rng, out, n_out)]
+            + [(e, "in") for e in balanced_draw(rng, effects, n_in)])
     return [runs[i] for i in rng.permutation(len(runs))]
 
 

@@ -11,8 +11,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["per_case", "rate", "render_true_shrink", "score_line", "seed_agreement",
+__all__ = ["balanced_draw", "per_case", "rate", "render_true_shrink", "score_line", "seed_agreement",
            "shrink_errors"]
+
+
+def balanced_draw(rng: np.random.Generator, names, n: int) -> list[str]:
+    """``n`` names, each as often as the others up to one (which get the extra one is drawn):
+    whole shuffled rounds of ``names``, cut at ``n``. The order within a round is random, so
+    shuffle the result before use if cut rounds must not come last."""
+    reps = -(-n // len(names)) if n else 0
+    return [str(e) for _ in range(reps) for e in rng.permutation(list(names))][:n]
 
 
 def rate(records: list[dict], where, ok: Callable[[dict], bool]) -> tuple:

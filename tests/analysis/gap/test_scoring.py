@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import math
+from collections import Counter
+
+import numpy as np
 
 from analysis.gap.scoring import per_case, rate, score_line, seed_agreement, shrink_errors
 
@@ -36,3 +39,13 @@ def test_per_case_and_score_line_say_what_was_measured():
     assert score_line("x", "top-1", 0.9, 10, ">= 0.95", False) == \
         "x: top-1 0.900 (n=10; target >= 0.95) NOT met"
     assert score_line("x", "top-1", float("nan"), 0, ">= 0.95", False).endswith("n/a (no runs)")
+
+
+def test_balanced_draw_gives_every_name_as_often_as_the_others_up_to_one():
+    from analysis.gap.scoring import balanced_draw
+
+    for n in (0, 3, 7, 11):
+        counts = Counter(balanced_draw(np.random.default_rng(n), ("a", "b", "c", "d"), n))
+        assert sum(counts.values()) == n
+        assert not counts or max(counts.values()) - min(counts.values()) <= 1
+        assert n < 4 or set(counts) == {"a", "b", "c", "d"}
