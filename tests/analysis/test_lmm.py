@@ -285,6 +285,84 @@ def test_bootstrap_refits_reach_bootmers_optimum_or_a_better_one(case):
     assert evals_g < 0.7 * evals_b
 
 
+@pytest.mark.parametrize("case, index", [("singular_tiny", 43), ("singular_perfect_cor", 70)])
+def test_singular_refit_restarts_from_the_nudged_theta(case, index, monkeypatch):
+    """A response where SLSQP stops on the boundary above bootMer's optimum from both starts
+    (found among 150 simulated responses of the data set; seed 1): the restart from the
+    optimum with its zero diagonal raised to `NUDGE` reaches bootMer's optimum. Without the
+    restart (``NUDGE = 0`` restarts from the same point) the refit stays above it."""
+    import analysis.bootstrap as boot
+    from analysis.lmm import fit_problem
+    from analysis.pls import with_y
+
+    frame = _data(case)
+    result = fit(FORMULA, frame)
+    pr = _problem(frame)
+    theta0 = np.asarray(result.theta)
+    y = boot.simulate_responses(pr, result.fixef_array(), theta0, result.sigma,
+                                np.random.default_rng(1), index + 1)[index]
+    prb = with_y(pr, y)
+    _, dev_bootmer, _ = fit_problem(prb, starts=[(theta0, 0.1)], ftol_abs=boot.BOOT_FTOL_ABS,
+                                    xtol_abs=boot.BOOT_XTOL_ABS)
+    assert boot.refit(prb, theta0)[1] <= dev_bootmer + 1e-6
+    monkeypatch.setattr(boot, "NUDGE", 0.0)
+    assert boot.refit(prb, theta0)[1] > dev_bootmer + 1e-3
+
+
+def test_bootstrap_refit_of_the_source_model_uses_the_gradient(monkeypatch):
+    """The source model's refits minimise with the analytic gradient (what makes them fast:
+    bench/analysis_bootstrap_vs_bootmer.py); the crossed model's, which has no scalar kernel,
+    do not."""
+    import analysis.bootstrap as boot
+    from analysis import lmm
+    from analysis.deviance import deviance_gradient
+    from analysis.pls import with_y
+
+    calls = []
+
+    def counted(x, cp):
+        calls.append(1)
+        return deviance_gradient(x, cp)
+
+    monkeypatch.setattr(lmm, "deviance_gradient", counted)
+    frame = _data("depth_bc")
+    for formula, used in [(FORMULA, True), (FORMULA + " + (1 | stimulus)", False)]:
+        framed = frame.assign(stimulus=(frame.index % 162).astype(str))
+        result = fit(formula, framed)
+        pr = make_problem(build_model(formula, framed), reml=False)
+        y = boot.simulate_responses(pr, result.fixef_array(), np.asarray(result.theta),
+                                    result.sigma, np.random.default_rng(1), 1)[0]
+        calls.clear()
+        boot.refit(with_y(pr, y), np.asarray(result.theta))
+        assert bool(calls) is used, formula
+
+
+def test_gradient_fit_falls_back_to_bobyqa_when_a_probe_fails(monkeypatch):
+    """A probe whose deviance cannot be computed (the fixed effects' Schur complement singular
+    to rounding raises ZeroDivisionError or ValueError in the scalar kernel) sends the fit from
+    that start to BOBYQA, which reaches the same optimum as a BOBYQA fit."""
+    from analysis import lmm
+    from analysis.deviance import deviance_gradient
+    from analysis.lmm import fit_problem
+
+    frame = _data("depth_bc")
+    pr = _problem(frame)
+    start = [(np.asarray(fit(FORMULA, frame).theta) * 1.5, 0.1)]
+    calls = []
+
+    def failing_probe(x, cp):
+        calls.append(1)
+        if len(calls) == 3:
+            raise ZeroDivisionError("float division by zero")
+        return deviance_gradient(x, cp)
+
+    monkeypatch.setattr(lmm, "deviance_gradient", failing_probe)
+    _, dev, _ = fit_problem(pr, starts=start, gradient=True)
+    _, dev_bobyqa, _ = fit_problem(pr, starts=start)
+    assert len(calls) == 3
+    assert dev == pytest.approx(dev_bobyqa, abs=1e-6)
+
+
 def test_gradient_fit_needs_the_scalar_kernel(design):
     from analysis.lmm import fit_problem
 
