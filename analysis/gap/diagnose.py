@@ -82,6 +82,7 @@ def _display(real, sim, design, *, seed: int, n_boot: int, **_):
         display_loss,
         display_loss_info,
         display_unit_ids,
+        display_where,
         load_display,
         localise_display,
     )
@@ -94,7 +95,8 @@ def _display(real, sim, design, *, seed: int, n_boot: int, **_):
                            lambda _train: display_loss, display_floor, rng=rng, seed=seed,
                            n_boot=n_boot, unit_ids=display_unit_ids,
                            min_share=DISPLAY_MIN_SHARE, loss_info=display_loss_info(data),
-                           ceiling=display_ceiling, folds=folds, split=text)
+                           ceiling=display_ceiling, folds=folds, split=text,
+                           where=display_where)
     return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
 
 

@@ -126,12 +126,20 @@ def test_a_check_of_another_calibration_is_flagged(tmp_path):
 @pytest.mark.parametrize("effect", sorted(bench_display.OUT_OF_CATALOGUE))
 def test_out_of_catalogue_display_effect_leaves_a_gap_above_the_ceiling(tmp_path, effect):
     """A mid-range gamma bump, or a gamma that changes across the screen (position x level):
-    the catalogue's best model stays significantly above the flexible ceiling."""
+    the catalogue's best model stays significantly above the flexible ceiling, and the
+    verdict says where (the bump: mid drive levels, brighter; the gamma rising to the right:
+    brighter on the left, darker on the right)."""
     rng = _lab(tmp_path, 11)
     _check(tmp_path, rng, replace(DISPLAY, **{effect: bench_display.OUT_OF_CATALOGUE[effect]}))
     diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0 and diag.remaining["gap"] > 1
+    where = {"mid_gamma_bump": "at drive levels 0.6-0.8 (readings brighter than the extended "
+                               "model;",
+             "gamma_gradient": "(readings brighter than the extended model towards the left, "
+                               "darker towards the right;"}[effect]
+    assert where in diag.remaining["where"]
+    assert diag.remaining["where"] in diag.summary
 
 
 @pytest.mark.parametrize("effect", ["none", "black_offset", "warmup_drift"])
