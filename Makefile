@@ -50,9 +50,28 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
+# The suite runs in two parts, both always, failing if either fails: the real-time tests
+# (PsychoPy windows paced by the frame clock, photometers on serial lines), which a busy CPU
+# starves, one at a time; the rest on TEST_WORKERS processes (pytest-xdist, each test file on
+# one worker, so a module's fixtures are built once). `make test TESTS=path` runs just those
+# tests, serially.
+TEST_WORKERS ?= 2
+SERIAL_TESTS := tests/experiment tests/calibration
+TESTS ?=
+
 test: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)
-	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(PYTEST_ARGS)
+	@if [ -n "$(TESTS)" ]; then \
+		HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(TESTS) $(PYTEST_ARGS); exit $$?; fi; \
+	start=$$(date +%s); \
+	echo "== tests in parallel ($(TEST_WORKERS) workers), all but $(SERIAL_TESTS) =="; \
+	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile \
+		$(foreach d,$(SERIAL_TESTS),--ignore=$(d)) $(PYTEST_ARGS); first=$$?; \
+	echo "== real-time tests, one at a time: $(SERIAL_TESTS) =="; \
+	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
+	echo "== make test: parallel part exit $$first, real-time part exit $$second," \
+		"$$(( $$(date +%s) - start )) s in all =="; \
+	[ $$first -eq 0 ] && [ $$second -eq 0 ]
 
 test-fast: PYTEST_ARGS += -m "not slow"
 test-fast: test
