@@ -15,10 +15,15 @@ candidate          extension (c = fitted amplitude; geometry from the sphere mas
 fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
                    view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
                    radii) standing in for the half-vector angle
-clearcoat          D * (1 + c (T(t) / T(0) - 1)), T = (1 - F_0.04(t))^k: diffuse light leaves
-                   through the coat at the view angle t, attenuated more at grazing angles;
-                   k = 1 (light from a diffuse surround, whose own entry loss goes into rho_d)
-                   or 2 (light along the view), chosen by the fit
+clearcoat          D * (1 + c (T(t) g - 1)), T = (1 - F(t)) / (1 - F(0)), F the exact
+                   Fresnel reflectance of a coat of IOR 1.5: diffuse light leaves through the
+                   coat at the view angle t, dimmed towards grazing, having entered it at the
+                   light's angles: g = E_T / E, the irradiance weighted by T at entry over the
+                   plain irradiance; g = 1 (entry "surround": a uniform surround, its entry
+                   loss in rho_d), T(t) ("view": light along the view) or ("lights") from the
+                   diffuse shading fitted as a surround (spherical harmonics of bands 0-2) plus
+                   a key light k max(n.l, 0), l searched from the highlight's mirror
+                   direction, T g normalised at the centre; the entry chosen by the fit
 vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
 veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
                    from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
@@ -98,7 +103,11 @@ _GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
-_COAT_PATHS = (1.0, 2.0)  # passes through the coat at the view angle (see _coat_t)
+#: Where the diffuse light entered the coat (see _coat_t and _coat_lights): from a uniform
+#: surround, along the view, or from the lights seen in the shading and the highlight.
+_COAT_ENTRY = ("surround", "view", "lights")
+_COAT_PATHS = {"surround": 1.0, "view": 2.0}  # passes through the coat at the view angle
+_COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
 #: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
 #: of that many px half width (< 0).
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
@@ -237,6 +246,8 @@ def load_render(real_path, sim_path=None) -> RenderData:
         r = np.hypot(yy - cy, xx - cx) / radius
         cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
         fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
+        coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
+                                      (xx - cx) / radius, cover)
         rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
         fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
         train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
@@ -269,13 +280,101 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
             c = np.sqrt(np.clip(1 - r2, 0.0, 1.0))
             for k in _FRESNEL_CAPS:
                 fres[k] += np.where(inside, (1 - np.maximum(c, k)) ** 5, 0.0)
-            for k in _COAT_PATHS:
-                coat[k] += np.where(inside, _coat_t(c, k), 0.0)
+            for k, paths in _COAT_PATHS.items():
+                coat[k] += np.where(inside, _coat_t(c, paths), 0.0)
             cover += inside
     share = cover / n**2
     cover = np.maximum(cover, 1)
     return ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
             share)
+
+
+def _coat_entry_ratios(n: int = 2000) -> tuple[float, float, float]:
+    """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
+    0, 1 and 2 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
+    dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
+    eq. 8, with the transmission in the kernel)."""
+    mu = (np.arange(n) + 0.5) / n
+    t = _coat_t(mu)
+    p2 = (3 * mu**2 - 1) / 2
+    return (float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t)),
+            float(np.mean(mu * p2 * t) / np.mean(mu * p2)))
+
+
+def _sphere_normals(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Orthographic normals (3, h, w) (x right, y up, z to the camera) from image
+    coordinates ``y`` (down) and ``x`` in sphere radii from its centre; clipped to the
+    silhouette."""
+    nz = np.sqrt(np.clip(1 - y**2 - x**2, 0.0, 1.0))
+    return np.stack([x, -y, nz])
+
+
+def _surround_bands(n: np.ndarray) -> list:
+    """Real spherical harmonics of bands 0, 1 and 2 in the normal (unnormalised): the
+    irradiance of any distant surround is within a few per cent of them (Ramamoorthi &
+    Hanrahan 2001)."""
+    return [[np.ones(n.shape[1:])], [n[0], n[1], n[2]],
+            [n[0] * n[1], n[0] * n[2], n[1] * n[2], n[0] ** 2 - n[1] ** 2, 3 * n[2] ** 2 - 1]]
+
+
+def _fit_shading(D: np.ndarray, n: np.ndarray, inner: np.ndarray, start: np.ndarray):
+    """Least-squares fit of the diffuse shading ``D`` on the ``inner`` pixels as a smooth
+    surround (:func:`_surround_bands`) plus one key light k max(n.l, 0), the direction l
+    searched (Nelder-Mead on elevation and azimuth) from ``start`` (a unit vector).
+
+    Returns (l, coef): the key light's unit direction and the coefficients (the bands' in
+    order, then k >= 0)."""
+    smooth = np.stack([b[inner] for band in _surround_bands(n) for b in band], axis=1)
+
+    def fit(angles):
+        el, az = angles
+        ell = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+        a = np.c_[smooth, np.maximum(np.tensordot(ell, n[:, inner], axes=1), 0.0)]
+        coef, *_ = np.linalg.lstsq(a, D[inner], rcond=None)
+        return float(np.sum((D[inner] - a @ coef) ** 2)), ell, coef
+    angles = (np.arcsin(np.clip(start[2], -1, 1)), np.arctan2(start[1], start[0]))
+    best = optimize.minimize(lambda a: fit(a)[0], angles, method="Nelder-Mead",
+                             options={"xatol": 1e-3, "fatol": 1e-12, "maxiter": 200})
+    _, light, coef = fit(best.x)
+    if coef[-1] < 0:  # no key light: the surround alone
+        coef[-1] = 0.0
+        coef[:-1], *_ = np.linalg.lstsq(smooth, D[inner], rcond=None)
+    return light, coef
+
+
+def _coat_lights(D: np.ndarray, S: np.ndarray, t_view: np.ndarray, y: np.ndarray,
+                 x: np.ndarray, cover: np.ndarray) -> np.ndarray:
+    """The coat's factor on the diffuse light (per level, h x w), T(t) g normalised to mean 1
+    within 0.3 radii of the centre, with the entry factor g = E_T / E (the irradiance
+    weighted by the coat's transmission at its entry angle over the plain irradiance)
+    estimated from the render itself.
+
+    The diffuse shading is fitted as a surround plus a key light (:func:`_fit_shading`), the
+    search for the key light starting from the mirror of the view about the normal at the
+    specular render's peak (where n = h). Through the coat the surround's bands are weighted
+    by :func:`_coat_entry_ratios`, the key light by T(n.l). ``t_view``: T at the view angle
+    (each pixel's sub-pixel mean); ``y``, ``x``: image coordinates from the sphere's centre
+    in radii (y down); ``cover``: the share of each pixel the sphere covers."""
+    r2 = y**2 + x**2
+    n = _sphere_normals(y, x)
+    inner = (cover > 0.999) & (r2 < 0.9**2)
+    peak = np.unravel_index(np.argmax(np.where(r2 < 0.85**2, ndimage.gaussian_filter(S, 1.0),
+                                               -np.inf)), S.shape)
+    nh = n[(slice(None), *peak)]
+    mirror = 2 * nh[2] * nh - np.array([0.0, 0.0, 1.0])
+    light, coef = _fit_shading(D, n, inner, mirror / np.linalg.norm(mirror))
+    cos_l = np.tensordot(light, n, axes=1)
+    key = np.maximum(cos_l, 0.0)
+    e, e_t, j = coef[-1] * key, coef[-1] * key * _coat_t(np.clip(cos_l, 0.0, 1.0)), 0
+    for band, ratio in zip(_surround_bands(n), _coat_entry_ratios()):
+        for b in band:
+            e, e_t, j = e + coef[j] * b, e_t + ratio * coef[j] * b, j + 1
+    # Where the fitted irradiance nears 0 (beyond the key light's terminator, a dark
+    # surround) the ratio is noise: floor the denominator at 5 % of its peak.
+    floor = 0.05 * float(np.max(np.abs(e[inner]))) if inner.any() else 1e-12
+    factor = t_view * np.clip(e_t / np.maximum(e, floor), 0.0, 2.0)
+    centre = (r2 < 0.3**2) & (cover > 0)
+    return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
 
 
 # --- the extended model -------------------------------------------------------------------
@@ -308,13 +407,21 @@ def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
     return wide * (S.sum() / max(wide.sum(), 1e-12))
 
 
+def _fresnel_coat(cos_i, eta: float = _COAT_IOR):
+    """Unpolarised Fresnel reflectance of a dielectric coat of index ``eta`` in air (exact;
+    e.g. Walter et al. 2007, eq. 22). Schlick's approximation misses the transmission's fall
+    at grazing angles by several per cent, which a coat over thousands of pixels shows."""
+    c = np.clip(cos_i, 1e-6, 1.0)
+    g = np.sqrt(eta**2 - 1 + c**2)
+    return 0.5 * ((g - c) / (g + c)) ** 2 * (1 + ((c * (g + c) - 1) / (c * (g - c) + 1)) ** 2)
+
+
 def _coat_t(cos_t, paths: float = 1.0):
-    """Transmission of a clear coat (Schlick, F0 = 0.04) relative to normal view, on ``paths``
-    passes at the view angle: 1 when the light enters from a diffuse surround (its own
-    transmission, averaged over the directions, goes into rho_d), 2 when it enters along the
-    view (a light at the camera)."""
-    f = 0.04 + 0.96 * (1 - cos_t) ** 5
-    return ((1 - f) / (1 - 0.04)) ** paths
+    """Transmission of a clear coat (exact Fresnel, IOR 1.5: F0 = 0.04) relative to normal
+    view, on ``paths`` passes at the view angle: 1 when the light enters from a diffuse
+    surround (its own transmission, averaged over the directions, goes into rho_d), 2 when it
+    enters along the view (a light at the camera)."""
+    return ((1 - _fresnel_coat(cos_t)) / (1 - _fresnel_coat(1.0))) ** paths
 
 
 def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -343,7 +450,7 @@ def _apply_long_tail(lv, im, q):
 
 
 def _apply_clearcoat(lv, im, q):
-    return im | {"D": im["D"] * (1 + q["c"] * (lv["coat"][q["paths"]] - 1))}
+    return im | {"D": im["D"] * (1 + q["c"] * (lv["coat"][q["entry"]] - 1))}
 
 
 def _apply_glare(lv, im, q):
@@ -577,7 +684,9 @@ def _fit_amp(name, lo, hi, key=None, grid=(None,)):
         base = [f for f in chosen if f[0] != name]
 
         def params_of(c, g):
-            return {"c": c} if key is None else {key: float(g), "c": c}
+            if key is None:
+                return {"c": c}
+            return {key: g if isinstance(g, str) else float(g), "c": c}
         c, g = _best_on_grid(
             lambda c, g: _scaled_sse(train, base + [(name, params_of(c, g))])[0], lo, hi, grid)
         params = params_of(c, g)
@@ -714,7 +823,7 @@ register("render", Candidate(
     # The amount per level; the form (blur or power) has no counterpart in the injector.
     truth=lambda s: {"c": float(s)}))
 register("render", Candidate(
-    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "paths", _COAT_PATHS),
+    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
     "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
     apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
     units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)}))

@@ -127,3 +127,30 @@ def test_gtr1_wings_spread_a_lobe_over_the_sphere_only_with_inverse_square_tails
     far = wings[32, 52] / wings[32, 32]
     assert 0.02 < far < 0.08
     assert _wings(lobe, 4.0, inside)[32, 52] < 1e-3 * wings[32, 52]
+
+
+def test_clearcoat_form_follows_a_coat_lit_by_a_key_light(tmp_path):
+    """The analytic sphere's clear coat (bench_render, written apart from the forms: exact
+    Fresnel transmission at the key light's and the view's angles under a sky) is followed by
+    one of the catalogue's coat forms to within 0.1 nats/px at full strength, with the coat's
+    whole share (c = 1). The view-angle-only forms leave 2.5-3 nats/px (the light's entry
+    angle darkens the key light's terminator); the form whose entry factor comes from the
+    render's own shading ('lights') leaves 0.04-0.05."""
+    from analysis.gap import bench_render as br
+    from analysis.gap.render import load_render
+
+    br.write_analytic_fit(tmp_path, {}, np.random.default_rng(0))
+    level = load_render(tmp_path).levels[1]
+    _, plain, _ = (br._crop(c) for c in br._components(1, {}))
+    _, coat, _ = (br._crop(c) for c in br._components(1, {"clearcoat": 1.0}))
+    m = level["fit"]
+    fits = []
+    for factor in level["coat"].values():
+        # The extended diffuse a D + b D (factor - 1): b is the coat's share, a rho_d's refit.
+        basis = np.c_[plain[m], (plain * (factor - 1))[m]]
+        coef, *_ = np.linalg.lstsq(basis, coat[m], rcond=None)
+        z = (coat[m] - basis @ coef) / level["sd"][m]
+        fits.append((float(np.mean(0.5 * z**2)), float(coef[1])))
+    excess, share = min(fits)
+    assert excess < 0.1
+    assert share == pytest.approx(1.0, abs=0.1)
