@@ -27,3 +27,15 @@ def design():
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return REPO_ROOT
+
+
+def pytest_terminal_summary(terminalreporter):
+    """Say loudly when the GPU comparison (tests/stimuli/test_gpu.py) was collected but could
+    not run. Here, not in tests/stimuli/conftest.py: under pytest-xdist (make test) the
+    controller that writes the summary loads only the root conftest."""
+    not_run = [r for r in terminalreporter.stats.get("skipped", [])
+               if "gpu" in getattr(r, "keywords", {}) and "NOT RUN" in str(r.longrepr)]
+    if not_run:
+        terminalreporter.write_sep("!", f"GPU CHECK NOT RUN ({len(not_run)} test marked gpu "
+                                   "skipped: no CUDA GPU); run `pytest -m gpu tests/stimuli` on a "
+                                   "GPU machine", red=True, bold=True)

@@ -17,16 +17,6 @@ def mitsuba_variant():
     return setup_mitsuba()
 
 
-def pytest_terminal_summary(terminalreporter):
-    """Say loudly when the GPU comparison was collected but could not run."""
-    not_run = [r for r in terminalreporter.stats.get("skipped", [])
-               if "gpu" in getattr(r, "keywords", {}) and "NOT RUN" in str(r.longrepr)]
-    if not_run:
-        terminalreporter.write_sep("!", f"GPU CHECK NOT RUN ({len(not_run)} test marked gpu "
-                                   "skipped: no CUDA GPU); run `pytest -m gpu tests/stimuli` on a "
-                                   "GPU machine", red=True, bold=True)
-
-
 @pytest.fixture(scope="session")
 def sun_probe():
     """A maker of small synthetic light probes: a sky brightening toward the zenith
