@@ -682,88 +682,44 @@ def _cv_log_variance(res, x, w, groups) -> np.ndarray:
     return _fit_log_variance(res, x, w, _RIDGE_GRID[_one_se_choice(losses)])
 
 
-def _own_trends(m: np.ndarray, x: np.ndarray, w: np.ndarray, who: np.ndarray) -> np.ndarray:
-    """Each participant's weighted least-squares fit of ``m`` on ``x`` minus that of all
-    participants together (rows of one participant: ``who`` equal)."""
-    def fit(mask):
-        xw = x[mask] * w[mask, None]
-        b = np.linalg.lstsq(xw.T @ x[mask] + 1e-9 * np.eye(x.shape[1]), xw.T @ m[mask],
-                            rcond=None)[0]
-        return x[mask] @ b
-    out = -fit(np.ones(m.size, bool))
-    for q in np.unique(who):
-        mask = who == q
-        out[mask] += fit(mask)
-    return out
-
-
 def _cell_offsets(res: np.ndarray, keys: np.ndarray, participants: np.ndarray,
-                  weights: np.ndarray | None = None, own: np.ndarray | None = None) -> dict:
+                  weights: np.ndarray | None = None) -> dict:
     """Per-cell mean residuals shrunk across participants (empirical Bayes, one-way random
-    effects by the method of moments).
-
-    Each participant's mean residual in a cell, ``m_cp`` (responses weighted by ``weights``,
-    default 1: a response's chance of being no lapse), is taken as the cell's offset ``u_c``
-    plus noise of variance ``v / w_cp``, ``w_cp`` the participant's summed weight there (its
-    effective number of responses). Then, per cell, the precision-weighted mean
-    ``m_c = sum w_cp m_cp / W_c`` (``W_c = sum w_cp``) has noise variance ``v / W_c``; ``v`` is
-    the weighted spread of the participants' means about it, ``sum w_cp (m_cp - m_c)^2`` over
-    ``sum (n_c - 1)``; the between-cell variance ``tau2`` is the part that replicates *across*
-    participants, the weighted mean product of two different participants' means in the same
-    cell (``E[m_cp m_c'p'] = tau2`` for p != p'), so one participant's own pattern is not taken
-    as the population's. Each cell mean is shrunk by ``tau2 / (tau2 + v / W_c)``. With equal
-    weights this is the unweighted estimator (``v / W_c`` = the spread of participants' means
-    over their number).
-
-    Each participant's own level and trends (its weighted least-squares fit on the per-cell
-    means of ``own``, regressors per response, default the intercept alone; the ceiling passes
-    intercept, gloss and depth) are removed from its cell means first, less those of all
-    participants together: they are no cell's offset, and in the products of two
-    participants' means they add the product of their own deviations to ``tau2`` (observers'
-    own intercepts SD 0.15 slider units; in harder benchmark seed 1, case 23, two of the
-    observers' mean residuals were -0.23 and +0.22, and a stimulus bias of SD 0.5 read as
-    tau2 <= 0 or near it in inner folds of two participants). With every participant in
-    every cell at equal weights the cell means do not change.
-
-    The weights must reach the cross-participant products, not only the mean within a
-    participant's cell: with one response per participant and cell (a cell of the harder
-    benchmark) that mean *is* the response, lapse or not, and a few products of two lapses
-    (residuals of 3-7 slider units) made ``tau2`` of the cell level positive by chance with
-    two participants; the noisy cell offsets then cost more held-out error than the
-    per-stimulus offsets gained (:func:`_cv_offsets`).
-    """
+    effects by the method of moments): the between-cell variance ``tau2`` is the part that
+    replicates *across* participants (the mean product of two different participants' means
+    in the same cell), so one participant's own pattern is not taken as the population's; the
+    noise of a cell mean is the spread of the participants' means about it, ``v / n``. Each
+    cell mean is shrunk by tau2 / (tau2 + v / n). ``weights`` (default 1) weight the
+    responses within a participant's cell mean (a lapse's chance of being none)."""
     cells, cell_of = np.unique(keys, return_inverse=True)
     _, pair_of = np.unique(np.char.add(np.char.add(keys.astype(str), "\x1f"),
                                        participants.astype(str)), return_inverse=True)
-    # Per (cell, participant): the participant's weighted mean residual and summed weight.
+    # Per (cell, participant): the participant's mean residual in that cell.
     w = np.ones(res.size) if weights is None else np.asarray(weights, float)
     w_cp = np.bincount(pair_of, weights=w)
     m_cp = np.bincount(pair_of, weights=w * res) / np.maximum(w_cp, 1e-12)
     cell_of_pair = np.zeros(m_cp.size, int)
     cell_of_pair[pair_of] = cell_of
-    # Each participant's own level and trends are no cell's offset: removed (their deviation
-    # from the trends of all participants together), as in a two-way layout.
-    who_of_pair = np.zeros(m_cp.size, int)
-    who_of_pair[pair_of] = np.unique(participants.astype(str), return_inverse=True)[1]
-    x = np.ones((res.size, 1)) if own is None else np.asarray(own, float).reshape(res.size, -1)
-    x_cp = np.stack([np.bincount(pair_of, weights=w * col) for col in x.T], axis=1)
-    x_cp = x_cp / np.maximum(w_cp, 1e-12)[:, None]
-    m_cp = m_cp - _own_trends(m_cp, x_cp, w_cp, who_of_pair)
-
-    def per_cell(values):
-        return np.bincount(cell_of_pair, weights=values, minlength=cells.size)
-    n_c = per_cell(np.ones(m_cp.size))
-    w_c, s_c = per_cell(w_cp), per_cell(w_cp * m_cp)
-    pairs = float((w_c ** 2 - per_cell(w_cp ** 2)).sum())
-    if pairs <= 1e-12 or (n_c - 1).sum() == 0:
+    n_c = np.bincount(cell_of_pair, minlength=cells.size).astype(float)
+    s_c = np.bincount(cell_of_pair, weights=m_cp, minlength=cells.size)
+    q_c = np.bincount(cell_of_pair, weights=m_cp ** 2, minlength=cells.size)
+    pairs = float((n_c * (n_c - 1)).sum())
+    if pairs == 0:
         return {}
-    tau2 = max(0.0, float((s_c ** 2 - per_cell((w_cp * m_cp) ** 2)).sum()) / pairs)
+    tau2 = max(0.0, float((s_c ** 2 - q_c).sum()) / pairs)
     if tau2 == 0:
         return {}
-    m_c = s_c / np.maximum(w_c, 1e-12)
-    v = max(float((w_cp * (m_cp - m_c[cell_of_pair]) ** 2).sum()) / float((n_c - 1).sum()),
-            1e-6)
-    return dict(zip(cells.tolist(), (m_c * tau2 / (tau2 + v / np.maximum(w_c, 1e-12))).tolist()))
+    m_c = s_c / np.maximum(n_c, 1)
+    v = max(float(((m_cp - m_c[cell_of_pair]) ** 2).sum()) / float((n_c - 1).sum()), 1e-6)
+    return dict(zip(cells.tolist(), (m_c * tau2 / (tau2 + v / np.maximum(n_c, 1))).tolist()))
+
+
+def _two_level_offsets(res, stim, keys, who, w) -> tuple[dict, dict]:
+    """Offsets per stimulus (gloss x depth level, pooled over illuminations), then per cell
+    (x illumination) on what the stimulus offsets leave (:func:`_cell_offsets`)."""
+    stim_off = _cell_offsets(res, stim, who, w)
+    cell_off = _cell_offsets(res - _offsets_at(stim_off, {}, stim, keys), keys, who, w)
+    return stim_off, cell_off
 
 
 def _offsets_at(stim_off: dict, cell_off: dict, stim, keys) -> np.ndarray:
@@ -771,50 +727,24 @@ def _offsets_at(stim_off: dict, cell_off: dict, stim, keys) -> np.ndarray:
             + pd.Series(keys).map(cell_off).fillna(0.0).to_numpy(float))
 
 
-def _inner_offsets(res, stim, keys, who, w, groups, own, *, stimulus: bool):
-    """The stimulus and cell offsets each unit gets from the inner fold it was held out of
-    (:func:`_cell_offsets` fitted without it; the cell level on what that fold's stimulus
-    level leaves, none with ``stimulus=False``): ``(held_stimulus, held_cell)``."""
-    held_s, held_c = np.zeros(res.size), np.zeros(res.size)
-    for g in np.unique(groups):
-        m = groups == g
-        s_in = _cell_offsets(res[~m], stim[~m], who[~m], w[~m], own[~m]) if stimulus else {}
-        left = res[~m] - _offsets_at(s_in, {}, stim[~m], keys[~m])
-        c_in = _cell_offsets(left, keys[~m], who[~m], w[~m], own[~m])
-        held_s[m] = _offsets_at(s_in, {}, stim[m], keys[m])
-        held_c[m] = _offsets_at({}, c_in, stim[m], keys[m])
-    return held_s, held_c
-
-
-def _cv_offsets(res, stim, keys, who, w, groups, own) -> tuple[dict, dict, np.ndarray]:
-    """Offsets per stimulus (gloss x depth level, pooled over illuminations), then per cell
-    (x illumination) on what the stimulus offsets leave (:func:`_cell_offsets`), each level
-    kept on its own where it lowers the held-out weighted squared error over ``groups``
-    (inner folds); and the offsets each unit gets from the folds it was held out of (zero
-    where none are kept).
+def _cv_offsets(res, stim, keys, who, w, groups) -> tuple[dict, dict, np.ndarray]:
+    """Stimulus and cell offsets (:func:`_two_level_offsets`), kept where they lower the
+    held-out weighted squared error over ``groups`` (inner folds), and the offsets each unit
+    gets from the folds it was held out of (zero where none are kept).
 
     The held-out mean error decides, not one standard error more: with lapses, three inner
     participants rarely gave one standard error, and a per-stimulus bias (SD 0.5 slider
     units) beside lapses was missed (remaining gap 0.002-0.022 nats per trial in three
     cases, 0.021-0.029 with the mean rule); the empirical-Bayes shrinkage already keeps the
-    offsets small where the between-cell variance is estimated small.
-
-    Each level on its own: kept or dropped together, noisy cell offsets vetoed per-stimulus
-    offsets that lowered every inner fold's error (a stimulus bias beside lapses, drawn with
-    seed 11, one outer fold: the stimulus level lowered the three inner folds' weighted
-    squared error by 5.5, 2.6 and 6.4, both levels together raised one by 15.6, and nothing
-    was kept; remaining gap 0.015 nats per trial, not flagged, now 0.040)."""
-    def err(x):
-        return float(np.sum(w * x * x))
-    held_s, held_c = _inner_offsets(res, stim, keys, who, w, groups, own, stimulus=True)
-    use_stim = err(res - held_s) < err(res)
-    if not use_stim:
-        held_s, held_c = _inner_offsets(res, stim, keys, who, w, groups, own, stimulus=False)
-    use_cell = err(res - held_s - held_c) < err(res - held_s)
-    stim_off = _cell_offsets(res, stim, who, w, own) if use_stim else {}
-    left = res - _offsets_at(stim_off, {}, stim, keys)
-    cell_off = _cell_offsets(left, keys, who, w, own) if use_cell else {}
-    return stim_off, cell_off, held_s + (held_c if use_cell else 0.0)
+    offsets small where the between-cell variance is estimated small."""
+    held = np.zeros(res.size)
+    for g in np.unique(groups):
+        m = groups == g
+        s_off, c_off = _two_level_offsets(res[~m], stim[~m], keys[~m], who[~m], w[~m])
+        held[m] = _offsets_at(s_off, c_off, stim[m], keys[m])
+    if np.sum(w * (res - held) ** 2) >= np.sum(w * res ** 2):
+        return {}, {}, np.zeros(res.size)
+    return (*_two_level_offsets(res, stim, keys, who, w), held)
 
 
 def _gauss_share(res: np.ndarray, sd: np.ndarray, lapse: float, width: float) -> np.ndarray:
@@ -839,9 +769,8 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
        each participant's own intercept and slopes, by ridge regression;
     2. per-cell offsets in two levels, the stimulus (gloss x depth level, pooled over
        illuminations) and the cell (x illumination), each shrunk by how far it replicates
-       across participants net of each participant's own intercept and gloss and depth
-       slopes, responses weighted by their chance of being no lapse (:func:`_cell_offsets`),
-       each level kept where it lowers the inner held-out error (:func:`_cv_offsets`);
+       across participants (:func:`_cell_offsets`), kept where they lower the inner held-out
+       error (:func:`_cv_offsets`);
     3. a log-linear noise variance in gloss, depth, their squares and product and the
        illumination, relative to the model's own noise SD, ridge-penalised toward a
        constant (responses weighted by their chance of being no lapse), fitted to what the
@@ -881,8 +810,7 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
             res = _censored_fill(y, m_r, s_r, lo, hi) - m0
             b = _cv_ridge(mx, res, w, groups)
             res = res - mx @ b
-            # mx[:, :3]: intercept, gloss and depth, each participant's own trends there.
-            stim_off, cell_off, held = _cv_offsets(res, stim, keys, who, w, groups, mx[:, :3])
+            stim_off, cell_off, held = _cv_offsets(res, stim, keys, who, w, groups)
             off = _offsets_at(stim_off, cell_off, stim, keys)
             # The noise as a held-out participant meets it: residuals from offsets that
             # were not fitted to the same responses (see _cv_offsets).
