@@ -849,8 +849,9 @@ def display_where(fits: list) -> str:
 
 def _side(cell: pd.DataFrame) -> str:
     """Brighter or darker than the extended model, where >= 75 % of the cell's excess is on one
-    side; else which side of the screen is brighter, where the brighter readings' excess-weighted mean x (or
-    y) differs from the darker ones' by more than a third of the screen."""
+    side; else which side of the screen is brighter, where the brighter readings'
+    excess-weighted mean x (or y) differs from the darker ones' by more than a third of the
+    screen (2 / 3 in normalised units)."""
     w = cell["pos_excess"].to_numpy(float)
     up = cell["brighter"].to_numpy(bool)
     frac = float(w[up].sum() / max(w.sum(), 1e-300))
