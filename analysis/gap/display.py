@@ -788,17 +788,25 @@ _WHERE_AXES = ("drive level", "screen position", "time in the run")
 def _where_cells(test: pd.DataFrame) -> dict[str, list[str]]:
     """Each held-out reading's cell on the three axes the words use: drive level in five bands,
     screen position, and third of the run's time span."""
-    lv = test["level"].to_numpy(float)
-    edges = np.linspace(0, 1, 6)
-    band = np.clip(np.digitize(lv, edges[1:-1]), 0, 4)
     t = test["t_s"].to_numpy(float)
     span = max(float(t.max() - t.min()), 1e-9)
     third = np.clip(((t - t.min()) / span * 3).astype(int), 0, 2)
     names = ("the first third", "the middle third", "the last third")
-    return {"drive level": [f"drive levels {edges[k]:.1f}-{edges[k + 1]:.1f}" for k in band],
-            "screen position": [f"screen position ({a:+.2f}, {b:+.2f})"
-                                for a, b in zip(test["x_norm"], test["y_norm"])],
+    return {"drive level": [f"drive levels {b}" for b in _fifths(test["level"])],
+            "screen position": [f"screen position {p}" for p in _positions(test)],
             "time in the run": [f"{names[k]} of the run" for k in third]}
+
+
+def _fifths(frac) -> list[str]:
+    """Labels of the fifth of [0, 1] each value lies in ("0.2-0.4")."""
+    edges = np.linspace(0, 1, 6)
+    band = np.clip(np.digitize(np.asarray(frac, float), edges[1:-1]), 0, 4)
+    return [f"{edges[k]:.1f}-{edges[k + 1]:.1f}" for k in band]
+
+
+def _positions(data: pd.DataFrame) -> list[str]:
+    """Labels of the readings' screen positions ("(+0.60, -0.60)", normalised units)."""
+    return [f"({a:+.2f}, {b:+.2f})" for a, b in zip(data["x_norm"], data["y_norm"])]
 
 
 def display_where(fits: list) -> str:
@@ -883,13 +891,9 @@ def localise_display(data: pd.DataFrame, rng: np.random.Generator,
     cal = data.attrs["cal"]
     frac = (data["mu0"].to_numpy(float) - cal.min_luminance_cd_m2) / (
         cal.max_luminance_cd_m2 - cal.min_luminance_cd_m2)
-    edges = np.linspace(0, 1, 6)
-    lum_bin = np.clip(np.digitize(frac, edges[1:-1]), 0, 4)
-    pos = [f"({a:+.2f}, {b:+.2f})" for a, b in zip(data["x_norm"], data["y_norm"])]
     rows = []
-    for axis, labels in (("luminance fraction", [f"{edges[k]:.1f}-{edges[k + 1]:.1f}"
-                                                 for k in lum_bin]),
-                         ("screen position (x, y norm)", pos)):
+    for axis, labels in (("luminance fraction", _fifths(frac)),
+                         ("screen position (x, y norm)", _positions(data))):
         frame = pd.DataFrame({"cell": labels, "res": res})
         for cell, grp in frame.groupby("cell"):
             v = grp["res"].to_numpy()

@@ -782,10 +782,10 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     then lapse rate and label-rounding weight on a grid (maximum likelihood). Each ridge
     penalty is chosen by held-out loss within ``train`` (the one-standard-error rule; inner
     folds held out as the outer ones are: by participant, or by trial with
-    ``by_participant``), so
-    a correction the data do not support costs next to nothing on held-out data: the ceiling
-    is at least about as good as the model it extends, and better wherever the data hold
-    structure that model lacks (Hastie, Tibshirani & Friedman 2009, sec. 3.4 and 7.10).
+    ``by_participant``), so a correction the data do not support costs next to nothing on
+    held-out data: the ceiling is at least about as good as the model it extends, and better
+    wherever the data hold structure that model lacks (Hastie, Tibshirani & Friedman 2009,
+    sec. 3.4 and 7.10).
     """
     mid = train.attrs["mid"]
     lo, hi = train.attrs["range"]

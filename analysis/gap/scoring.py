@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["balanced_draw", "per_case", "rate", "render_true_shrink", "score_line", "seed_agreement",
-           "shrink_errors"]
+__all__ = ["balanced_draw", "per_case", "rate", "render_true_shrink", "score_line",
+           "seed_agreement", "shrink_errors"]
 
 
 def balanced_draw(rng: np.random.Generator, names, n: int) -> list[str]:
