@@ -48,6 +48,8 @@ __all__ = [
     "format_harder",
     "generate_sessions",
     "run_harder_observer",
+    "run_observer_cases",
+    "score_harder",
 ]
 
 MID_NOISE = {"gloss": 0.9, "depth": 0.7}  # slider units: the generator's trial noise SD
@@ -235,8 +237,18 @@ def _schedule(rng: np.random.Generator, n: int) -> list[HarderCase]:
 
 def run_harder_observer(design, *, trials: int, seed: int, n_participants: int = 4,
                         n_boot: int = 1000, agreement_seeds: int = 2, log=print) -> dict:
-    """Run ``trials`` cases (:func:`_schedule`) and score them (see the module docstring).
-    Each case's files are diagnosed with seed ``s0`` and ``agreement_seeds`` further seeds."""
+    """Run ``trials`` cases (:func:`run_observer_cases`) and score them (see the module
+    docstring)."""
+    return score_harder(run_observer_cases(design, trials=trials, seed=seed,
+                                           n_participants=n_participants, n_boot=n_boot,
+                                           agreement_seeds=agreement_seeds, log=log))
+
+
+def run_observer_cases(design, *, trials: int, seed: int, n_participants: int = 4,
+                       n_boot: int = 1000, agreement_seeds: int = 2, log=print) -> list[dict]:
+    """Run ``trials`` cases (:func:`_schedule`), one record each (for :func:`score_harder`;
+    records of several seeds may be pooled). Each case's files are diagnosed with a first
+    seed and ``agreement_seeds`` further seeds, all drawn from ``seed``."""
     from analysis.gap.diagnose import diagnose
     from analysis.gap.observer import base_from_params
     from experiment import load_observer_params
@@ -267,7 +279,7 @@ def run_harder_observer(design, *, trials: int, seed: int, n_participants: int =
             log(f"harder observer case {t} ({case.kind} {case.added}): {d.verdict}"
                 f"{' + a remaining gap ' + rec['where'] if rec['remains'] else ''}"
                 f"{'' if rec['agree'] else ' [seeds disagree]'}")
-    return score_harder(records)
+    return records
 
 
 def score_harder(records: list[dict]) -> dict:

@@ -154,3 +154,28 @@ def test_cli_runs_the_harder_render_cases(monkeypatch, capsys):
                  "--quiet"]) == 0
     assert calls == {"trials": 1, "seed": 3}
     assert "render (harder): false attributions" in capsys.readouterr().out
+
+
+def test_cli_pools_the_cases_of_several_seeds_into_one_score(monkeypatch, capsys):
+    """``--seed 1 2``: each seed's cases run once, scored together (the rate's n is the sum)."""
+    from analysis.gap.__main__ import main
+
+    seeds = []
+
+    def fake_run(design, *, trials, seed, log):
+        seeds.append(seed)
+        return [_rec("none", [], "unexplained")]
+    monkeypatch.setattr(br, "run_render_cases", fake_run)
+    assert main(["benchmark", "--layer", "render", "--harder", "--trials", "1", "--seed", "1",
+                 "2", "--quiet"]) == 0
+    out = capsys.readouterr().out
+    assert seeds == [1, 2]
+    assert "render (harder): false attributions" in out and "(n=2;" in out
+    assert "seeds 1, 2 (cases pooled)" in out
+
+
+def test_cli_refuses_several_seeds_without_harder(capsys):
+    from analysis.gap.__main__ import main
+
+    assert main(["benchmark", "--layer", "render", "--trials", "1", "--seed", "1", "2"]) == 2
+    assert "takes one seed" in capsys.readouterr().err
