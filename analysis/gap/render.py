@@ -2,15 +2,17 @@
 
 Input: the gloss fit's output folder (``OUT_DIR/residuals/*.npz``, one per gloss level, with
 float32 ``photo``, ``render``, ``diffuse``, ``specular`` (h x w x 3, linear, photo units) and
-boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``). Everything
-is compared in Rec. 709 luminance.
+boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``), and, if
+there, ``OUT_DIR/fit.json``, whose ``setup`` gives the camera's distance and the sphere's radius
+(cm). Everything is compared in Rec. 709 luminance.
 
 The plain simulation predicts the photo by the render ``R = B + D + S`` (background, the
 panorama around the sphere, which reaches into the rim's edge pixels; diffuse; specular). Each
 candidate is an image-space or component-space extension (approximations, documented):
 
 =================  ===========================================================================
-candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic)
+candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic
+                   unless noted)
 =================  ===========================================================================
 fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
                    view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
@@ -20,10 +22,15 @@ clearcoat          D * (1 + c (T(t) g - 1)), T = (1 - F(t)) / (1 - F(0)), F the 
                    coat at the view angle t, dimmed towards grazing, having entered it at the
                    light's angles: g = E_T / E, the irradiance weighted by T at entry over the
                    plain irradiance; g = 1 (entry "surround": a uniform surround, its entry
-                   loss in rho_d), T(t) ("view": light along the view) or ("lights") from the
-                   diffuse shading fitted as a surround (spherical harmonics of bands 0-2) plus
-                   a key light k max(n.l, 0), l searched from the highlight's mirror
-                   direction, T g normalised at the centre; the entry chosen by the fit
+                   loss in rho_d), T(t) ("view": light along the view), ("lights") from the
+                   diffuse shading fitted as a surround (spherical harmonics of bands 0-1) plus
+                   a round key light (direction and half-angle searched from the highlight's
+                   mirror direction), or ("mirror") from the room as the glossiest level's
+                   specular render mirrors it (each pixel's light from its mirror direction);
+                   T g normalised at the centre; the entry chosen by the fit. Normals and
+                   view directions are a pinhole's when the folder's fit.json gives the
+                   camera distance and sphere radius (the gloss fit's setup), else
+                   orthographic
 vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
 veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
                    from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
@@ -104,8 +111,9 @@ _GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
-#: Where the diffuse light entered the coat (see _coat_t and _coat_lights): from a uniform
-#: surround, along the view, or from the lights seen in the shading and the highlight.
+#: Where the diffuse light entered the coat (see _coat_t, _coat_lights and _coat_mirror): from
+#: a uniform surround, along the view, from the lights seen in the shading and the highlight,
+#: or from the room seen in the specular render.
 _COAT_ENTRY = ("surround", "view", "lights", "mirror")
 _COAT_PATHS = {"surround": 1.0, "view": 2.0}  # passes through the coat at the view angle
 _COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
@@ -212,7 +220,8 @@ def noise_sd(render: np.ndarray, a2: float, b: float) -> np.ndarray:
 
 def load_render(real_path, sim_path=None) -> RenderData:
     """Read the gloss fit's residual files. Photos come from REAL, renders (and components)
-    from SIM (the same folder when the fit's output holds both, the usual case)."""
+    from SIM (the same folder when the fit's output holds both, the usual case); the camera's
+    distance from SIM's fit.json when it has one (:func:`_camera_distance`)."""
     real = Path(real_path)
     sim = Path(sim_path) if sim_path is not None else real
     files = sorted((real / "residuals").glob("*.npz")) if real.is_dir() else []
