@@ -442,6 +442,7 @@ def write_studio_fit(folder, effects: dict, rng: np.random.Generator,
                      "rho_s": rho_s * b, "alpha": alpha})
         truth[f"gloss_{gloss:03d}"] = clean
     pd.DataFrame(rows).to_csv(folder / "fits.csv", index=False)
+    inject.write_fit_setup(folder)
     return truth
 
 

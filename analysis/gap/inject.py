@@ -27,6 +27,7 @@ __all__ = [
     "simulate_readings",
     "simulate_sessions",
     "write_calibration",
+    "write_fit_setup",
     "write_readings",
     "write_render_fit",
     "write_sessions",
@@ -414,6 +415,18 @@ def _base(level: int, spp: int) -> tuple[np.ndarray, np.ndarray]:
     return _base_cache[key]
 
 
+def write_fit_setup(folder: Path) -> None:
+    """The gloss fit's ``fit.json`` for the studio's renders, holding what a fit records of its
+    photo set's setup (camera distance and sphere radius, cm; stimuli.glossfit.fit): the render
+    layer reads the camera's perspective from it."""
+    from stimuli.glossfit.output import write_json
+
+    cam = _render_camera()
+    write_json(Path(folder) / "fit.json", {"setup": {
+        "camera_distance_cm": cam.distance_cm, "sphere_radius_cm": cam.radius_cm,
+        "fov_deg": cam.fov_deg, "resolution_px": list(cam.resolution_px)}})
+
+
 def _crop(img: np.ndarray) -> np.ndarray:
     """The residual files' window of a full (uncropped) image."""
     y0, x0 = _OFFSET
@@ -564,4 +577,5 @@ def write_render_fit(folder: Path, rng: np.random.Generator, effect: str = "none
                      "rho_s": rho_s * b, "alpha": alpha})
         truth[f"gloss_{gloss:03d}"] = clean
     pd.DataFrame(rows).to_csv(folder / "fits.csv", index=False)
+    write_fit_setup(folder)
     return truth

@@ -2,15 +2,17 @@
 
 Input: the gloss fit's output folder (``OUT_DIR/residuals/*.npz``, one per gloss level, with
 float32 ``photo``, ``render``, ``diffuse``, ``specular`` (h x w x 3, linear, photo units) and
-boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``). Everything
-is compared in Rec. 709 luminance.
+boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``), and, if
+there, ``OUT_DIR/fit.json``, whose ``setup`` gives the camera's distance and the sphere's radius
+(cm). Everything is compared in Rec. 709 luminance.
 
 The plain simulation predicts the photo by the render ``R = B + D + S`` (background, the
 panorama around the sphere, which reaches into the rim's edge pixels; diffuse; specular). Each
 candidate is an image-space or component-space extension (approximations, documented):
 
 =================  ===========================================================================
-candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic)
+candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic
+                   unless noted)
 =================  ===========================================================================
 fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
                    view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
@@ -20,10 +22,15 @@ clearcoat          D * (1 + c (T(t) g - 1)), T = (1 - F(t)) / (1 - F(0)), F the 
                    coat at the view angle t, dimmed towards grazing, having entered it at the
                    light's angles: g = E_T / E, the irradiance weighted by T at entry over the
                    plain irradiance; g = 1 (entry "surround": a uniform surround, its entry
-                   loss in rho_d), T(t) ("view": light along the view) or ("lights") from the
-                   diffuse shading fitted as a surround (spherical harmonics of bands 0-2) plus
-                   a key light k max(n.l, 0), l searched from the highlight's mirror
-                   direction, T g normalised at the centre; the entry chosen by the fit
+                   loss in rho_d), T(t) ("view": light along the view), ("lights") from the
+                   diffuse shading fitted as a surround (spherical harmonics of bands 0-1) plus
+                   a round key light (direction and half-angle searched from the highlight's
+                   mirror direction), or ("mirror") from the room as the glossiest level's
+                   specular render mirrors it (each pixel's light from its mirror direction);
+                   T g normalised at the centre; the entry chosen by the fit. Normals and
+                   view directions are a pinhole's when the folder's fit.json gives the
+                   camera distance and sphere radius (the gloss fit's setup), else
+                   orthographic
 vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
 veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
                    from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
@@ -57,6 +64,7 @@ outside the catalogue.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
@@ -103,11 +111,15 @@ _GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: angle): near the silhouette the lobe's reflected directions that fall below the horizon do
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
-#: Where the diffuse light entered the coat (see _coat_t and _coat_lights): from a uniform
-#: surround, along the view, or from the lights seen in the shading and the highlight.
-_COAT_ENTRY = ("surround", "view", "lights")
+#: Where the diffuse light entered the coat (see _coat_t, _coat_lights and _coat_mirror): from
+#: a uniform surround, along the view, from the lights seen in the shading and the highlight,
+#: or from the room seen in the specular render.
+_COAT_ENTRY = ("surround", "view", "lights", "mirror")
 _COAT_PATHS = {"surround": 1.0, "view": 2.0}  # passes through the coat at the view angle
 _COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
+#: The coat's key light (see _fit_shading): a round lamp of half-angle up to 40 deg, drawn as
+#: this many directions.
+_KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
 #: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
 #: of that many px half width (< 0).
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
@@ -208,13 +220,15 @@ def noise_sd(render: np.ndarray, a2: float, b: float) -> np.ndarray:
 
 def load_render(real_path, sim_path=None) -> RenderData:
     """Read the gloss fit's residual files. Photos come from REAL, renders (and components)
-    from SIM (the same folder when the fit's output holds both, the usual case)."""
+    from SIM (the same folder when the fit's output holds both, the usual case); the camera's
+    distance from SIM's fit.json when it has one (:func:`_camera_distance`)."""
     real = Path(real_path)
     sim = Path(sim_path) if sim_path is not None else real
     files = sorted((real / "residuals").glob("*.npz")) if real.is_dir() else []
     if not files:
         raise GapError(f"no residuals/*.npz under {real}; pass the gloss fit's output folder "
                        "(python -m stimuli glossfit ... --out DIR)")
+    distance = _camera_distance(sim)
     levels = []
     for f in files:
         g = sim / "residuals" / f.name
@@ -247,7 +261,7 @@ def load_render(real_path, sim_path=None) -> RenderData:
         cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
         fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
         coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
-                                      (xx - cx) / radius, cover)
+                                      (xx - cx) / radius, cover, distance)
         rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
         fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
         train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
@@ -257,10 +271,13 @@ def load_render(real_path, sim_path=None) -> RenderData:
         levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
                        "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
                        "coat": coat, "cover": cover, "rho2": rho2,
-                       "geometry": (cy, cx, radius),
+                       "geometry": (cy, cx, radius), "distance": distance,
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
                        "noise": noise, "sd": noise_sd(R0, *noise)})
+    light = _mirror_light(max(levels, key=_sharpness))
+    for lv in levels:
+        lv["coat"]["mirror"] = _coat_mirror(light, lv)
     return RenderData(levels)
 
 
@@ -289,83 +306,146 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
             share)
 
 
-def _coat_entry_ratios(n: int = 2000) -> tuple[float, float, float]:
+def _coat_entry_ratios(n: int = 2000) -> tuple[float, float]:
     """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
-    0, 1 and 2 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
+    0 and 1 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
     dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
     eq. 8, with the transmission in the kernel)."""
     mu = (np.arange(n) + 0.5) / n
     t = _coat_t(mu)
-    p2 = (3 * mu**2 - 1) / 2
-    return (float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t)),
-            float(np.mean(mu * p2 * t) / np.mean(mu * p2)))
+    return float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t))
 
 
-def _sphere_normals(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """Orthographic normals (3, h, w) (x right, y up, z to the camera) from image
-    coordinates ``y`` (down) and ``x`` in sphere radii from its centre; clipped to the
-    silhouette."""
-    nz = np.sqrt(np.clip(1 - y**2 - x**2, 0.0, 1.0))
-    return np.stack([x, -y, nz])
+def _sphere_view(y: np.ndarray, x: np.ndarray, distance: float | None = None):
+    """Normals and view directions on the sphere, each (3, h, w) (x right, y up, z to the
+    camera), from image coordinates ``y`` (down) and ``x`` in apparent sphere radii from its
+    centre, clipped to the silhouette. ``distance``: the camera's distance from the sphere's
+    centre in sphere radii (a pinhole looking at the centre, the gloss fit's camera); None: an
+    orthographic view along z. Up close the silhouette's normals tilt towards the camera by
+    asin(1 / distance) and the view turns across the image by as much (4 deg at 13.75 radii),
+    which moves a mirror direction by up to twice that."""
+    if distance is None:
+        n = np.stack([x, -y, np.sqrt(np.clip(1 - y**2 - x**2, 0.0, 1.0))])
+        return n, np.broadcast_to(np.array([0.0, 0.0, 1.0])[:, None, None], n.shape)
+    # The ray through (x, y): tan of its angle off the axis is the image radius times tan of
+    # the silhouette's angle, asin(1 / distance); it meets the sphere at the normal n.
+    tan_edge = 1 / np.sqrt(distance**2 - 1)
+    ray = np.stack([x * tan_edge, -y * tan_edge, -np.ones_like(x)])
+    ray /= np.linalg.norm(ray, axis=0)
+    along = distance * ray[2]  # camera at (0, 0, distance): its position dotted with the ray
+    t = -along - np.sqrt(np.maximum(along**2 - distance**2 + 1, 0.0))
+    n = np.array([0.0, 0.0, distance])[:, None, None] + t * ray
+    return n / np.linalg.norm(n, axis=0), -ray
+
+
+def _camera_distance(folder: Path) -> float | None:
+    """The gloss fit's camera distance in sphere radii, from ``fit.json``'s ``setup``
+    (camera_distance_cm / sphere_radius_cm, the photo set's setup.toml); None (an orthographic
+    view) when the folder has no fit.json or it lacks them.
+
+    Raises
+    ------
+    GapError
+        If fit.json is not JSON or puts the camera inside the sphere."""
+    path = Path(folder) / "fit.json"
+    if not path.is_file():
+        return None
+    try:
+        setup = json.loads(path.read_text()).get("setup") or {}
+    except (json.JSONDecodeError, AttributeError) as exc:
+        raise GapError(f"{path}: not a gloss fit's fit.json ({exc})") from exc
+    if "camera_distance_cm" not in setup or "sphere_radius_cm" not in setup:
+        return None
+    distance = float(setup["camera_distance_cm"]) / float(setup["sphere_radius_cm"])
+    if not distance > 1:
+        raise GapError(f"{path}: camera_distance_cm {setup['camera_distance_cm']} is not beyond "
+                       f"sphere_radius_cm {setup['sphere_radius_cm']}")
+    return distance
 
 
 def _surround_bands(n: np.ndarray) -> list:
-    """Real spherical harmonics of bands 0, 1 and 2 in the normal (unnormalised): the
-    irradiance of any distant surround is within a few per cent of them (Ramamoorthi &
-    Hanrahan 2001)."""
-    return [[np.ones(n.shape[1:])], [n[0], n[1], n[2]],
-            [n[0] * n[1], n[0] * n[2], n[1] * n[2], n[0] ** 2 - n[1] ** 2, 3 * n[2] ** 2 - 1]]
+    """Real spherical harmonics of bands 0 and 1 in the normal (unnormalised): the smooth part
+    of the surround's irradiance. Band 2 is left out: fitted beside the key light to a room's
+    shading (a floor, a window) it takes up the light's terminator and misplaces the light
+    (a Mitsuba coat left 1.2-1.7 nats/px with it, 0.9-1.1 without it; analytic coat equal)."""
+    return [[np.ones(n.shape[1:])], [n[0], n[1], n[2]]]
+
+
+def _cap_directions(light: np.ndarray, sigma: float) -> np.ndarray:
+    """``_KEY_SAMPLES`` unit directions (k, 3) spread evenly in solid angle over a cone of
+    half-angle ``sigma`` (rad) about the unit vector ``light`` (a Fibonacci spiral)."""
+    i = np.arange(_KEY_SAMPLES) + 0.5
+    cos_a = 1 - i / _KEY_SAMPLES * (1 - np.cos(sigma))
+    sin_a = np.sqrt(np.clip(1 - cos_a**2, 0.0, 1.0))
+    phi = np.pi * (1 + 5**0.5) * i
+    e1 = np.cross(light, [1.0, 0.0, 0.0] if abs(light[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(light, e1)
+    return (cos_a[:, None] * light
+            + sin_a[:, None] * (np.cos(phi)[:, None] * e1 + np.sin(phi)[:, None] * e2))
+
+
+def _key_irradiance(n: np.ndarray, light: np.ndarray, sigma: float):
+    """A round key light's irradiance on normals ``n`` (3, ...) per unit of its own, plain and
+    through the coat: the means over :func:`_cap_directions` of max(n.w, 0) and of max(n.w, 0)
+    T(n.w). A lamp of some size has a soft terminator, where the coat's entry loss is largest."""
+    cos_w = np.tensordot(_cap_directions(light, sigma), n, axes=1)
+    lam = np.maximum(cos_w, 0.0)
+    return lam.mean(axis=0), (lam * _coat_t(np.clip(cos_w, 0.0, 1.0))).mean(axis=0)
 
 
 def _fit_shading(D: np.ndarray, n: np.ndarray, inner: np.ndarray, start: np.ndarray):
     """Least-squares fit of the diffuse shading ``D`` on the ``inner`` pixels as a smooth
-    surround (:func:`_surround_bands`) plus one key light k max(n.l, 0), the direction l
-    searched (Nelder-Mead on elevation and azimuth) from ``start`` (a unit vector).
+    surround (:func:`_surround_bands`) plus one round key light (:func:`_key_irradiance`), its
+    direction and half-angle (0 to ``_KEY_MAX_RAD``) searched (Nelder-Mead) from ``start`` (a
+    unit vector) and a small lamp.
 
-    Returns (l, coef): the key light's unit direction and the coefficients (the bands' in
-    order, then k >= 0)."""
+    Returns (l, sigma, coef): the key light's unit direction, its half-angle (rad) and the
+    coefficients (the bands' in order, then the key light's k >= 0)."""
     smooth = np.stack([b[inner] for band in _surround_bands(n) for b in band], axis=1)
+    n_in = n[:, inner]
 
-    def fit(angles):
-        el, az = angles
+    def fit(p):
+        el, az, q = p
         ell = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-        a = np.c_[smooth, np.maximum(np.tensordot(ell, n[:, inner], axes=1), 0.0)]
+        sigma = _KEY_MAX_RAD * np.sin(q) ** 2  # bounded without constraints
+        a = np.c_[smooth, _key_irradiance(n_in, ell, sigma)[0]]
         coef, *_ = np.linalg.lstsq(a, D[inner], rcond=None)
-        return float(np.sum((D[inner] - a @ coef) ** 2)), ell, coef
-    angles = (np.arcsin(np.clip(start[2], -1, 1)), np.arctan2(start[1], start[0]))
-    best = optimize.minimize(lambda a: fit(a)[0], angles, method="Nelder-Mead",
-                             options={"xatol": 1e-3, "fatol": 1e-12, "maxiter": 200})
-    _, light, coef = fit(best.x)
+        return float(np.sum((D[inner] - a @ coef) ** 2)), ell, sigma, coef
+    p0 = (np.arcsin(np.clip(start[2], -1, 1)), np.arctan2(start[1], start[0]), 0.3)
+    best = optimize.minimize(lambda p: fit(p)[0], p0, method="Nelder-Mead",
+                             options={"xatol": 1e-3, "fatol": 1e-12, "maxiter": 300})
+    _, light, sigma, coef = fit(best.x)
     if coef[-1] < 0:  # no key light: the surround alone
         coef[-1] = 0.0
         coef[:-1], *_ = np.linalg.lstsq(smooth, D[inner], rcond=None)
-    return light, coef
+    return light, sigma, coef
 
 
 def _coat_lights(D: np.ndarray, S: np.ndarray, t_view: np.ndarray, y: np.ndarray,
-                 x: np.ndarray, cover: np.ndarray) -> np.ndarray:
+                 x: np.ndarray, cover: np.ndarray, distance: float | None = None) -> np.ndarray:
     """The coat's factor on the diffuse light (per level, h x w), T(t) g normalised to mean 1
     within 0.3 radii of the centre, with the entry factor g = E_T / E (the irradiance
     weighted by the coat's transmission at its entry angle over the plain irradiance)
     estimated from the render itself.
 
-    The diffuse shading is fitted as a surround plus a key light (:func:`_fit_shading`), the
-    search for the key light starting from the mirror of the view about the normal at the
+    The diffuse shading is fitted as a surround plus a round key light (:func:`_fit_shading`),
+    the search for the key light starting from the mirror of the view about the normal at the
     specular render's peak (where n = h). Through the coat the surround's bands are weighted
-    by :func:`_coat_entry_ratios`, the key light by T(n.l). ``t_view``: T at the view angle
-    (each pixel's sub-pixel mean); ``y``, ``x``: image coordinates from the sphere's centre
-    in radii (y down); ``cover``: the share of each pixel the sphere covers."""
+    by :func:`_coat_entry_ratios`, the key light by T at each of its directions. ``t_view``: T
+    at the view angle (each pixel's sub-pixel mean); ``y``, ``x``: image coordinates from the
+    sphere's centre in radii (y down); ``cover``: the share of each pixel the sphere covers;
+    ``distance``: the camera's, in sphere radii (:func:`_sphere_view`)."""
     r2 = y**2 + x**2
-    n = _sphere_normals(y, x)
+    n, v = _sphere_view(y, x, distance)
     inner = (cover > 0.999) & (r2 < 0.9**2)
     peak = np.unravel_index(np.argmax(np.where(r2 < 0.85**2, ndimage.gaussian_filter(S, 1.0),
                                                -np.inf)), S.shape)
-    nh = n[(slice(None), *peak)]
-    mirror = 2 * nh[2] * nh - np.array([0.0, 0.0, 1.0])
-    light, coef = _fit_shading(D, n, inner, mirror / np.linalg.norm(mirror))
-    cos_l = np.tensordot(light, n, axes=1)
-    key = np.maximum(cos_l, 0.0)
-    e, e_t, j = coef[-1] * key, coef[-1] * key * _coat_t(np.clip(cos_l, 0.0, 1.0)), 0
+    nh, vh = n[(slice(None), *peak)], v[(slice(None), *peak)]
+    mirror = 2 * (nh @ vh) * nh - vh
+    light, sigma, coef = _fit_shading(D, n, inner, mirror / np.linalg.norm(mirror))
+    key, key_t = _key_irradiance(n, light, sigma)
+    e, e_t, j = coef[-1] * key, coef[-1] * key_t, 0
     for band, ratio in zip(_surround_bands(n), _coat_entry_ratios()):
         for b in band:
             e, e_t, j = e + coef[j] * b, e_t + ratio * coef[j] * b, j + 1
@@ -374,6 +454,58 @@ def _coat_lights(D: np.ndarray, S: np.ndarray, t_view: np.ndarray, y: np.ndarray
     floor = 0.05 * float(np.max(np.abs(e[inner]))) if inner.any() else 1e-12
     factor = t_view * np.clip(e_t / np.maximum(e, floor), 0.0, 2.0)
     centre = (r2 < 0.3**2) & (cover > 0)
+    return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
+
+
+def _sharpness(lv: dict) -> float:
+    """How sharply a level's specular render images the surround: its peak over its mean on
+    the sphere (the glossiest level's lobe blurs the reflected room least)."""
+    s = lv["S"][lv["regions"]["highlight"] | lv["regions"]["body"]]
+    return float(s.max() / max(s.mean(), 1e-12)) if s.size else 0.0
+
+
+def _mirror_light(lv: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The surround as the level's specular render shows it: each pixel's mirror direction r
+    = 2 (n.v) n - v (the gloss fit's camera, :func:`_sphere_view`) and the light from it,
+    L dOmega = S 4 / radius^2 (a mirror ball seen orthographically maps every px^2 of the image
+    to 4 / radius^2 sr; a pinhole at 13.75 radii maps 0.93 of that at the centre to 1.03 near
+    the rim, a smooth weighting the ratio E_T / E barely feels; S is the fitted lobe's image of
+    the room, blurred by the lobe, in arbitrary units).
+    Returns (directions (3, m), power (m,)) over the pixels the sphere covers."""
+    cy, cx, radius = lv["geometry"]
+    h, w = lv["S"].shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    on = lv["cover"] > 0
+    n, v = (a[:, on] for a in _sphere_view((yy - cy) / radius, (xx - cx) / radius,
+                                           lv["distance"]))
+    mirror = 2 * np.sum(n * v, axis=0) * n - v
+    return mirror, np.maximum(lv["S"][on], 0.0) * 4 / radius**2
+
+
+def _coat_mirror(light: tuple[np.ndarray, np.ndarray], lv: dict) -> np.ndarray:
+    """The coat's factor on the diffuse light (h x w), T(t) g normalised to mean 1 within 0.3
+    radii of the centre, the entry factor g = E_T / E summed over the surround seen in the
+    glossiest level's specular render (:func:`_mirror_light`): no model of the lights, so a
+    room's windows, lamps and floor enter at their own angles. The lobe's blur softens the
+    lights' terminators: a point light is better served by :func:`_coat_lights`, and the fit
+    picks the entry."""
+    dirs, power = light
+    cy, cx, radius = lv["geometry"]
+    h, w = lv["D"].shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    y, x, cover = (yy - cy) / radius, (xx - cx) / radius, lv["cover"]
+    on = cover > 0
+    cos_w = dirs.T @ _sphere_view(y, x, lv["distance"])[0][:, on]
+    lam = np.maximum(cos_w, 0.0)
+    e, e_t = np.zeros((h, w)), np.zeros((h, w))
+    e[on], e_t[on] = power @ lam, power @ (lam * _coat_t(np.clip(cos_w, 0.0, 1.0)))
+    r2 = y**2 + x**2
+    inner = (cover > 0.999) & (r2 < 0.9**2)
+    peak = float(e[inner].max()) if inner.any() else 0.0
+    if peak <= 0:  # no specular light to see the room by: the uniform surround's factor
+        return lv["coat"]["surround"]
+    factor = lv["coat"]["surround"] * np.clip(e_t / np.maximum(e, 0.05 * peak), 0.0, 2.0)
+    centre = (r2 < 0.3**2) & on
     return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
 
 

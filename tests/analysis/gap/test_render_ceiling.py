@@ -154,3 +154,87 @@ def test_clearcoat_form_follows_a_coat_lit_by_a_key_light(tmp_path):
     excess, share = min(fits)
     assert excess < 0.1
     assert share == pytest.approx(1.0, abs=0.1)
+
+
+def _lamp_lit_coat(folder, lamp_half_deg: float):
+    """One gloss level of a diffuse sphere (orthographic, the analytic frame) lit by a round
+    lamp of half-angle ``lamp_half_deg`` and a sky of uniform radiance, written as a gloss fit's
+    residual file (photo with camera noise, plain render), and the diffuse light of the same
+    sphere under a full clear coat. The lamp is integrated here on a polar grid of 24 x 36
+    directions, the sky by quadrature in the cosine, with bench_render's exact Fresnel
+    (IOR 1.5): at entry from each direction and at exit along the view."""
+    from functools import partial
+
+    from analysis.gap import bench_render as br
+
+    frame = br._FRAME
+    nx, ny, nz, inside, _ = br._subpixels(frame)
+    lamp = br._unit([-0.45, 0.75, 0.5])
+
+    def t(c):
+        return (1 - br._fresnel_dielectric(c, 1.5)) / (1 - br._fresnel_dielectric(1.0, 1.5))
+    e1 = br._unit(np.cross(lamp, [1.0, 0.0, 0.0]))
+    e2 = np.cross(lamp, e1)
+    angles = (np.arange(24) + 0.5) / 24 * np.radians(lamp_half_deg)
+    plain, coated, weights = np.zeros_like(nx), np.zeros_like(nx), 0.0
+    for a in angles:
+        for phi in (np.arange(36) + 0.5) / 36 * 2 * np.pi:
+            w = np.cos(a) * lamp + np.sin(a) * (np.cos(phi) * e1 + np.sin(phi) * e2)
+            cos_w = np.clip(nx * w[0] + ny * w[1] + nz * w[2], 0.0, None)
+            plain, coated, weights = (plain + np.sin(a) * cos_w,
+                                      coated + np.sin(a) * cos_w * t(cos_w), weights + np.sin(a))
+    mu = (np.arange(4000) + 0.5) / 4000
+    sky = 0.05
+    plain = plain / weights + np.pi * sky
+    coated = coated / weights + 2 * np.pi * sky * np.mean(mu * t(mu))
+    d0 = br._crop(0.45 / np.pi * np.where(inside, plain, 0.0).mean(axis=-1))
+    coat = br._crop(0.45 / np.pi * np.where(inside, coated * t(nz), 0.0).mean(axis=-1))
+    s0 = br._crop(0.05 * np.where(inside, br._lobe_terms((nx, ny, nz), lamp, 0.12, 1.0),
+                                  0.0).mean(axis=-1))
+    bg = br._crop(np.where(inside, 0.0, 0.05).mean(axis=-1))
+    masks_of = partial(br._masks, frame)
+    rng = np.random.default_rng(0)
+    photo = br._noisy(bg + d0 + s0, masks_of(s0)["sphere"], br._ANALYTIC_PHOTONS,
+                      br._ANALYTIC_READ, rng)
+    br._write_level(folder, 50, photo, bg, d0, s0, masks_of)
+    return d0, coat
+
+
+def test_clearcoat_form_follows_a_coat_lit_by_a_round_lamp(tmp_path):
+    """A lamp of some size (here 20 deg in half-angle, a softbox or a window) has a soft
+    terminator, where the coat's entry loss is largest: the 'lights' form fits the key light
+    as a round lamp, its size searched with its direction, and leaves 0.05 nats/px at full
+    strength with the coat's whole share (b = a). A point key light (the form before) left
+    0.46 (0.24 for a 10 deg lamp)."""
+    from analysis.gap.render import load_render
+
+    (tmp_path / "residuals").mkdir()
+    plain, coat = _lamp_lit_coat(tmp_path, 20.0)
+    level = load_render(tmp_path).levels[0]
+    m = level["fit"]
+    basis = np.c_[plain[m], (plain * (level["coat"]["lights"] - 1))[m]]
+    (a, b), *_ = np.linalg.lstsq(basis, coat[m], rcond=None)
+    z = (coat[m] - basis @ [a, b]) / level["sd"][m]
+    assert float(np.mean(0.5 * z**2)) < 0.1
+    assert b / a == pytest.approx(1.0, abs=0.05)
+
+
+def test_camera_distance_read_from_the_fit_gives_perspective_normals(tmp_path):
+    """The gloss fit's fit.json records the photo set's camera distance and sphere radius; the
+    render layer's geometry is then a pinhole's: at the silhouette the normal tilts towards the
+    camera by asin(radius / distance) and is perpendicular to the view there. Without fit.json
+    the view is orthographic."""
+    import json
+
+    from analysis.gap.render import _camera_distance, _sphere_view
+
+    assert _camera_distance(tmp_path) is None
+    (tmp_path / "fit.json").write_text(json.dumps(
+        {"setup": {"camera_distance_cm": 27.5, "sphere_radius_cm": 2.0}}))
+    distance = _camera_distance(tmp_path)
+    assert distance == pytest.approx(13.75)
+    n, v = _sphere_view(np.zeros((1, 1)), np.ones((1, 1)), distance)
+    assert n[2, 0, 0] == pytest.approx(2.0 / 27.5, abs=1e-6)
+    assert float(np.sum(n * v)) == pytest.approx(0.0, abs=1e-6)
+    n, v = _sphere_view(np.zeros((1, 1)), np.ones((1, 1)))
+    assert n[:, 0, 0] == pytest.approx([1.0, 0.0, 0.0])
