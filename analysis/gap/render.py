@@ -120,6 +120,9 @@ _COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
 #: The coat's key light (see _fit_shading): a round lamp of half-angle up to 40 deg, drawn as
 #: this many directions.
 _KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
+#: The 'mirror' coat entry (see _mirror_light, _coat_mirror): at most about this many light
+#: directions, and pixels summed over in blocks of this many (memory: 8 bytes x the product).
+_MIRROR_LIGHTS, _MIRROR_CHUNK = 4096, 1024
 #: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
 #: of that many px half width (< 0).
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
@@ -471,15 +474,20 @@ def _mirror_light(lv: dict) -> tuple[np.ndarray, np.ndarray]:
     to 4 / radius^2 sr; a pinhole at 13.75 radii maps 0.93 of that at the centre to 1.03 near
     the rim, a smooth weighting the ratio E_T / E barely feels; S is the fitted lobe's image of
     the room, blurred by the lobe, in arbitrary units).
-    Returns (directions (3, m), power (m,)) over the pixels the sphere covers."""
+    Returns (directions (3, m), power (m,)) over the pixels the sphere covers, every s-th pixel
+    in each direction with s^2 times its power where the sphere covers more than
+    ``_MIRROR_LIGHTS`` pixels (the lobe blurs the room over several pixels; a sphere of 200 px
+    radius would otherwise make each pixel's irradiance a sum over 125 000 directions)."""
     cy, cx, radius = lv["geometry"]
     h, w = lv["S"].shape
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     on = lv["cover"] > 0
+    stride = max(1, int(np.ceil(np.sqrt(on.sum() / _MIRROR_LIGHTS))))
+    on &= (yy % stride == 0) & (xx % stride == 0)
     n, v = (a[:, on] for a in _sphere_view((yy - cy) / radius, (xx - cx) / radius,
                                            lv["distance"]))
     mirror = 2 * np.sum(n * v, axis=0) * n - v
-    return mirror, np.maximum(lv["S"][on], 0.0) * 4 / radius**2
+    return mirror, np.maximum(lv["S"][on], 0.0) * 4 * stride**2 / radius**2
 
 
 def _coat_mirror(light: tuple[np.ndarray, np.ndarray], lv: dict) -> np.ndarray:
@@ -495,10 +503,15 @@ def _coat_mirror(light: tuple[np.ndarray, np.ndarray], lv: dict) -> np.ndarray:
     yy, xx = np.mgrid[0:h, 0:w].astype(float)
     y, x, cover = (yy - cy) / radius, (xx - cx) / radius, lv["cover"]
     on = cover > 0
-    cos_w = dirs.T @ _sphere_view(y, x, lv["distance"])[0][:, on]
-    lam = np.maximum(cos_w, 0.0)
+    normals = _sphere_view(y, x, lv["distance"])[0][:, on]
+    e_on, e_t_on = np.zeros(normals.shape[1]), np.zeros(normals.shape[1])
+    for i in range(0, normals.shape[1], _MIRROR_CHUNK):  # (lights x pixels) bounded in memory
+        cos_w = dirs.T @ normals[:, i:i + _MIRROR_CHUNK]
+        lam = np.maximum(cos_w, 0.0)
+        e_on[i:i + _MIRROR_CHUNK] = power @ lam
+        e_t_on[i:i + _MIRROR_CHUNK] = power @ (lam * _coat_t(np.clip(cos_w, 0.0, 1.0)))
     e, e_t = np.zeros((h, w)), np.zeros((h, w))
-    e[on], e_t[on] = power @ lam, power @ (lam * _coat_t(np.clip(cos_w, 0.0, 1.0)))
+    e[on], e_t[on] = e_on, e_t_on
     r2 = y**2 + x**2
     inner = (cover > 0.999) & (r2 < 0.9**2)
     peak = float(e[inner].max()) if inner.any() else 0.0
