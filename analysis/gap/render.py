@@ -230,7 +230,7 @@ def load_render(real_path, sim_path=None) -> RenderData:
     files = sorted((real / "residuals").glob("*.npz")) if real.is_dir() else []
     if not files:
         raise GapError(f"no residuals/*.npz under {real}; pass the gloss fit's output folder "
-                       "(python -m stimuli glossfit ... --out DIR)")
+                       "(python -m stimuli fit-gloss PHOTO_SET --out DIR)")
     distance = _camera_distance(sim)
     levels = []
     for f in files:
@@ -349,17 +349,27 @@ def _camera_distance(folder: Path) -> float | None:
     Raises
     ------
     GapError
-        If fit.json is not JSON or puts the camera inside the sphere."""
+        If fit.json is torn (not JSON, or its setup not a table), its distance or radius is
+        not a number, or it puts the camera inside the sphere."""
     path = Path(folder) / "fit.json"
     if not path.is_file():
         return None
     try:
         setup = json.loads(path.read_text()).get("setup") or {}
-    except (json.JSONDecodeError, AttributeError) as exc:
-        raise GapError(f"{path}: not a gloss fit's fit.json ({exc})") from exc
+    except (json.JSONDecodeError, UnicodeDecodeError, AttributeError) as exc:
+        setup = exc
+    if not isinstance(setup, dict):
+        raise GapError(f"{path}: not a gloss fit's fit.json (its 'setup' unreadable: {setup}); "
+                       "pass the folder a whole gloss fit wrote (python -m stimuli fit-gloss "
+                       "PHOTO_SET --out DIR), or run the fit again into a new folder")
     if "camera_distance_cm" not in setup or "sphere_radius_cm" not in setup:
         return None
-    distance = float(setup["camera_distance_cm"]) / float(setup["sphere_radius_cm"])
+    try:
+        distance = float(setup["camera_distance_cm"]) / float(setup["sphere_radius_cm"])
+    except (TypeError, ValueError, ZeroDivisionError) as exc:
+        raise GapError(f"{path}: setup's camera_distance_cm {setup['camera_distance_cm']!r} "
+                       f"and sphere_radius_cm {setup['sphere_radius_cm']!r} must be numbers "
+                       "in cm, the radius above 0") from exc
     if not distance > 1:
         raise GapError(f"{path}: camera_distance_cm {setup['camera_distance_cm']} is not beyond "
                        f"sphere_radius_cm {setup['sphere_radius_cm']}")
@@ -456,7 +466,14 @@ def _coat_lights(D: np.ndarray, S: np.ndarray, t_view: np.ndarray, y: np.ndarray
     # surround) the ratio is noise: floor the denominator at 5 % of its peak.
     floor = 0.05 * float(np.max(np.abs(e[inner]))) if inner.any() else 1e-12
     factor = t_view * np.clip(e_t / np.maximum(e, floor), 0.0, 2.0)
-    centre = (r2 < 0.3**2) & (cover > 0)
+    return _unit_at_centre(factor, r2, cover > 0)
+
+
+def _unit_at_centre(factor: np.ndarray, r2: np.ndarray, on: np.ndarray) -> np.ndarray:
+    """A coat factor scaled to mean 1 within 0.3 radii of the sphere's centre (``r2``: squared
+    distance from it in radii; ``on``: the pixels the sphere covers), where the coat's entry
+    and exit losses are smallest and its amplitude is read."""
+    centre = (r2 < 0.3**2) & on
     return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
 
 
@@ -518,8 +535,7 @@ def _coat_mirror(light: tuple[np.ndarray, np.ndarray], lv: dict) -> np.ndarray:
     if peak <= 0:  # no specular light to see the room by: the uniform surround's factor
         return lv["coat"]["surround"]
     factor = lv["coat"]["surround"] * np.clip(e_t / np.maximum(e, 0.05 * peak), 0.0, 2.0)
-    centre = (r2 < 0.3**2) & on
-    return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
+    return _unit_at_centre(factor, r2, on)
 
 
 # --- the extended model -------------------------------------------------------------------

@@ -282,3 +282,24 @@ def test_mirror_coat_entry_keeps_memory_bounded_on_a_large_sphere():
     a = f_small[(ys + c_s).astype(int), (xs + c_s).astype(int)]
     b = f_big[(2 * ys + c_b).astype(int), (2 * xs + c_b).astype(int)]
     assert np.max(np.abs(a[inside] / b[inside] - 1)) < 0.02
+
+
+@pytest.mark.parametrize("text, words", [
+    ('{"setup": {"camera_distance_cm": 27.5, "sph', "not a gloss fit's fit.json"),
+    ('{"setup": ["camera_distance_cm"]}', "not a gloss fit's fit.json"),
+    ('{"setup": {"camera_distance_cm": "far", "sphere_radius_cm": 2}}', "must be numbers"),
+    ('{"setup": {"camera_distance_cm": 27.5, "sphere_radius_cm": 0}}', "must be numbers"),
+    ('{"setup": {"camera_distance_cm": 1.5, "sphere_radius_cm": 2}}', "not beyond"),
+])
+def test_torn_or_wrong_fit_json_is_refused_by_name_and_kept(tmp_path, text, words):
+    """A torn fit.json (a fit stopped while writing, a file from elsewhere) or a setup that
+    cannot be a camera is a GapError naming the file and the fix, never a traceback or a
+    silent orthographic view; the file itself is left as it was."""
+    from analysis.gap import GapError
+    from analysis.gap.render import _camera_distance
+
+    (tmp_path / "fit.json").write_text(text)
+    with pytest.raises(GapError, match=words) as err:
+        _camera_distance(tmp_path)
+    assert "fit.json" in str(err.value)
+    assert (tmp_path / "fit.json").read_text() == text
