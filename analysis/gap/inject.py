@@ -419,12 +419,14 @@ def write_fit_setup(folder: Path) -> None:
     """The gloss fit's ``fit.json`` for the studio's renders, holding what a fit records of its
     photo set's setup (camera distance and sphere radius, cm; stimuli.glossfit.fit): the render
     layer reads the camera's perspective from it."""
-    from stimuli.glossfit.output import write_json
+    import json
+
+    from labfiles import atomic_write_text
 
     cam = _render_camera()
-    write_json(Path(folder) / "fit.json", {"setup": {
+    atomic_write_text(Path(folder) / "fit.json", json.dumps({"setup": {
         "camera_distance_cm": cam.distance_cm, "sphere_radius_cm": cam.radius_cm,
-        "fov_deg": cam.fov_deg, "resolution_px": list(cam.resolution_px)}})
+        "fov_deg": cam.fov_deg, "resolution_px": list(cam.resolution_px)}}, indent=2))
 
 
 def _crop(img: np.ndarray) -> np.ndarray:
