@@ -149,6 +149,47 @@ class _Photo:
         return self._photos[k]
 
 
+class _FresnelInterface:
+    """The studio's material behind a Fresnel interface of gain ``gain`` ((1 - F0) / F0, as
+    the ``fresnel`` effect's strength): every specular lobe an injector renders carries it,
+    as a real surface's interface reflects its whole lobe, haze and anisotropy included.
+
+    Ward lobes get the plugin's Schlick term (F0 = 1 / (1 + gain), as the fresnel injector);
+    Mitsuba's microfacet conductors (the long tail's haze, the anisotropic lobe) get the exact
+    dielectric law of the same F0 (``eta``, ``k = 0``), relative to normal incidence so that
+    their reflectance keeps its meaning there. The plain photo's lobe is the Fresnel one."""
+
+    def __init__(self, studio, gain: float):
+        self._studio = studio
+        self.f0 = 1 / (1 + float(gain))
+        self.eta = float((1 + np.sqrt(self.f0)) / (1 - np.sqrt(self.f0)))
+
+    def __getattr__(self, name):
+        return getattr(self._studio, name)
+
+    def ward(self, rho_d, rho_s, alpha, **extra):
+        return self._studio.ward(rho_d, rho_s, alpha, **({"fresnel_f0": self.f0} | extra))
+
+    def render(self, material: dict, seed: int, shift=(0.0, 0.0)) -> np.ndarray:
+        if material.get("type") == "roughconductor":
+            refl = material.get("specular_reflectance", {"type": "rgb", "value": 1.0})
+            f0 = float(_fresnel_dielectric(1.0, self.eta))
+            material = {k: v for k, v in material.items() if k != "material"} | {
+                "eta": self.eta, "k": 0.0,
+                "specular_reflectance": refl | {"value": float(refl["value"]) / f0}}
+        return self._studio.render(material, seed, shift)
+
+    def base(self, k: int):
+        d0, _ = self._studio.base(k)
+        _, rho_s, alpha = self.level(k)
+        # The fresnel injector's lobe (its sampler seed: 21 + k).
+        return d0, self.render(self.ward(0.0, rho_s, alpha), 21 + k)
+
+    def plain(self, k: int) -> np.ndarray:
+        d0, s0 = self.base(k)
+        return self.background() + d0 + s0
+
+
 def studio_photo(level: int, effects: dict, rng: np.random.Generator,
                  spp: int = 4096) -> np.ndarray:
     """Noiseless photo (luminance, the residual files' 64 x 64 crop) of one studio level with
@@ -156,9 +197,12 @@ def studio_photo(level: int, effects: dict, rng: np.random.Generator,
 
     Misregistration moves the camera for the whole scene; each material effect's change (its
     injector's photo minus the plain photo, both seen from that camera) is added; glare, then
-    vignetting, act on the composed photo through their injectors. Two material effects on the
-    same component add their changes (exact for fresnel with clearcoat; to first order
-    otherwise)."""
+    vignetting, act on the composed photo through their injectors. With Fresnel, the other
+    material effects are rendered behind the same Fresnel interface (:class:`_FresnelInterface`)
+    and add their change to the Fresnel photo: a real surface's Fresnel term acts on its whole
+    specular lobe, not on the Ward core alone. Otherwise two material effects on the same
+    component add their changes (exact for effects on different components; to first order
+    for the long tail with anisotropy)."""
     unknown = set(effects) - set(_MATERIAL) - set(_CAMERA) - {"misregistration"}
     if unknown:
         raise ValueError(f"no studio composition for {sorted(unknown)}")
@@ -170,8 +214,13 @@ def studio_photo(level: int, effects: dict, rng: np.random.Generator,
     studio = _CachedStudio(spp, shift)
     plain = studio.plain(level)
     photo = plain.copy()
+    if "fresnel" in effects:
+        photo += effect("render", "fresnel").inject(studio, level, float(effects["fresnel"]),
+                                                    rng) - plain
+        studio = _FresnelInterface(studio, float(effects["fresnel"]))
+        plain = studio.plain(level)
     for name in _MATERIAL:
-        if name in effects:
+        if name in effects and name != "fresnel":
             photo += effect("render", name).inject(studio, level, float(effects[name]),
                                                     rng) - plain
     for name in _CAMERA:

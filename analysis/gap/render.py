@@ -768,12 +768,17 @@ def render_where(fits: list) -> str:
     """Words for where the chosen model falls short of the ceiling: the gloss level and the
     region of the sphere (highlight, body, rim, background) that carry most of the held-out
     excess loss, whether the photo is brighter or darker than the extended render there, and
-    that cell's share of the excess.
+    that cell's share of the excess; and the size of the misfit in the photos' own units: the
+    RMS misfit that excess stands for, as a percentage of the photos' RMS luminance (a
+    systematic misfit m at a pixel of noise SD sd costs m^2 / (2 sd^2) nats there, so
+    m_rms = sqrt(mean(2 sd^2 excess))). Nats per pixel scale with how clean the photos are;
+    the percentage does not, so a reader can judge whether the misfit matters.
 
     ``fits``: ``[(train, test, fitted, ceiling_loss), ...]`` per fold (see
     engine.diagnose_losses; ``ceiling_loss`` from `render_ceiling`, in `render_loss`'s order).
     """
     cells: dict = {}
+    sq_misfit = sq_photo = 0.0
     for _train, test, fitted, ceiling_loss in fits:
         excess = render_loss(test, list(fitted)) - ceiling_loss
         start = 0
@@ -782,6 +787,8 @@ def render_where(fits: list) -> str:
             n = int(m.sum())
             ex = excess[start:start + n]
             res = (lv["P"] - _predict(lv, list(fitted)))[m]
+            sq_misfit += float(np.sum(2 * lv["sd"][m] ** 2 * ex))
+            sq_photo += float(np.sum(lv["P"][m] ** 2))
             start += n
             for reg in REGIONS:
                 r = lv["regions"][reg][m]
@@ -794,8 +801,10 @@ def render_where(fits: list) -> str:
         return ""
     (name, reg), (ex, res) = max(cells.items(), key=lambda kv: kv[1][0])
     side = "brighter" if res > 0 else "darker"
+    size = 100 * np.sqrt(max(sq_misfit, 0.0) / sq_photo) if sq_photo > 0 else float("nan")
     return (f"mostly in the {reg} of level {name} (the photo {side} than the extended render "
-            f"there; {100 * max(ex, 0.0) / total:.0f} % of the excess)")
+            f"there; {100 * max(ex, 0.0) / total:.0f} % of the excess; a misfit of about "
+            f"{size:.2g} % of the photos' RMS luminance)")
 
 
 def render_unit_ids(data: RenderData) -> list[str]:

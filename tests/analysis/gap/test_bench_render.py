@@ -1,5 +1,6 @@
-"""The harder render benchmark's analytic sphere, case plans and scoring (no Mitsuba renders:
-the analytic generator is numpy, and the scoring runs on hand-made records)."""
+"""The harder render benchmark's analytic sphere, case plans and scoring (the analytic
+generator is numpy, and the scoring runs on hand-made records), and how the Mitsuba studio
+composes several effects (one slow test)."""
 
 from __future__ import annotations
 
@@ -179,3 +180,25 @@ def test_cli_refuses_several_seeds_without_harder(capsys):
 
     assert main(["benchmark", "--layer", "render", "--trials", "1", "--seed", "1", "2"]) == 2
     assert "takes one seed" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_studio_fresnel_acts_on_the_long_tails_haze_too():
+    """A real surface's Fresnel term reflects its whole lobe: with Fresnel, the long tail's
+    haze is rendered behind the same interface, so its change to the photo grows towards the
+    rim (grazing view) by about the Fresnel gain there, not only its Ward core. (Adding the
+    two effects' changes, as before, gives the haze's change unchanged by Fresnel: ratio 1.)"""
+    from analysis.gap import inject
+
+    rng = np.random.default_rng(0)
+    spp, level = 512, 2  # the sharpest level: its haze's change at the rim is clearest
+    r = inject._sphere_r()
+    rim, centre = (r > 0.9) & (r < 0.97), r < 0.6
+
+    def change(effects):
+        with_tail = br.studio_photo(level, effects | {"long_tail": 0.6}, rng, spp)
+        return np.abs(with_tail - br.studio_photo(level, effects, rng, spp))
+    fresnel, plain = change({"fresnel": 6.0}), change({})
+    rise = (fresnel[rim].sum() / plain[rim].sum()) / (fresnel[centre].sum()
+                                                      / plain[centre].sum())
+    assert rise > 1.3, rise

@@ -28,7 +28,8 @@ def _data(texture: float, seed: int) -> RenderData:
     train = ((yy // 4 + xx // 4) % 2 == 0)
     level = {"name": "gloss_050", "P": photo, "B": np.zeros_like(photo), "D": diffuse,
              "S": spec, "sd": np.full(photo.shape, SD), "fit": sphere, "train": train,
-             "use": sphere}
+             "use": sphere, "regions": {"highlight": spec > 0.15, "body": sphere & (spec <= 0.15),
+                                        "rim": np.zeros_like(sphere), "background": ~sphere}}
     return RenderData([level])
 
 
@@ -48,6 +49,24 @@ def test_render_ceiling_is_no_better_than_a_right_render():
         rest, _ = _remaining(0.0, seed)
         # Nothing to find: the smooth can only add its own estimation noise.
         assert rest.mean() < 0.02
+
+
+@pytest.mark.parametrize("texture", [1.0, 4.0])
+def test_remaining_gap_is_sized_in_percent_of_the_photos_luminance(texture):
+    """The words for a remaining gap give its size in the photos' own units: a texture of
+    amplitude ``texture`` noise SDs (RMS texture x SD / sqrt 2 on the sphere) is reported as
+    that RMS over the photos' RMS luminance, whatever the noise (nats alone would not say)."""
+    from analysis.gap.render import render_where
+
+    data = _data(texture, 0)
+    train, test = data.view("train"), data.view("test")
+    words = render_where([(train, test, [], render_ceiling(train, test))])
+    size = float(re.search(r"a misfit of about ([\d.]+) % of the photos' RMS luminance",
+                           words).group(1))
+    m = test.levels[0]["use"]
+    clean = test.levels[0]["D"] + test.levels[0]["S"]
+    truth = 100 * texture * SD / np.sqrt(2) / np.sqrt(np.mean(clean[m] ** 2))
+    assert size == pytest.approx(truth, rel=0.2), (size, truth)
 
 
 def test_render_candidates_are_registered_objects_applied_in_order():
@@ -96,7 +115,8 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
     # The summary says where: a level, a region of the sphere, the sign and its share.
     assert re.search(r"unexplained by the catalogue, mostly in the (highlight|body|rim|"
                      r"background) of level \S+ \(the photo (brighter|darker) than the extended "
-                     r"render there; \d+ % of the excess\) \(", diag.summary), diag.summary
+                     r"render there; \d+ % of the excess; a misfit of about [\d.]+ % of the "
+                     r"photos' RMS luminance\) \(", diag.summary), diag.summary
 
 
 def test_power_law_glare_keeps_its_known_profile():
