@@ -31,7 +31,8 @@ clearcoat          D * (1 + c (T(t) g - 1)), T = (1 - F(t)) / (1 - F(0)), F the 
                    view directions are a pinhole's when the folder's fit.json gives the
                    camera distance and sphere radius (the gloss fit's setup), else
                    orthographic
-vignetting         R * (1 - c rho^2), rho = distance from the image centre / half diagonal
+vignetting         R * (1 - c rho^2 - c2 rho^4), rho = distance from the image centre / half
+                   diagonal (two terms of real lenses' calibration polynomial)
 veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
                    from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
                    narrow core w, from a grid)
@@ -635,7 +636,8 @@ def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
 
 
 def _apply_vignetting(lv, im, q):
-    return {k: v * (1 - q["c"] * lv["rho2"]) for k, v in im.items()}
+    rho2 = lv["rho2"]
+    return {k: v * (1 - q["c"] * rho2 - q.get("c2", 0.0) * rho2**2) for k, v in im.items()}
 
 
 def _apply_misregistration(lv, im, q):
@@ -889,6 +891,40 @@ def _fit_misregistration(train, chosen):
     return params
 
 
+def _fit_vignetting(train, chosen):
+    """The falloff 1 - c rho^2 - c2 rho^4 with the scales re-fitted.
+
+    Two terms of the even polynomial that real lenses' vignetting calibrations use (lensfun's
+    'pa' model has three): over 12,272 lens profiles of the lensfun database, one term leaves a
+    median 0.56 % (95th percentile 3.3 %) of the luminance RMS when the photo spans the whole
+    frame, two terms 0.15 % (1.2 %) (tests/analysis/gap/test_render_vignetting_lenses.py). The
+    term is linear in (c, c2) for fixed scales, so the two alternate: (c, c2) by weighted least
+    squares on the change each makes, then the scales; the falloff is kept positive (>= 0.05)
+    at the corners."""
+    base = [f for f in chosen if f[0] != "vignetting"]
+    q = {"c": 0.0, "c2": 0.0}
+    for _ in range(4):
+        _, scale = _scaled_sse(train, base + [("vignetting", q)])
+        cols, ys = [], []
+        for lv in train.levels:
+            m, w = lv["use"], 1 / lv["sd"][lv["use"]]
+            a, b = scale[lv["name"]]
+
+            def pred(c, c2, lv=lv, a=a, b=b):
+                D, S, B = _basis(lv, base + [("vignetting", {"c": c, "c2": c2})])
+                return B + a * D + b * S
+            p0 = pred(0.0, 0.0)
+            cols.append(np.c_[(pred(1.0, 0.0) - p0)[m], (pred(0.0, 1.0) - p0)[m]] * w[:, None])
+            ys.append((lv["P"] - p0)[m] * w)
+        (c, c2), *_ = np.linalg.lstsq(np.vstack(cols), np.concatenate(ys), rcond=None)
+        c, c2 = float(np.clip(c, -2.0, 2.0)), float(np.clip(c2, -2.0, 2.0))
+        if c + c2 > 0.95:  # the corners kept at >= 5 % of the centre
+            c, c2 = 0.95 * c / (c + c2), 0.95 * c2 / (c + c2)
+        q = {"c": c, "c2": c2}
+    q["scale"] = _scaled_sse(train, base + [("vignetting", q)])[1]
+    return q
+
+
 def _fit_long_tail(train, chosen):
     """Amplitude and wing form per gloss level: the tails' width follows the lobe's, which
     differs between the levels (each level's loss depends on its own parameters only)."""
@@ -1003,7 +1039,7 @@ register("render", Candidate(
     inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
     truth=lambda s: {"c": float(s)}))
 register("render", Candidate(
-    "vignetting", _fit_amp("vignetting", -1.0, 1.0), "the camera darkens towards the image corners",
+    "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
     apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
     units="vignetting coefficient",
     # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
