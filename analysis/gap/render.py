@@ -823,9 +823,10 @@ def split_render(data: RenderData, rng: np.random.Generator):
     return data.view("train"), data.view("test")
 
 
-def _scaled_sse(train: RenderData, fitted: list):
-    """Weighted SSE with the diffuse and specular scales re-fitted per level (least squares)."""
-    sse, scale = 0.0, {}
+def _scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
+    """Weighted residuals per level with the diffuse and specular scales re-fitted per level
+    (least squares), and the scales."""
+    residuals, scale = [], {}
     for lv in train.levels:
         m = lv["use"]
         D, S, B = _basis(lv, fitted)
@@ -834,22 +835,19 @@ def _scaled_sse(train: RenderData, fitted: list):
         y = (lv["P"] - B)[m] * w
         coef, *_ = np.linalg.lstsq(a, y, rcond=None)
         scale[lv["name"]] = (float(coef[0]), float(coef[1]))
-        sse += float(np.sum((y - a @ coef) ** 2))
-    return sse, scale
+        residuals.append(y - a @ coef)
+    return residuals, scale
+
+
+def _scaled_sse(train: RenderData, fitted: list):
+    """Weighted SSE with the diffuse and specular scales re-fitted per level (least squares)."""
+    residuals, scale = _scaled_fit(train, fitted)
+    return sum(float(np.sum(r**2)) for r in residuals), scale
 
 
 def _scaled_residuals(train: RenderData, fitted: list) -> np.ndarray:
     """The weighted residuals behind :func:`_scaled_sse` (scales re-fitted per level)."""
-    out = []
-    for lv in train.levels:
-        m = lv["use"]
-        D, S, B = _basis(lv, fitted)
-        w = 1 / lv["sd"][m]
-        a = np.c_[D[m], S[m]] * w[:, None]
-        y = (lv["P"] - B)[m] * w
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-        out.append(y - a @ coef)
-    return np.concatenate(out)
+    return np.concatenate(_scaled_fit(train, fitted)[0])
 
 
 def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
