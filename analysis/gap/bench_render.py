@@ -157,10 +157,11 @@ class _FresnelInterface:
     Ward lobes get the plugin's Schlick term (F0 = 1 / (1 + gain), as the fresnel injector);
     Mitsuba's microfacet conductors (the long tail's haze, the anisotropic lobe) get the exact
     dielectric law of the same F0 (``eta``, ``k = 0``), relative to normal incidence so that
-    their reflectance keeps its meaning there. The plain photo's lobe is the Fresnel one."""
+    their reflectance keeps its meaning there. The plain photo's lobe is the fresnel
+    injector's (``lobes``: {level: its specular image}), not rendered again here."""
 
-    def __init__(self, studio, gain: float):
-        self._studio = studio
+    def __init__(self, studio, gain: float, lobes: dict):
+        self._studio, self._lobes = studio, lobes
         self.f0 = 1 / (1 + float(gain))
         self.eta = float((1 + np.sqrt(self.f0)) / (1 - np.sqrt(self.f0)))
 
@@ -180,10 +181,7 @@ class _FresnelInterface:
         return self._studio.render(material, seed, shift)
 
     def base(self, k: int):
-        d0, _ = self._studio.base(k)
-        _, rho_s, alpha = self.level(k)
-        # The fresnel injector's lobe (its sampler seed: 21 + k).
-        return d0, self.render(self.ward(0.0, rho_s, alpha), 21 + k)
+        return self._studio.base(k)[0], self._lobes[k]
 
     def plain(self, k: int) -> np.ndarray:
         d0, s0 = self.base(k)
@@ -215,10 +213,11 @@ def studio_photo(level: int, effects: dict, rng: np.random.Generator,
     plain = studio.plain(level)
     photo = plain.copy()
     if "fresnel" in effects:
-        photo += effect("render", "fresnel").inject(studio, level, float(effects["fresnel"]),
-                                                    rng) - plain
-        studio = _FresnelInterface(studio, float(effects["fresnel"]))
-        plain = studio.plain(level)
+        gain = float(effects["fresnel"])
+        fresnel = effect("render", "fresnel").inject(studio, level, gain, rng)
+        photo += fresnel - plain
+        lobe = fresnel - studio.background() - studio.base(level)[0]
+        studio, plain = _FresnelInterface(studio, gain, {level: lobe}), fresnel
     for name in _MATERIAL:
         if name in effects and name != "fresnel":
             photo += effect("render", name).inject(studio, level, float(effects[name]),

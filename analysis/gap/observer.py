@@ -807,8 +807,8 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     2. per-cell offsets in two levels, the stimulus (gloss x depth level, pooled over
        illuminations) and the cell (x illumination), each shrunk by how far it replicates
        across participants, responses weighted by their chance of being no lapse
-       (:func:`_cell_offsets`),
-       each level kept where it lowers the inner held-out error (:func:`_cv_offsets`);
+       (:func:`_cell_offsets`), each level kept where it lowers the inner held-out error
+       (:func:`_cv_offsets`);
     3. a log-linear noise variance in gloss, depth, their squares and product and the
        illumination, relative to the model's own noise SD, ridge-penalised toward a
        constant (responses weighted by their chance of being no lapse), fitted to what the
@@ -820,10 +820,10 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     then lapse rate and label-rounding weight on a grid (maximum likelihood). Each ridge
     penalty is chosen by held-out loss within ``train`` (the one-standard-error rule; inner
     folds held out as the outer ones are: by participant, or by trial with
-    ``by_participant``), so
-    a correction the data do not support costs next to nothing on held-out data: the ceiling
-    is at least about as good as the model it extends, and better wherever the data hold
-    structure that model lacks (Hastie, Tibshirani & Friedman 2009, sec. 3.4 and 7.10).
+    ``by_participant``), so a correction the data do not support costs next to nothing on
+    held-out data: the ceiling is at least about as good as the model it extends, and better
+    wherever the data hold structure that model lacks (Hastie, Tibshirani & Friedman 2009,
+    sec. 3.4 and 7.10).
     """
     mid = train.attrs["mid"]
     lo, hi = train.attrs["range"]

@@ -912,17 +912,23 @@ def _fit_vignetting(train, chosen):
     term leaves a median 0.56 % (95th percentile 3.3 %) of the luminance RMS, two terms 0.15 %
     (1.2 %); over half the frame's radius one term suffices (0.05 %, 0.34 %). On photos of 300
     of those lenses, this fit: tests/analysis/gap/test_render_vignetting_lenses.py.
-    (c, c2) by nonlinear least squares (trust region, bounded to [-2, 2]) on the weighted
-    residuals with the scales solved at each point (variable projection): rho^2 and rho^4 are
-    strongly collinear over a photo and coupled to the scales, so alternating the two converges
-    too slowly."""
+    Fitted by nonlinear least squares (trust region) on the weighted residuals with the scales
+    solved at each point (variable projection): rho^2 and rho^4 are strongly collinear over a
+    photo and coupled to the scales, so alternating the two converges too slowly. The
+    parameters searched are c and the corners' darkening c + c2, the latter bounded to
+    [-2, 0.95] (c to [-2, 2]): the corners keep at least 5 % of the centre's light, and the
+    falloff stays above 4 % everywhere between (its least value inside, where c2 < 0, is
+    1 - c^2 / (4 (c - d)) with d = c + c2), so no fit darkens a photo below zero."""
     base = [f for f in chosen if f[0] != "vignetting"]
 
+    def params(x):
+        return {"c": float(x[0]), "c2": float(x[1] - x[0])}
+
     def residuals(x):
-        return _scaled_residuals(train, base + [("vignetting", {"c": x[0], "c2": x[1]})])
-    fit = optimize.least_squares(residuals, np.zeros(2), bounds=([-2.0, -2.0], [2.0, 2.0]),
+        return _scaled_residuals(train, base + [("vignetting", params(x))])
+    fit = optimize.least_squares(residuals, np.zeros(2), bounds=([-2.0, -2.0], [2.0, 0.95]),
                                  x_scale=0.1, diff_step=1e-4)
-    q = {"c": float(fit.x[0]), "c2": float(fit.x[1])}
+    q = params(fit.x)
     q["scale"] = _scaled_sse(train, base + [("vignetting", q)])[1]
     return q
 

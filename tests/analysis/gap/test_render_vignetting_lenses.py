@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from analysis.gap.engine import candidate
 from analysis.gap.render import RenderData, _predict
@@ -54,3 +55,18 @@ def test_vignetting_term_follows_real_lenses_over_the_whole_frame():
     misfit = _misfits()
     assert len(misfit) == 300
     assert np.percentile(misfit, 95) < 1.0, np.percentile(misfit, 95)
+
+
+@pytest.mark.parametrize("falloff", [
+    lambda x: np.clip(1 - 1.3 * x, 0, None),
+    lambda x: np.clip(1 - 2.5 * x + 1.2 * x**2, 0, None),
+    lambda x: (1 - x) ** 3,
+], ids=["linear to black", "quadratic to black", "cubic to black"])
+def test_vignetting_fit_never_darkens_below_zero(falloff):
+    """Photos whose corners go black (stronger than any lens above; rho^2 = x): the fitted
+    falloff stays above 4 % over the whole frame. Bounded per coefficient only, the fit went
+    to -0.22, -0.42 and -0.34 somewhere between the centre and the corners."""
+    lv = _level(falloff)
+    q = candidate("render", "vignetting").fit(RenderData([lv]), [])
+    x = np.linspace(0.0, 1.0, 201)
+    assert np.min(1 - q["c"] * x - q["c2"] * x**2) > 0.04, q
