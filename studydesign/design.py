@@ -24,6 +24,7 @@ __all__ = [
     "DepthSpec",
     "DesignError",
     "DisplaySpec",
+    "GapSpec",
     "GlossSpec",
     "Illumination",
     "SessionSpec",
@@ -429,6 +430,28 @@ class RenderSpec:
 
 
 @dataclass(frozen=True)
+class GapSpec:
+    """Practical tolerances of the sim-to-real gap diagnosis (``analysis.gap``).
+
+    Attributes
+    ----------
+    render_tolerance_pct : float
+        The render layer's tolerance for what the catalogue leaves: a remaining misfit between
+        the photos and the extended renders counts as a gap beyond the catalogue only if it is
+        statistically significant *and* at least this large, as an RMS over the sphere's pixels
+        in % of the photos' RMS luminance; a smaller one is reported with its size but not
+        flagged. In (0, 20].
+    """
+
+    render_tolerance_pct: float
+
+    def __post_init__(self) -> None:
+        _require(0.0 < float(self.render_tolerance_pct) <= 20.0,
+                 f"gap.render_tolerance_pct must lie in (0, 20] (% of the photos' RMS "
+                 f"luminance), got {self.render_tolerance_pct}")
+
+
+@dataclass(frozen=True)
 class StudyDesign:
     """The whole study design. Build it with :func:`load_design`."""
 
@@ -443,6 +466,7 @@ class StudyDesign:
     analysis: AnalysisSpec
     imagestats: ImageStatsSpec
     render: RenderSpec
+    gap: GapSpec
     source: str = ""
 
     def __post_init__(self) -> None:
@@ -663,6 +687,7 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     rd = _section(raw, "render", path)
     render = _build(RenderSpec, rd, "render", path,
                     spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
+    gap = _build(GapSpec, _section(raw, "gap", path), "gap", path)
     return StudyDesign(
         gloss=gloss,
         depth=depth,
@@ -675,5 +700,6 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         analysis=analysis,
         imagestats=imagestats,
         render=render,
+        gap=gap,
         source=str(path),
     )

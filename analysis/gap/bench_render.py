@@ -525,7 +525,7 @@ def _case_plan(case: str, rng: np.random.Generator) -> dict:
 
 
 def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
-              spp: int) -> dict:
+              spp: int, design=None) -> dict:
     from analysis.gap.diagnose import diagnose
     from analysis.gap.render import load_render
 
@@ -538,7 +538,7 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
         else:
             truth = write_studio_fit(folder, plan["effects"], rng, spp)
         data = load_render(folder, folder)
-        diags = [diagnose("render", data, None, None, seed=int(rng.integers(2**31)),
+        diags = [diagnose("render", data, None, design, seed=int(rng.integers(2**31)),
                           n_boot=n_boot)[0] for _ in range(seeds)]
         diag = diags[0]
         single = case == "independent"
@@ -561,22 +561,23 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
 def run_render_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
                      seeds: int = 3, spp: int = 4096, log=print) -> list[dict]:
     """Run ``trials`` render cases (each of :data:`CASES` as often as the others, up to one, in
-    random order), each diagnosed under ``seeds`` bootstrap seeds. ``design`` is accepted for
-    the benchmark driver's common signature (the render layer does not use it)."""
+    random order), each diagnosed under ``seeds`` bootstrap seeds. ``design`` sets the
+    remaining gap's tolerance ([gap] render_tolerance_pct; None: the shipped design's)."""
     rng = np.random.default_rng(seed)
     order = balanced_draw(rng, CASES, trials)
     records = []
     for k, case in enumerate(rng.permutation(order)):
-        rec = _run_case(str(case), rng, n_boot, seeds, spp)
+        rec = _run_case(str(case), rng, n_boot, seeds, spp, design)
         records.append(rec)
         if log:
             eff = ", ".join(f"{n} {v:.3g}" for n, v in rec["effects"].items()) or "nothing"
             rem = rec["remaining"]
+            size = f", misfit {rem['size']:.2g} %" if "size" in rem else ""
             log(f"render case {k} {case}: {eff} -> {rec['verdict']} (steps "
                 f"{' + '.join(rec['steps']) or '-'}; gap {rec['gap_before']:.3f} -> "
                 f"{rec['gap_after']:.3f}; remaining {rem.get('gap', float('nan')):.3f} "
                 f"[{rem.get('ci', (np.nan, np.nan))[0]:.3f}, "
-                f"{rem.get('ci', (np.nan, np.nan))[1]:.3f}], flagged {rec['flagged']}; "
+                f"{rem.get('ci', (np.nan, np.nan))[1]:.3f}]{size}, flagged {rec['flagged']}; "
                 f"seeds {rec['seed_verdicts']})")
     return records
 

@@ -102,15 +102,19 @@ def _display(real, sim, design, *, seed: int, n_boot: int, **_):
 
 def _render(real, sim, design, *, seed: int, n_boot: int, **_):
     """Render layer: photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss
-    fit's output folder, usually the same), or loaded residual files."""
+    fit's output folder, usually the same), or loaded residual files. A remaining gap counts
+    only from the design's ``[gap] render_tolerance_pct`` (the shipped design's when
+    ``design`` is None)."""
     from analysis.gap.render import (
         RENDER_MIN_GAIN,
         RENDER_MIN_SHARE,
+        RENDER_SIZE_UNIT,
         load_render,
         localise_render,
         render_ceiling,
         render_floor,
         render_loss,
+        render_misfit_pct,
         render_unit_ids,
         render_where,
         residual_maps,
@@ -119,6 +123,10 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
 
     data = load_render(real, sim if sim is not None else real) if isinstance(
         real, (str, Path)) else real
+    if design is None:
+        from studydesign import load_design
+
+        design = load_design()
     rng = np.random.default_rng(seed)
     train, test = split_render(data, rng)
     diag = diagnose_losses("render", catalogue("render"), train, test, render_loss, render_floor,
@@ -126,6 +134,10 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
                            min_share=RENDER_MIN_SHARE, min_gain=RENDER_MIN_GAIN,
                            ceiling=render_ceiling,
                            ceiling_given_chosen=True, where=render_where,
+                           size=render_misfit_pct,
+                           min_size=design.gap.render_tolerance_pct,
+                           size_unit=RENDER_SIZE_UNIT,
+                           size_source="the design's [gap] render_tolerance_pct",
                            # Each held-out pixel its own cluster: the tests' normal limit, with
                            # no Monte-Carlo error (the split is fixed, so the verdict does not
                            # depend on the seed). Under the null of nothing systematic left,

@@ -237,7 +237,10 @@ class Diagnosis:
 
     ``verdict`` names the chosen candidates (``a + b``) or is ``'unexplained'``; ``summary`` is
     the plain-language sentence. ``remaining`` (with a ceiling) holds the chosen model's
-    held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``.
+    held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
+    in a layer with a practical tolerance also ``size`` (the misfit in the data's units),
+    ``tolerance``, ``size_unit``, ``size_source`` and ``within_tolerance`` (significant in
+    nats but smaller than the tolerance: then ``significant`` is False).
     ``floor_status`` is ``'ok'`` or ``'misestimated'`` (a gap, before or after, whose 95 % CI
     lies wholly below zero: the floor is wrong, not the simulation right).
     ``explained_share``, in [0, 1], is the share of the held-out loss above the floor that the
@@ -406,6 +409,10 @@ def diagnose_losses(
     ceiling: Callable | None = None,
     folds: Sequence | None = None,
     where: Callable | None = None,
+    size: Callable | None = None,
+    min_size: float = 0.0,
+    size_unit: str = "",
+    size_source: str = "",
     split: str = "",
     warnings: Sequence[str] = (),
     refit_rounds: int = 2,
@@ -444,6 +451,19 @@ def diagnose_losses(
         ``fitted`` the chosen candidates fitted on that fold's training data and
         ``ceiling_loss`` the ceiling's held-out loss per unit of that fold (as ``ceiling``
         returned it).
+    size : callable ``size(fits) -> float``, optional
+        The remaining misfit's size in the data's own units (``fits`` as for ``where``), e.g.
+        an RMS misfit in % of the data's RMS. With it, a remaining gap counts as a gap beyond
+        the catalogue only if it is also at least ``min_size``: a statistically significant
+        one below that is reported, with its size and where it lies, as within the tolerance
+        (many units make an approximate form's small leftovers significant).
+    min_size : float
+        The practical tolerance for ``size`` (same units).
+    size_unit : str
+        Words for ``size``'s unit (e.g. "% of the photos' RMS luminance").
+    size_source : str
+        Where the tolerance is set (e.g. "the design's [gap] render_tolerance_pct"), for the
+        summary.
     unit_ids : callable ``unit_ids(test) -> sequence of str``, optional
         Names of the held-out units, recorded in ``Diagnosis.heldout`` (in the order of the
         per-unit vectors).
@@ -565,12 +585,18 @@ def diagnose_losses(
                       for (tr, te, _), ch in zip(cv.folds, chosen)]
         ceil = cv.per_unit(ceil_folds)
         r_gap, r_lo, r_hi, r_p = _test(current - ceil, idx, groups)
-        significant = bool(r_p < alpha and r_gap >= min_gain)
-        rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": significant,
+        detected = bool(r_p < alpha and r_gap >= min_gain)
+        fits = [(tr, te, ch, cf) for (tr, te, _), ch, cf in zip(cv.folds, chosen, ceil_folds)]
+        rem = {"gap": r_gap, "ci": (r_lo, r_hi), "p": r_p, "significant": detected,
                "loss_ceiling": float(ceil.mean()), "where": ""}
-        if significant and where is not None:
-            rem["where"] = where([(tr, te, ch, cf) for (tr, te, _), ch, cf
-                                  in zip(cv.folds, chosen, ceil_folds)])
+        if size is not None:
+            rem_size = float(size(fits))
+            within = bool(detected and np.isfinite(rem_size) and rem_size < min_size)
+            rem.update(size=rem_size, tolerance=float(min_size), size_unit=size_unit,
+                       size_source=size_source, within_tolerance=within,
+                       significant=detected and not within)
+        if detected and where is not None:
+            rem["where"] = where(fits)
         reach = float((base - ceil).mean())
         if gb > 0:
             ceiling_share = float(np.clip(reach / gb, 0.0, 1.0))
@@ -631,15 +657,24 @@ def summarise(d: Diagnosis) -> str:
             text += f" Attributed: {_names(d.steps)}."
         return text
     rem = d.remaining or {}
-    further = ""
+    further = within = ""
+    nats = (f"{rem.get('gap', float('nan')):.3f} nats per unit above a flexible model of the "
+            f"data, 95 % CI {rem.get('ci', (float('nan'),) * 2)[0]:.3f} to "
+            f"{rem.get('ci', (float('nan'),) * 2)[1]:.3f}")
     if rem.get("significant"):
         where = f" {rem['where']}" if rem.get("where") else ""
-        further = (f"a further gap remains, unexplained by the catalogue,{where} ("
-                   f"{rem['gap']:.3f} nats per unit above a flexible model of the data, 95 % CI "
-                   f"{rem['ci'][0]:.3f} to {rem['ci'][1]:.3f})")
+        size = f"; {_size_words(rem, 'above')}" if "size" in rem else ""
+        further = (f"a further gap remains, unexplained by the catalogue,{where} ({nats}{size})")
+    elif rem.get("within_tolerance"):
+        where = f", {rem['where']}" if rem.get("where") else ""
+        within = (f"what remains is statistically significant ({nats}) but within the "
+                  f"tolerance: {_size_words(rem, 'below')}{where}; not counted as a gap beyond "
+                  "the catalogue")
     if not d.steps:
         if further:
             return f"No catalogue effect explains the gap; {further}."
+        if within:
+            return f"No catalogue effect improves the simulation; {within}."
         if rem:
             return (f"No significant gap: the simulation predicts the held-out data as well as "
                     f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
@@ -655,17 +690,32 @@ def summarise(d: Diagnosis) -> str:
     share = (f"{100 * d.explained_share:.0f} %" if np.isfinite(d.explained_share)
              else "all")
     if d.verdict == "unexplained":
-        text = (f"{_names(d.steps)} reduce the gap significantly but explain only {share} of "
+        one = len(d.steps) == 1
+        text = (f"{_names(d.steps)} {'reduces' if one else 'reduce'} the gap significantly but "
+                f"{'explains' if one else 'explain'} only {share} of "
                 f"it (an attribution needs {100 * d.min_share:.0f} %): unexplained by the "
                 "catalogue")
     else:
         of = " a flexible model of the data removes" if rem else ""
-        text = f"{_names(d.steps)} explain {share} of the gap{of}"
+        verb = "explains" if len(d.steps) == 1 else "explain"
+        text = f"{_names(d.steps)} {verb} {share} of the gap{of}"
     if further:
         return f"{text}; {further}."
+    if within:
+        return f"{text}; {within}."
     if rem:
         return f"{text}; nothing significant remains beyond a flexible model of the data."
     return f"{text}."
+
+
+def _size_words(rem: dict, side: str) -> str:
+    """'a misfit of about 0.24 % of the photos' RMS luminance, below the tolerance of 1 % (the
+    design's [gap] render_tolerance_pct)' from a remaining gap's size fields."""
+    unit = rem.get("size_unit", "")
+    tol_unit = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    source = f" ({rem['size_source']})" if rem.get("size_source") else ""
+    return (f"a misfit of about {rem['size']:.2g} {unit}, {side} the tolerance of "
+            f"{rem['tolerance']:g}{tol_unit}{source}").replace("  ", " ")
 
 
 def _with_summary(d: Diagnosis) -> Diagnosis:

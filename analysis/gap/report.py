@@ -43,6 +43,15 @@ def verdict_text(d: Diagnosis) -> str:
                  f"{rem['gap']:.3f} nats per unit above it (95 % CI {rem['ci'][0]:.3f} to "
                  f"{rem['ci'][1]:.3f}, one-sided p {rem['p']:.4f}); the catalogue explains "
                  f"{_pct(d.explained_share)} of the gap, the ceiling {_pct(d.ceiling_share)}.")
+        if "size" in rem:
+            state = ("a gap beyond the catalogue" if rem["significant"] else
+                     "significant in nats but within the tolerance: not counted as a gap "
+                     "beyond the catalogue" if rem.get("within_tolerance") else
+                     "not significant")
+            text += html.escape(
+                f" What remains is a misfit of about {rem['size']:.2g} {rem['size_unit']} "
+                f"(tolerance {rem['tolerance']:g}, {rem['size_source'] or 'the layer'}'s): "
+                f"{state}.")
     for w in d.warnings:
         text += f"<br><b>Warning:</b> {html.escape(w)}"
     return text

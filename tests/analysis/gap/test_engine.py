@@ -88,7 +88,7 @@ def test_a_gap_beyond_the_catalogue_is_reported_with_where_it_lies():
     assert diag.verdict == "a" and diag.unexplained_remains
     assert diag.remaining["gap"] == pytest.approx(0.2, abs=0.01)
     assert diag.explained_share == pytest.approx(0.6, abs=0.02)
-    assert ("a explain 60 % of the gap a flexible model of the data removes; a further gap "
+    assert ("a explains 60 % of the gap a flexible model of the data removes; a further gap "
             "remains, unexplained by the catalogue, in the depth response, rising with gloss"
             in diag.summary)
 

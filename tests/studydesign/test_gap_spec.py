@@ -1,0 +1,34 @@
+"""The design's [gap] section: the render layer's tolerance for what the catalogue leaves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from studydesign import DesignError, load_design
+
+
+def _edited(tmp_path, old, new):
+    text = Path(load_design().source).read_text()
+    assert old in text, f"test set-up: {old!r} not in design.toml"
+    path = tmp_path / "design.toml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+def test_shipped_gap_tolerance_is_one_percent_of_the_photos_luminance(design):
+    assert design.gap.render_tolerance_pct == 1.0
+
+
+@pytest.mark.parametrize("old, new, message", [
+    ("render_tolerance_pct = 1.0", "render_tolerance_pct = 0",
+     r"gap\.render_tolerance_pct must lie in \(0, 20\]"),
+    ("render_tolerance_pct = 1.0", "render_tolerance_pct = 35",
+     r"gap\.render_tolerance_pct must lie in \(0, 20\]"),
+    ("render_tolerance_pct = 1.0", "tolerance_pct = 1.0", r"unknown key\(s\) \['tolerance_pct'\]"),
+    ("[gap]", "[gaps]", r"missing section \[gap\]; see the shipped design.toml"),
+])
+def test_bad_gap_spec_is_rejected_with_the_fix(tmp_path, old, new, message):
+    with pytest.raises(DesignError, match=message):
+        load_design(_edited(tmp_path, old, new))
