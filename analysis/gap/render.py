@@ -40,8 +40,10 @@ misregistration    R shifted by (dx, dy) px per gloss level: the radiance by cub
                    silhouette's pixel coverage recomputed at the shifted sphere
 long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
                    blurred (Gaussian, 1-8 px, or a GTR1 haze's kernel 1 / (1 + (r / w)^2),
-                   w 2-16 px) or raised to a power k < 1 (a Ward lobe of alpha / sqrt(k))
-                   at the same energy; c and the form (from a grid) per
+                   w 2-16 px), raised to a power k < 1 (a Ward lobe of alpha / sqrt(k)), or
+                   a less glossy level's specular render (the same room through a wider
+                   lobe: a haze reflects the room into the body, where the lobe itself shows
+                   little of it), at the same energy; c and the form (from a grid) per
                    gloss level, as the tails' width follows the lobe's
 =================  ===========================================================================
 
@@ -130,7 +132,7 @@ _KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
 #: directions, and pixels summed over in blocks of this many (memory: 8 bytes x the product).
 _MIRROR_LIGHTS, _MIRROR_CHUNK = 4096, 1024
 #: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
-#: of that many px half width (< 0).
+#: of that many px half width (< 0); besides these, each less glossy level's name (_wider_lobe).
 _TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
 
 
@@ -284,6 +286,10 @@ def load_render(real_path, sim_path=None) -> RenderData:
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
                        "noise": noise, "sd": noise_sd(R0, *noise)})
+    # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe).
+    sharp = {lv["name"]: _sharpness(lv) for lv in levels}
+    for lv in levels:
+        lv["wider"] = {o["name"]: o["S"] for o in levels if sharp[o["name"]] < sharp[lv["name"]]}
     light = _mirror_light(max(levels, key=_sharpness))
     for lv in levels:
         lv["coat"]["mirror"] = _coat_mirror(light, lv)
@@ -613,7 +619,25 @@ def _apply_fresnel(lv, im, q):
 
 def _apply_long_tail(lv, im, q):
     c, width = q["c"].get(lv["name"], 0.0), q["width"].get(lv["name"], 1.0)
-    return im | {"S": im["S"] + c * (_wings(im["S"], width, lv["cover"]) - im["S"])}
+    if isinstance(width, str):
+        wide = _wider_lobe(lv, im["S"], width)
+    else:
+        wide = _wings(im["S"], width, lv["cover"])
+    return im | {"S": im["S"] + c * (wide - im["S"])}
+
+
+def _wider_lobe(lv: dict, S: np.ndarray, other: str) -> np.ndarray:
+    """Wings from a less glossy level: ``other``'s specular render (the same room, camera and
+    sphere through its wider Ward lobe) with the factor the material terms fitted before it
+    put on this level's lobe (Fresnel's rise), at this lobe's energy on the sphere. A haze
+    reflects the whole room into the body, where this level's own lobe shows little of it;
+    the image-space forms (:func:`_wings`) can only spread what this lobe shows."""
+    So = lv["wider"][other]
+    base = lv["S"]
+    ok = base > 1e-6 * max(float(base.max()), 1e-30)
+    factor = np.where(ok, S / np.where(ok, base, 1.0), 1.0)
+    wide = So * factor * lv["cover"]
+    return wide * (float((S * lv["cover"]).sum()) / max(float(wide.sum()), 1e-30))
 
 
 def _apply_clearcoat(lv, im, q):
@@ -972,9 +996,9 @@ def _fit_long_tail(train, chosen):
     for lv in train.levels:
         name, one = lv["name"], RenderData([lv])
         c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
-            one, base + [("long_tail", {"c": {name: c}, "width": {name: float(g)}})])[0],
-            0.0, 1.0, _TAIL_WIDTHS)
-        cs[name], widths[name] = c, float(g)
+            one, base + [("long_tail", {"c": {name: c}, "width": {name: g}})])[0],
+            0.0, 1.0, _TAIL_WIDTHS + tuple(lv["wider"]))
+        cs[name], widths[name] = c, g if isinstance(g, str) else float(g)
     params = {"c": cs, "width": widths}
     params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]
     return params

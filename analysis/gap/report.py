@@ -12,7 +12,7 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 
-from analysis.gap.engine import Diagnosis, GapError
+from analysis.gap.engine import Diagnosis, GapError, _size_words
 from labfiles import atomic_open, atomic_write_text, write_new_file
 
 __all__ = ["no_significant_gap", "verdict_text", "write_multi_report", "write_report"]
@@ -48,10 +48,8 @@ def verdict_text(d: Diagnosis) -> str:
                      "significant in nats but within the tolerance: not counted as a gap "
                      "beyond the catalogue" if rem.get("within_tolerance") else
                      "not significant")
-            text += html.escape(
-                f" What remains is a misfit of about {rem['size']:.2g} {rem['size_unit']} "
-                f"(tolerance {rem['tolerance']:g}, {rem['size_source'] or 'the layer'}'s): "
-                f"{state}.")
+            side = "below" if rem["size"] < rem["tolerance"] else "at or above"
+            text += html.escape(f" What remains: {_size_words(rem, side)}; {state}.")
     for w in d.warnings:
         text += f"<br><b>Warning:</b> {html.escape(w)}"
     return text

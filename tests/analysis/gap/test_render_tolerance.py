@@ -74,6 +74,11 @@ def test_a_small_significant_misfit_is_reported_within_the_tolerance(plain_fit, 
     assert "below the tolerance of 1 % (the design's [gap] render_tolerance_pct)" in (
         diag.summary), diag.summary
     assert "mostly in the" in diag.summary and "unexplained by the catalogue" not in diag.summary
+    # The HTML report says the same beside the nats.
+    from analysis.gap.report import verdict_text
+
+    assert ("below the tolerance of 1 % (the design&#x27;s [gap] render_tolerance_pct); "
+            "significant in nats but within the tolerance") in verdict_text(diag)
 
 
 @pytest.mark.slow
