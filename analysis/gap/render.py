@@ -829,22 +829,29 @@ def render_where(fits: list) -> str:
             f"there; {100 * max(ex, 0.0) / total:.0f} % of the excess)")
 
 
+#: Distance (px) between the held-out pixels whose residuals' products size the misfit (see
+#: render_misfit_pct): 2, past the noise shared by immediate neighbours.
+_SIZE_LAG_PX = 2
+
+
 def render_misfit_pct(fits: list) -> float:
     """Size of what the chosen model leaves, in the photos' own units: its RMS systematic
     misfit on the held-out pixels, in % of the photos' RMS luminance.
 
     Per fold and level, the chosen model's residual at each held-out pixel is multiplied by
-    the residual at its held-out neighbours (right and below): the camera's noise is
-    independent between pixels (the assumption the noise model and the tests of the remaining
-    gap make too), so the products' mean is the misfit's square, m_i m_j, with no bias from the
-    noise and no noise model needed; for a misfit wider than a pixel m_i m_j ~ m^2 (stripes of
-    16 px period keep 96 % of their square). Sizing from the excess loss over the ceiling
+    the residual at the held-out pixels :data:`_SIZE_LAG_PX` to its right and below: noise
+    independent between pixels that far apart drops out of the products' mean, which is the
+    misfit's square, m_i m_j, with no noise model needed; for a misfit wider than a few px
+    m_i m_j ~ m^2 (stripes of 16 px period keep 85 % of their square). Immediate neighbours
+    share noise wherever a pixel's value is spread over its neighbours (Mitsuba's
+    reconstruction filter in the renders, a camera's demosaicing): on the demo's photos
+    against their low-spp Ward renders, shifted by the misregistration step, products at 1 px
+    gave 4.5 %, at 2 px 1.5 %, at 3 px 0 %. Sizing from the excess loss over the ceiling
     instead (m^2 = 2 sd^2 x excess) underestimated known stripes of 0.96 % RMS as 0.82 %
     and 0.38 % as 0.23 %: the ceiling's own estimation noise and its cross-validated width
-    both lower the excess; a smooth of the training residual times the held-out one as 0.84 %
-    (the held-out pixels lie 1-3 px from the nearest training pixel). A negative mean (noise
-    only) counts as none. Nats per pixel scale with how clean the photos are; this does not,
-    so it can be held to a tolerance (the design's [gap] render_tolerance_pct).
+    both lower the excess. A negative mean (noise only) counts as none. Nats per pixel scale
+    with how clean the photos are; this does not, so it can be held to a tolerance (the
+    design's [gap] render_tolerance_pct).
 
     ``fits``: as :func:`render_where`'s.
     """
@@ -853,8 +860,9 @@ def render_misfit_pct(fits: list) -> float:
         for lv in test.levels:
             m = lv["use"]
             res = np.where(m, lv["P"] - _predict(lv, list(fitted)), 0.0)
-            for a, b, both in ((res[:, :-1], res[:, 1:], m[:, :-1] & m[:, 1:]),
-                               (res[:-1, :], res[1:, :], m[:-1, :] & m[1:, :])):
+            k = _SIZE_LAG_PX
+            for a, b, both in ((res[:, :-k], res[:, k:], m[:, :-k] & m[:, k:]),
+                               (res[:-k, :], res[k:, :], m[:-k, :] & m[k:, :])):
                 cross += float(np.sum((a * b)[both]))
                 pairs += float(both.sum())
             sq_photo += float(np.sum(lv["P"][m] ** 2))
