@@ -440,10 +440,14 @@ class GapSpec:
         the photos and the extended renders counts as a gap beyond the catalogue only if it is
         statistically significant *and* at least this large, as an RMS over the sphere's pixels
         in % of the photos' RMS luminance; a smaller one is reported with its size but not
-        flagged. In (0, 20].
+        flagged. In (0, 20]. Default 1.0 (see the shipped design.toml for why).
+
+    A design written before this section existed has no ``[gap]``: it takes these defaults,
+    so an older lab design still runs sessions and renders (the diagnosis reports the
+    tolerance it used).
     """
 
-    render_tolerance_pct: float
+    render_tolerance_pct: float = 1.0
 
     def __post_init__(self) -> None:
         _require(0.0 < float(self.render_tolerance_pct) <= 20.0,
@@ -687,7 +691,7 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     rd = _section(raw, "render", path)
     render = _build(RenderSpec, rd, "render", path,
                     spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
-    gap = _build(GapSpec, _section(raw, "gap", path), "gap", path)
+    gap = _build(GapSpec, {**asdict(GapSpec()), **raw.get("gap", {})}, "gap", path)
     return StudyDesign(
         gloss=gloss,
         depth=depth,

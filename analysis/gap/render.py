@@ -149,6 +149,7 @@ class RenderData:
     levels : list of dict
         One per gloss level: ``name``, ``P`` (photo), ``D``, ``S`` (h x w float), ``cos_t``
         (view cosine on the sphere), ``rho2`` (squared image radius), ``sd`` (noise SD),
+        ``wider`` (the specular renders of the less glossy levels, on this level's sphere),
         masks ``regions`` (dict), ``fit`` (bool: pixels in the loss), ``use`` (bool: this view's
         pixels).
     """
@@ -286,14 +287,35 @@ def load_render(real_path, sim_path=None) -> RenderData:
                        "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
                        "train": train, "use": fit, "width": w,
                        "noise": noise, "sd": noise_sd(R0, *noise)})
-    # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe).
+    # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe),
+    # brought onto this level's sphere.
     sharp = {lv["name"]: _sharpness(lv) for lv in levels}
     for lv in levels:
-        lv["wider"] = {o["name"]: o["S"] for o in levels if sharp[o["name"]] < sharp[lv["name"]]}
+        lv["wider"] = {o["name"]: _aligned_lobe(o, lv) for o in levels
+                       if sharp[o["name"]] < sharp[lv["name"]]}
     light = _mirror_light(max(levels, key=_sharpness))
     for lv in levels:
         lv["coat"]["mirror"] = _coat_mirror(light, lv)
     return RenderData(levels)
+
+
+def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:
+    """``src``'s specular render on ``dst``'s sphere: each level is a photo of its own sphere,
+    which may sit elsewhere in the frame, at another size, in an image of another size. The
+    lobe's radiance (image / coverage, filled at the silhouette) is resampled (linear) at the
+    point of ``src``'s sphere with the same position relative to its centre and radius, and
+    multiplied by ``dst``'s coverage. Spheres that coincide (within 0.01 px) in images of one
+    size get ``src``'s image unchanged."""
+    (cy0, cx0, r0), (cy1, cx1, r1) = src["geometry"], dst["geometry"]
+    S = src["S"]
+    if S.shape == dst["S"].shape and max(abs(cy0 - cy1), abs(cx0 - cx1), abs(r0 - r1)) < 0.01:
+        return S
+    known = src["cover"] > 0.5
+    rad = _fill(np.where(known, S / np.maximum(src["cover"], 1e-6), 0.0), known)
+    yy, xx = np.mgrid[0:dst["S"].shape[0], 0:dst["S"].shape[1]].astype(float)
+    k = r0 / r1
+    coords = np.array([cy0 + (yy - cy1) * k, cx0 + (xx - cx1) * k])
+    return dst["cover"] * ndimage.map_coordinates(rad, coords, order=1, mode="nearest")
 
 
 def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
@@ -1005,7 +1027,7 @@ def _fit_long_tail(train, chosen):
         name, one = lv["name"], RenderData([lv])
         c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
             one, base + [("long_tail", {"c": {name: c}, "width": {name: g}})])[0],
-            0.0, 1.0, _TAIL_WIDTHS + tuple(lv["wider"]))
+            0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
         cs[name], widths[name] = c, g if isinstance(g, str) else float(g)
     params = {"c": cs, "width": widths}
     params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]

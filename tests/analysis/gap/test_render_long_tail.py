@@ -43,6 +43,29 @@ def test_load_render_offers_each_level_the_wider_lobes_of_the_others(tmp_path):
     assert levels["gloss_020"]["wider"] == {}
 
 
+def test_a_borrowed_lobe_is_brought_onto_this_levels_sphere():
+    """Each level is a photo of its own sphere: borrowed from a sphere 3 px off and 20 %
+    larger in a larger image, the lobe's peak lands at the same place relative to this
+    sphere (before: the other photo's pixels, misplaced; with image sizes that differ, a
+    shape error)."""
+    from analysis.gap.render import _aligned_lobe, _coverage
+
+    def level(shape, cy, cx, r, peak):
+        yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+        cover = _coverage(shape, cy, cx, r)
+        py, px = cy + peak[0] * r, cx + peak[1] * r
+        S = cover * np.exp(-((yy - py) ** 2 + (xx - px) ** 2) / (2 * (0.15 * r) ** 2))
+        return {"S": S, "cover": cover, "geometry": (cy, cx, r)}
+
+    peak = (-0.3, 0.2)  # in radii from the centre
+    dst = level((48, 48), 23.5, 23.5, 16.0, peak)
+    src = level((64, 64), 34.5, 31.5, 19.2, peak)
+    out = _aligned_lobe(src, dst)
+    assert out.shape == dst["S"].shape
+    np.testing.assert_allclose(out / out.max(), dst["S"] / dst["S"].max(), atol=0.03)
+    assert _aligned_lobe(dst, dst) is dst["S"]  # one sphere: the image as it is
+
+
 @pytest.mark.slow
 def test_studio_haze_beside_vignetting_leaves_nothing_beyond_the_catalogue(tmp_path):
     """Mitsuba's GGX haze (2.5 x the Ward alpha, in the studio's room: lamp, window, floor)
