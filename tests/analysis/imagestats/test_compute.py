@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -300,19 +301,26 @@ def test_ctrl_c_with_the_local_cluster_prints_no_worker_tracebacks(tmp_path, rng
     write_render_set(folder, rng, n_images=60)
     out = tmp_path / "stats.parquet"
     parts = tmp_path / "stats.parquet.partial"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
-         "--workers", "2", "--batch-size", "2", "--quiet", "--no-ps"],
-        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, start_new_session=True,
-        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 180
-    while not list(parts.glob("part-*.parquet")):
-        assert proc.poll() is None, proc.stderr.read()
-        assert time.monotonic() < deadline, "no batch was written within 180 s"
-        time.sleep(0.005)
-    os.killpg(proc.pid, signal.SIGINT)
-    err = proc.communicate(timeout=120)[1]
-    assert not out.exists(), "the run finished before Ctrl-C; the test proves nothing"
+    # On a quiet machine the 60 images can all be done before the signal lands (seen once in
+    # `make test`): then the run is started again from scratch, as the resume test does.
+    for _attempt in range(2):
+        out.unlink(missing_ok=True)
+        shutil.rmtree(parts, ignore_errors=True)
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "analysis", "imagestats", str(folder), "--out", str(out),
+             "--workers", "2", "--batch-size", "2", "--quiet", "--no-ps"],
+            cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, start_new_session=True,
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        deadline = time.monotonic() + 180
+        while not list(parts.glob("part-*.parquet")):
+            assert proc.poll() is None, proc.stderr.read()
+            assert time.monotonic() < deadline, "no batch was written within 180 s"
+            time.sleep(0.005)
+        os.killpg(proc.pid, signal.SIGINT)
+        err = proc.communicate(timeout=120)[1]
+        if not out.exists():
+            break
+    assert not out.exists(), "the run finished before Ctrl-C twice; the test proves nothing"
     assert proc.returncode == 130, err
     assert "Traceback" not in err, err
     assert "run the same command to resume" in err
