@@ -1,0 +1,98 @@
+"""Display layer: photometer readings vs the lab's calibration, out of sample.
+
+The workflow a lab follows: calibrate (``python -m calibration run``: ``readings.csv``,
+``validation.csv``, ``calibration.json``), later measure a check run against that calibration
+(``python -m calibration check``: ``readings.csv``, ``warmup.csv``, ``check.json``), then
+diagnose the check's readings (REAL) against the calibration (SIM). The readings a calibration
+was fitted from cannot show its gap: the fit absorbed any offset or gain change. So readings
+that are the calibration's own (same calibration_id, same rows) are never diagnosed: the
+calibration's held-out validation readings are used instead, and the diagnosis says so, or it
+refuses with the fix (:func:`load_display`).
+
+The plain simulation is what stimuli assume about the display: the calibration's gamma model
+at the screen centre, its above-black part scaled by the calibration's uniformity map::
+
+    mu0(d, x, y) = Lmin + (L_cal(d) - Lmin) * rel(x, y)
+
+(``rel`` = 1 without a uniformity map). Each catalogue candidate (registered with
+:func:`analysis.gap.engine.register` under ``"display"``) extends it by one term of::
+
+    mu = Lmin + (L_cal(drive) - Lmin) * rel * gain + offset
+
+====================  ====================================================================
+candidate             term (parameters fitted on the training readings)
+====================  ====================================================================
+black_offset          offset += c (cd/m^2): extra black level or reflected ambient light
+nonuniformity         gain *= 1 + f (x^2 + y^2) / 2 + g x + h y
+warmup_drift          gain *= 1 - w exp(-t / tau), t = s since the first reading, tau at most
+                      3 records long (a slower drift is nearly a constant gain)
+quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma model
+====================  ====================================================================
+
+Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's noise
+``sd^2 = a^2 + (b L)^2``. The noise is measured from pairs of consecutive repeats of the same
+patch (and the check's warm-up series), with slow changes of the display between the two
+readings of a pair modelled as a smooth function of time (:func:`fit_noise_drift`), so a
+warm-up between repeats is not counted as noise. The floor (the loss of a model right up to
+noise) is ``0.5 log(2 pi sd^2) + 0.5`` per reading. The ceiling (:func:`display_ceiling`) is a
+penalised smooth of level, position and time fitted to the residuals; a chosen model that
+stays significantly above it leaves a gap the catalogue does not explain.
+
+Held out: each patch's repeats alternate between two halves, and the halves are cross-fitted
+(:func:`display_folds`: each fitted on the other and held out once), so every reading is held
+out and a small effect seen in few readings (a black offset in the darkest patches) is tested
+on all of them.
+
+Files (the shape every gap layer shares)
+----------------------------------------
+``data.py``
+    Reading and checking the files: :func:`load_display` (out of sample) and its checks.
+``model.py``
+    The simulation: :func:`display_frame` (plain prediction, noise SD), the extended mean,
+    :func:`display_nll` / :func:`display_loss`, the noise and drift fit
+    (:func:`fit_noise_drift`), the held-out folds (:func:`split_display`,
+    :func:`display_folds`) and :func:`display_unit_ids`.
+``ceiling.py``
+    The flexible model and the floor: :func:`display_ceiling`, :func:`display_floor`.
+``where.py``
+    Where the gap lies: :func:`display_where` (words), :func:`localise_display` (numbers).
+``candidates.py``
+    One registered Candidate per effect (the table above), :data:`DISPLAY_CANDIDATES` and
+    :data:`DISPLAY_MIN_SHARE`.
+
+Importing the package registers the display candidates (the engine's ``catalogue("display")``
+imports it).
+"""
+
+from analysis.gap.display.candidates import DISPLAY_CANDIDATES, DISPLAY_MIN_SHARE
+from analysis.gap.display.ceiling import display_ceiling, display_floor
+from analysis.gap.display.data import load_display
+from analysis.gap.display.model import (
+    display_folds,
+    display_frame,
+    display_loss,
+    display_loss_info,
+    display_nll,
+    display_unit_ids,
+    fit_noise_drift,
+    split_display,
+)
+from analysis.gap.display.where import display_where, localise_display
+
+__all__ = [
+    "DISPLAY_CANDIDATES",
+    "DISPLAY_MIN_SHARE",
+    "display_ceiling",
+    "display_floor",
+    "display_folds",
+    "display_frame",
+    "display_loss",
+    "display_loss_info",
+    "display_nll",
+    "display_unit_ids",
+    "display_where",
+    "fit_noise_drift",
+    "load_display",
+    "localise_display",
+    "split_display",
+]

@@ -1,0 +1,256 @@
+"""Display layer, reading and checking the files: a check run's or calibration's readings (REAL)
+and the calibration (SIM), kept out of sample.
+
+The readings a calibration was fitted from cannot show its gap (the fit absorbed any offset or
+gain change), so :func:`load_display` drops them, or stands in the calibration's held-out
+validation readings, or refuses with the fix; it also gathers the readings the photometer's
+noise is measured from. :func:`_times` parses and checks the readings' timestamps for the
+layer's time models.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.gap.engine import GapError
+from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
+
+_MIN_READINGS = 8
+#: Validation readings (one per fraction, no repeats) needed to stand in for in-sample ones:
+#: with the procedure's default 9, chance gains on 4 held-out readings were attributed (1 of
+#: 20 effect-free calibrations); with 17, none of 20.
+_MIN_VALIDATION = 16
+
+
+def _find(path: Path, name: str) -> Path:
+    if path.is_dir():
+        hits = sorted(path.rglob(name))
+        if not hits:
+            raise GapError(f"no {name} under {path}; pass the file or the folder holding it")
+        return hits[0]
+    if not path.is_file():
+        raise GapError(f"{path} not found; pass a {name} file or the folder holding it")
+    return path
+
+
+def _read_any(path: Path) -> pd.DataFrame:
+    """Readings from ``readings.csv`` / ``warmup.csv`` (READINGS_COLUMNS exactly) or from
+    ``validation.csv`` (READINGS_COLUMNS plus target_fraction)."""
+    try:
+        return load_readings(path)
+    except CalibrationError:
+        pass
+    try:
+        frame = pd.read_csv(path, dtype={"raw_reply": str, "calibration_id": str},
+                            keep_default_na=False, on_bad_lines="skip")
+    except (OSError, ValueError) as exc:
+        raise GapError(f"{path} is not a readings CSV ({exc})") from exc
+    missing = [c for c in READINGS_COLUMNS if c not in frame.columns]
+    if missing:
+        raise GapError(f"{path} lacks column(s) {missing}; pass readings.csv, warmup.csv or "
+                       "validation.csv written by the calibration package")
+    frame = frame[list(READINGS_COLUMNS)].copy()
+    for c in ("x_norm", "y_norm", "level", "luminance_cd_m2", "repeat"):
+        frame[c] = pd.to_numeric(frame[c], errors="coerce")
+    frame = frame.dropna(subset=["x_norm", "y_norm", "level", "repeat", "luminance_cd_m2"])
+    frame["repeat"] = frame["repeat"].astype(int)
+    return frame.reset_index(drop=True)
+
+def load_display(real_path, sim_path):
+    """Read the readings to diagnose (REAL) and the calibration (SIM), out of sample.
+
+    Parameters
+    ----------
+    real_path : path
+        A check run's folder (``check.json``, ``readings.csv``, optional ``warmup.csv``), a
+        ``readings.csv`` or ``validation.csv``, or a folder holding one.
+    sim_path : path
+        ``calibration.json`` or the calibration's folder.
+
+    Returns
+    -------
+    (readings, calibration)
+        ``readings.attrs["display_source"]`` says what was diagnosed (``real``, ``kind``:
+        check / readings / validation, ``in_sample_rows``, ``notes``) and
+        ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from.
+
+    Raises
+    ------
+    GapError
+        If a file is missing or malformed; if the readings are the calibration's own and no
+        held-out readings exist (the message names the check run to measure); if fewer than 8
+        readings are left.
+    """
+    real = Path(real_path)
+    cpath, cal = _load_calibration(Path(sim_path))
+    notes: list[str] = []
+    rpath, kind, check = _locate_readings(real, cal, notes)
+    readings = _read_any(rpath)
+    noise_frames = [readings]
+    warm = rpath.parent / "warmup.csv"
+    if check is not None and warm.is_file():
+        noise_frames.append(_read_any(warm))
+    own = cpath.parent / (cal.readings_file or "readings.csv")
+    fitted_rows = _read_any(own) if own.is_file() else None
+    in_fit = _in_fit(readings, fitted_rows, cal, kind, own, notes)
+    n_in = int(in_fit.sum())
+    source = {"real": str(rpath), "calibration": str(cpath), "kind": kind,
+              "in_sample_rows": n_in, "n_rows": len(readings)}
+    if n_in:
+        readings, noise_frames = _out_of_sample(readings, in_fit, fitted_rows, rpath, cpath,
+                                                cal, source, notes)
+    if len(readings) < _MIN_READINGS:
+        raise GapError(f"{rpath}: {len(readings)} readings; the display diagnosis needs "
+                       f">= {_MIN_READINGS}")
+    _add_noise_frames(readings, fitted_rows, noise_frames, notes)
+    source["notes"] = notes
+    for note in notes:
+        warnings.warn(note, stacklevel=2)
+    readings = readings.copy()
+    readings.attrs["display_source"] = source
+    readings.attrs["noise_frames"] = noise_frames
+    return readings, cal
+
+
+def _load_calibration(sim: Path):
+    """``(path of calibration.json, Calibration)`` for the SIM path (the file or its folder);
+    a malformed calibration raises GapError with the calibration package's message."""
+    cpath = _find(sim, "calibration.json")
+    try:
+        cal = load_calibration(cpath)
+    except CalibrationError as exc:
+        raise GapError(str(exc)) from exc
+    return cpath, cal
+
+
+def _locate_readings(real: Path, cal, notes: list[str]):
+    """``(readings path, kind, check record or None)`` for the REAL path: a check run's folder
+    (kind "check"), else a readings file or the folder holding one (kind "validation" when it
+    has a target_fraction column, else "readings"). Appends to ``notes`` when the check run
+    checked another calibration than ``cal``."""
+    check = None
+    if real.is_dir() and (real / "check.json").is_file():
+        check = _read_check(real / "check.json")
+        rpath = real / "readings.csv"
+        if not rpath.is_file():
+            raise GapError(f"check run {real} has no readings.csv; rerun the check to resume")
+        kind = "check"
+        if check["checked_calibration_id"] != cal.calibration_id:
+            notes.append(f"the check run {check['check_id']!r} checked calibration "
+                         f"{check['checked_calibration_id']!r}, but --sim is calibration "
+                         f"{cal.calibration_id!r}; its readings are compared with --sim")
+    else:
+        rpath = real if real.is_file() else _find(real, "readings.csv")
+        kind = "validation" if "target_fraction" in _header(rpath) else "readings"
+    return rpath, kind, check
+
+
+def _in_fit(readings: pd.DataFrame, fitted_rows, cal, kind: str, own: Path,
+            notes: list[str]) -> np.ndarray:
+    """Boolean mask of the readings the calibration was fitted from (same calibration_id, same
+    rows of its readings file ``fitted_rows``). Without that file none are known to be; a note
+    is appended when readings carry the calibration's id all the same."""
+    same_id = readings["calibration_id"].astype(str) == cal.calibration_id
+    if fitted_rows is not None:
+        keys = set(_row_keys_list(fitted_rows))
+        in_fit = np.array([k in keys for k in _row_keys_list(readings)]) & same_id.to_numpy()
+    else:
+        in_fit = np.zeros(len(readings), bool)
+        if kind == "readings" and same_id.any():
+            notes.append(f"{int(same_id.sum())} readings carry the calibration's id "
+                         f"{cal.calibration_id!r} but its readings file ({own}) is missing, so "
+                         "whether they are the ones it was fitted from cannot be checked; if "
+                         "they are, the diagnosis is in-sample and cannot show the gap")
+    return in_fit
+
+
+def _out_of_sample(readings: pd.DataFrame, in_fit: np.ndarray, fitted_rows, rpath: Path,
+                   cpath: Path, cal, source: dict, notes: list[str]):
+    """``(readings, noise_frames)`` without the in-sample readings ``in_fit``: the others when
+    enough are left, else the calibration's held-out validation readings (``source`` then
+    names them); a note says which. Raises GapError, naming the check run to measure, when
+    neither is enough."""
+    n_in = int(in_fit.sum())
+    rest = readings[~in_fit].reset_index(drop=True)
+    msg = (f"{n_in} of {len(readings)} readings in {rpath} are the ones calibration "
+           f"{cal.calibration_id!r} was fitted from (same calibration_id, same rows): an "
+           "in-sample fit absorbs an offset or a gain change, so they cannot show its gap")
+    val = cpath.parent / "validation.csv"
+    if len(rest) >= _MIN_READINGS:
+        notes.append(msg + f"; diagnosing only the other {len(rest)} readings")
+        readings = rest
+    elif val.is_file() and len(_read_any(val)) >= _MIN_VALIDATION:
+        readings = _read_any(val)
+        source |= {"real": str(val), "kind": "validation"}
+        notes.append(msg + f"; diagnosing the calibration's {len(readings)} held-out "
+                     f"validation readings ({val}) instead. For a later state of the "
+                     "display, measure a check run: python -m calibration check "
+                     f"--calibration {cpath.parent} --out CHECK_DIR, then pass --real "
+                     "CHECK_DIR")
+    else:
+        raise GapError(msg + ", and there are not enough held-out readings "
+                       f"(validation.csv with >= {_MIN_VALIDATION} rows) beside {cpath}. "
+                       "Measure a check run: "
+                       f"python -m calibration check --calibration {cpath.parent} --out "
+                       "CHECK_DIR, then pass --real CHECK_DIR")
+    # The calibration's own readings still measure the photometer's noise: a pair of
+    # repeats does not depend on the fit.
+    noise_frames = [readings] + ([fitted_rows] if fitted_rows is not None else [])
+    return readings, noise_frames
+
+
+def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
+                      notes: list[str]) -> None:
+    """Append to ``noise_frames`` the calibration's own readings from the same photometer(s)
+    when they are not there yet; note when the readings themselves have no repeats."""
+    # The photometer's noise does not depend on the calibration's fit: the calibration's own
+    # repeats, taken with the same instrument, measure it too (drift modelled per file).
+    devices = set(readings["device"].astype(str))
+    if fitted_rows is not None and not any(f is fitted_rows for f in noise_frames):
+        same = fitted_rows[fitted_rows["device"].astype(str).isin(devices)]
+        if len(same):
+            noise_frames.append(same)
+    if not _has_pairs(readings) and len(noise_frames) > 1:
+        notes.append("the readings have no repeats: the photometer's noise is measured from "
+                     "the repeated readings of the same photometer beside them")
+
+def _header(path: Path) -> list[str]:
+    with open(path, encoding="utf-8") as fh:
+        return fh.readline().strip().split(",")
+
+
+def _row_keys_list(frame: pd.DataFrame) -> list:
+    return [(str(t), round(float(x), 6), round(float(y), 6), round(float(lv), 6), int(r))
+            for t, x, y, lv, r in zip(frame["timestamp_utc"], frame["x_norm"], frame["y_norm"],
+                                      frame["level"], frame["repeat"])]
+
+
+def _read_check(path: Path) -> dict:
+    try:
+        rec = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise GapError(f"{path} is not valid JSON ({exc}); rerun the check") from exc
+    need = ("kind", "check_id", "checked_calibration_id")
+    if not isinstance(rec, dict) or rec.get("kind") != "check" or any(k not in rec
+                                                                        for k in need):
+        raise GapError(f"{path} is not a check record (needs kind 'check', check_id, "
+                       "checked_calibration_id); pass a folder written by python -m "
+                       "calibration check")
+    return rec
+
+
+def _has_pairs(frame: pd.DataFrame) -> bool:
+    return bool(frame.groupby(["x_norm", "y_norm", "level"]).size().max() >= 2)
+
+
+def _times(frame: pd.DataFrame) -> pd.Series:
+    t = pd.to_datetime(frame["timestamp_utc"], utc=True, errors="coerce", format="ISO8601")
+    if t.isna().any():
+        raise GapError(f"{int(t.isna().sum())} readings have no ISO 8601 timestamp_utc; "
+                       "the drift model needs them (fix or drop those rows)")
+    return t
