@@ -1,4 +1,11 @@
-"""HTML report of a diagnosis: localisation figure, ranked candidates, before/after, verdict."""
+"""HTML report of a diagnosis: the verdict once at the top beside its lead figure, then the
+chosen effects with their parameters as tables, before / after, the gap against the ceiling,
+the ranked candidates and the figures (``analysis.gap.report_figures``).
+
+Every number of ``diagnosis.json`` that the page showed before still shows; a chosen effect's
+parameters read as a table (``analysis.gap.params_table``: names, units, 3 significant digits)
+instead of raw JSON.
+"""
 
 from __future__ import annotations
 
@@ -7,15 +14,37 @@ import json
 import math
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
-
-from analysis.gap.engine import Diagnosis, GapError, _size_words
+from analysis.gap.engine import Diagnosis, GapError
+from analysis.gap.params_table import format_sig, param_rows
+from analysis.gap.report_figures import write_figures
 from labfiles import atomic_open, atomic_write_text, write_new_file
 
-__all__ = ["no_significant_gap", "verdict_text", "write_multi_report", "write_report"]
+__all__ = ["lead_figure", "no_significant_gap", "params_html", "remaining_html", "verdict_text",
+           "write_multi_report", "write_report"]
+
+#: The page's style: a readable measure, the verdict in a band with its lead figure beside it,
+#: figures never wider than the page (and never stretched into empty bands).
+_CSS = """
+body{font-family:"DejaVu Sans",Arial,sans-serif;color:#222;max-width:1180px;margin:1.2em auto;
+padding:0 1em;line-height:1.4}
+h1{font-size:1.6em;margin:0 0 .5em}
+h2{margin:1.6em 0 .5em;padding-top:.6em;border-top:2px solid #ccc}
+h3{font-size:1.08em;margin:1.2em 0 .35em}
+.verdict{display:flex;gap:1.4em;align-items:center;background:#f1f5fa;
+border-left:6px solid #3568b0;padding:.7em 1em;margin:.4em 0 1em}
+.lead{flex:0 0 auto;text-align:center;min-width:10em}
+.lead .figure{display:block;font-size:1.6em;font-weight:bold;white-space:nowrap}
+.lead .what{display:block;font-size:.8em;color:#555;max-width:14em;margin:0 auto .3em}
+.verdict .words{flex:1 1 auto}
+.verdict .words p{margin:.2em 0}
+.warning{color:#8a4400}
+table{border-collapse:collapse;margin:.3em 0 .8em}
+th,td{border:1px solid #bbb;padding:.15em .55em;text-align:left;vertical-align:top}
+th{background:#f4f4f4}
+td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
+ol.steps>li{margin-bottom:.6em}
+img{display:block;max-width:100%;height:auto;margin:.3em 0 1em}
+"""
 
 
 def no_significant_gap(d: Diagnosis) -> bool:
@@ -30,28 +59,18 @@ def no_significant_gap(d: Diagnosis) -> bool:
 
 
 def verdict_text(d: Diagnosis) -> str:
-    """Plain-language verdict (HTML): the diagnosis's summary, the remaining gap, warnings."""
+    """Plain-language verdict (HTML), each part once: the diagnosis's summary (the first
+    chosen effect in bold), how the data were held out, and the warnings. The gap against the
+    ceiling in numbers is :func:`remaining_html`'s table."""
     text = html.escape(d.summary or d.verdict)
     if d.steps and d.verdict != "unexplained":
         text = text.replace(html.escape(d.steps[0]["added"].replace("_", " ")),
                             f"<b>{html.escape(d.steps[0]['added'].replace('_', ' '))}</b>", 1)
+    text = f"<p>{text}</p>"
     if d.split:
-        text += f" <i>Held out: {html.escape(d.split)}.</i>"
-    rem = d.remaining
-    if rem:
-        text += (f"<br>Chosen model vs a flexible model of the data (ceiling): "
-                 f"{rem['gap']:.3f} nats per unit above it (95 % CI {rem['ci'][0]:.3f} to "
-                 f"{rem['ci'][1]:.3f}, one-sided p {rem['p']:.4f}); the catalogue explains "
-                 f"{_pct(d.explained_share)} of the gap, the ceiling {_pct(d.ceiling_share)}.")
-        if "size" in rem:
-            state = ("a gap beyond the catalogue" if rem["significant"] else
-                     "significant in nats but within the tolerance: not counted as a gap "
-                     "beyond the catalogue" if rem.get("within_tolerance") else
-                     "not significant")
-            side = "below" if rem["size"] < rem["tolerance"] else "at or above"
-            text += html.escape(f" What remains: {_size_words(rem, side)}; {state}.")
+        text += f"<p><i>Held out: {html.escape(d.split)}.</i></p>"
     for w in d.warnings:
-        text += f"<br><b>Warning:</b> {html.escape(w)}"
+        text += f'<p class="warning"><b>Warning:</b> {html.escape(w)}</p>'
     return text
 
 
@@ -59,99 +78,148 @@ def _pct(x: float) -> str:
     return f"{100 * x:.0f} %" if math.isfinite(x) else "n/a"
 
 
-def _errorbars(ax, sub, labels):
-    x = range(len(sub))
-    ax.errorbar(x, sub["mean_residual"], yerr=[sub["mean_residual"] - sub["ci_low"],
-                sub["ci_high"] - sub["mean_residual"]], fmt="o")
-    ax.axhline(0, color="k", lw=0.5)
-    ax.set_xticks(list(x))
-    ax.set_xticklabels(labels, rotation=90, fontsize=6)
+def _lead(items: list[tuple[str, str]]) -> str:
+    return '<div class="lead">' + "".join(
+        f'<span class="figure">{html.escape(fig)}</span><span class="what">'
+        f"{html.escape(what)}</span>" for fig, what in items) + "</div>"
 
 
-def _plot_observer(local, path) -> None:
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
-    for ax, resp in zip(axes, ("gloss", "depth")):
-        sub = local[local["response"] == resp].reset_index(drop=True)
-        _errorbars(ax, sub, [f"{g}/{d}/{i}" for g, d, i in
-                             zip(sub["gloss_bin"], sub["depth_bin"], sub["illumination"])])
-        ax.set_title(f"{resp} response - truth (slider units), 95 % CI")
-        ax.set_xlabel("gloss bin / depth bin / illumination")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def _plot_generic(local, path) -> None:
-    """One panel per localisation axis: mean residual per cell with its 95 % CI."""
-    names = list(dict.fromkeys(local["axis"]))
-    fig, axes = plt.subplots(1, len(names), figsize=(5.5 * len(names), 4), squeeze=False)
-    for ax, name in zip(axes[0], names):
-        sub = local[local["axis"] == name].reset_index(drop=True)
-        _errorbars(ax, sub, list(sub["cell"]))
-        ax.set_xlabel(name)
-        ax.set_ylabel(f"residual, 95 % CI\n({sub['unit'].iloc[0]})")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def _plot_maps(maps: dict, path) -> None:
-    """Per gloss level: the photo, and the residual in noise SDs before and after the chosen
-    extensions (the same colour scale, +-5 SD)."""
-    names = list(maps)
-    fig, axes = plt.subplots(len(names), 3, figsize=(7.5, 2.5 * len(names)), squeeze=False)
-    for row, name in zip(axes, names):
-        m = maps[name]
-        row[0].imshow(m["photo"], cmap="gray")
-        row[0].set_ylabel(name)
-        for ax, key in zip(row[1:], ("before", "after")):
-            im = ax.imshow(m[key], cmap="RdBu_r", vmin=-5, vmax=5)
-        for ax, title in zip(row, ("photo", "residual, plain render", "residual, extended")):
-            ax.set_title(title, fontsize=8)
-            ax.set_xticks([])
-            ax.set_yticks([])
-    fig.colorbar(im, ax=axes.ravel().tolist(), shrink=0.6, label="(photo - render) / noise SD")
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def _figures(local, folder: Path) -> str:
-    """Write the layer's figures into ``folder``; returns the extra HTML for the maps."""
-    if "axis" in local.columns:
-        _plot_generic(local, folder / "localisation.png")
+def lead_figure(d: Diagnosis) -> str:
+    """The figure beside the verdict (HTML): 'no significant gap', or the held-out gap before
+    -> after in nats per unit and the share of it the chosen effects explain."""
+    if no_significant_gap(d):
+        return _lead([("no significant gap", "")])
+    items = [(f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
+              "nats per unit above the noise floor, before \u2192 after")]
+    if d.steps:
+        share = _pct(d.explained_share) if math.isfinite(d.explained_share) else "all"
+        items.append((share, "of the gap explained"))
     else:
-        _plot_observer(local, folder / "localisation.png")
-    if local.attrs.get("maps"):
-        _plot_maps(local.attrs["maps"], folder / "residual_maps.png")
-        return "residual_maps.png"
-    return ""
+        items.append(("none", "of the gap explained by the catalogue"))
+    return _lead(items)
+
+
+def _verdict_block(lead: str, words: str) -> str:
+    return f'<div class="verdict">{lead}<div class="words">{words}</div></div>'
+
+
+def _spans(keys: list) -> list[int]:
+    """Row spans of a column whose equal neighbours share one cell: the first row of each
+    run gets the run's length, the others 0."""
+    spans = [0] * len(keys)
+    start = 0
+    for i in range(1, len(keys) + 1):
+        if i == len(keys) or keys[i] != keys[start]:
+            spans[start] = i - start
+            start = i
+    return spans
+
+
+def params_html(layer: str, effect: str, params: dict) -> str:
+    """One chosen effect's parameters as a table (:func:`analysis.gap.params_table.
+    param_rows`): a parameter's rows share its name cell, and its unit cell where the unit
+    is the same; a 'for' column where any value is per level, illumination, response or
+    participant."""
+    rows = param_rows(layer, effect, params)
+    if not rows:
+        return "<p>(no parameters)</p>"
+    per = any(r.where for r in rows)
+    head = "<tr><th>parameter</th>" + ("<th>for</th>" if per else "") + (
+        "<th>value</th><th>unit</th></tr>")
+    names = _spans([r.name for r in rows])
+    units = _spans([(r.name, r.unit) for r in rows])
+    body = []
+    for r, n_name, n_unit in zip(rows, names, units):
+        name = f'<th rowspan="{n_name}">{html.escape(r.name)}</th>' if n_name else ""
+        where = f"<td>{html.escape(r.where)}</td>" if per else ""
+        unit = f'<td rowspan="{n_unit}">{html.escape(r.unit)}</td>' if n_unit else ""
+        body.append(f'<tr>{name}{where}<td class="num">{html.escape(r.value)}</td>{unit}</tr>')
+    return f'<table class="params">{head}{"".join(body)}</table>'
+
+
+def _steps_html(d: Diagnosis) -> str:
+    if not d.steps:
+        return "<p>No effect chosen.</p>"
+    items = "".join(
+        f"<li>+ <b>{html.escape(s['added'])}</b>: held-out gain {s['gain']:.4f} "
+        f"(p={s['p']:.4f})" + params_html(d.layer, s["added"], s["params"]) + "</li>"
+        for s in d.steps)
+    return f'<ol class="steps">{items}</ol>'
+
+
+def _rows_table(rows: list[tuple[str, str]]) -> str:
+    return "<table>" + "".join(f"<tr><th>{html.escape(k)}</th><td>{html.escape(v)}</td></tr>"
+                               for k, v in rows) + "</table>"
+
+
+def remaining_html(d: Diagnosis) -> str:
+    """The chosen model against a flexible model of the data (the ceiling), as a table: the
+    held-out loss above it with its CI and p, the shares of the gap the catalogue and the
+    ceiling explain, and (in a layer with a practical tolerance) the misfit's size, the
+    tolerance and whether it counts. "" without a ceiling."""
+    rem = d.remaining
+    if not rem:
+        return ""
+    above = (f"{rem['gap']:.3f} nats per unit (95 % CI {rem['ci'][0]:.3f} to "
+             f"{rem['ci'][1]:.3f}), one-sided p {rem['p']:.4f}")
+    rows = [("chosen model above the ceiling", above),
+            ("share of the gap the catalogue explains", _pct(d.explained_share)),
+            ("share of the gap the ceiling explains", _pct(d.ceiling_share))]
+    if "size" in rem:
+        unit = rem.get("size_unit", "")
+        tol_unit = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+        source = f" ({rem['size_source']})" if rem.get("size_source") else ""
+        side = "below" if rem["size"] < rem["tolerance"] else "at or above"
+        state = ("a gap beyond the catalogue" if rem["significant"] else
+                 "significant in nats but within the tolerance (not a gap beyond the "
+                 "catalogue)" if rem.get("within_tolerance") else "not significant")
+        rows += [("what remains, its size", f"about {rem['size']:.2g} {unit}".strip()),
+                 ("tolerance", f"{rem['tolerance']:g}{tol_unit}{source}; the misfit is {side} it"),
+                 ("what remains counts as", state)]
+    return ("<h3>Against a flexible model of the data (the ceiling)</h3>" + _rows_table(rows))
+
+
+def _before_after(d: Diagnosis) -> str:
+    shrink = (f"{d.shrink_abs:.4f} (95 % CI {d.shrink_abs_ci[0]:.4f} to "
+              f"{d.shrink_abs_ci[1]:.4f})")
+    share = (f"{d.shrink_pct:.1f} % (95 % CI {d.shrink_pct_ci[0]:.1f} to "
+             f"{d.shrink_pct_ci[1]:.1f} %)")
+    return ("<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats "
+            "per unit)</h3>" + _rows_table([
+                ("before", f"{d.gap_before:.4f}"), ("after", f"{d.gap_after:.4f}"),
+                ("shrink", shrink), ("shrink, share", share)]))
+
+
+def _ranking(d: Diagnosis) -> str:
+    rows = "".join(
+        f'<tr><td>{html.escape(s["name"])}</td><td class="num">{s["gain"]:.4f}</td>'
+        f'<td class="num">[{s["ci_low"]:.4f}, {s["ci_high"]:.4f}]</td>'
+        f'<td class="num">{s["p_holm"]:.4f}</td>'
+        f"<td>{'yes' if s['significant'] else 'no'}</td></tr>" for s in d.ranking)
+    min_gain = (f" and its gain is at least {d.min_gain:g} nats per unit"
+                if d.min_gain > 0 else "")
+    return ("<h3>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided "
+            f"p)</h3><p>A candidate counts when its Holm p is below 0.05{min_gain}.</p>"
+            "<table><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>"
+            f"<th>counts</th></tr>{rows}</table>")
 
 
 def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
                    maps: str = "") -> str:
-    """The body of one layer's report section."""
-    rows = "".join(
-        f"<tr><td>{html.escape(s['name'])}</td><td>{s['gain']:.4f}</td>"
-        f"<td>[{s['ci_low']:.4f}, {s['ci_high']:.4f}]</td><td>{s['p_holm']:.4f}</td>"
-        f"<td>{'yes' if s['significant'] else 'no'}</td></tr>" for s in diag.ranking)
-    steps = "".join(f"<li>+ {html.escape(s['added'])}: held-out gain {s['gain']:.4f} "
-                    f"(p={s['p']:.4f}), parameters {html.escape(json.dumps(s['params']))}</li>"
-                    for s in diag.steps) or "<li>none</li>"
+    """The body of one layer's report section: the verdict with its lead figure, the chosen
+    effects and their parameters, before / after, the ceiling, the ranking, the figures."""
     img = f'<h3>Where</h3><img src="{figure}" alt="localisation">' if figure else ""
-    maps_html = (f'<h3>Residual maps (noise SDs; before and after the chosen extensions)</h3>'
+    maps_html = ('<h3>Residual maps (noise SDs; before and after the chosen extensions)</h3>'
                  f'<img src="{maps}" alt="residual maps">' if maps else "")
-    min_gain = (f" and its gain is at least {diag.min_gain:g} nats per unit"
-                if diag.min_gain > 0 else "")
-    return f"""<p>{verdict_text(diag)}</p>
-<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats per unit)</h3>
-<p>before {diag.gap_before:.4f}; after {diag.gap_after:.4f}; shrink {diag.shrink_abs:.4f}
-(95 % CI {diag.shrink_abs_ci[0]:.4f} to {diag.shrink_abs_ci[1]:.4f}),
-{diag.shrink_pct:.1f} % (95 % CI {diag.shrink_pct_ci[0]:.1f} to {diag.shrink_pct_ci[1]:.1f} %)</p>
-<h3>Ranked candidates (held-out gain, bootstrap 95 % CI, Holm-adjusted one-sided p)</h3>
-<p>A candidate counts when its Holm p is below 0.05{min_gain}.</p>
-<table border="1"><tr><th>candidate</th><th>gain</th><th>CI</th><th>p (Holm)</th>
-<th>counts</th></tr>{rows}</table>
-<h3>Greedy combination</h3><ol>{steps}</ol>{img}{maps_html}"""
+    return (_verdict_block(lead_figure(diag), verdict_text(diag))
+            + "<h3>Chosen effects (greedy combination) and their fitted parameters</h3>"
+            + _steps_html(diag) + _before_after(diag) + remaining_html(diag) + _ranking(diag)
+            + img + maps_html)
+
+
+def _page(title: str, body: str) -> str:
+    return (f'<!doctype html><html><head><meta charset="utf-8"><title>{html.escape(title)}'
+            f"</title><style>{_CSS}</style></head><body>\n{body}\n</body></html>")
 
 
 def _atomic_page(out: Path, page: str) -> Path:
@@ -178,14 +246,21 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
     report."""
     out = Path(out_dir)
     _check_new(out)
-    maps = _figures(local, out)
-    page = f"""<!doctype html><html><head><meta charset="utf-8">
-<title>Sim-to-real gap: {html.escape(diag.layer)}</title></head><body>
-<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>
-{diagnosis_html(diag, maps=maps)}
-<p>seed {diag.seed}</p></body></html>"""
+    maps = write_figures(local, out)
+    page = _page(f"Sim-to-real gap: {diag.layer}",
+                 f"<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>\n"
+                 f"{diagnosis_html(diag, maps=maps)}\n<p>seed {diag.seed}</p>")
     _write_parts(out, diag, local)
     return _atomic_page(out, page)
+
+
+def _which_lead(which: dict) -> str:
+    layer = which.get("layer")
+    if not layer:
+        return _lead([("no significant gap", "at any layer given")])
+    gap = which["gaps"][layer][0]
+    return _lead([(f"{layer} layer", "carries the gap"),
+                  (format_sig(gap), "nats per unit")])
 
 
 def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
@@ -197,18 +272,16 @@ def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
     for name, (diag, local) in results.items():
         sub = out / name
         sub.mkdir(exist_ok=True)
-        maps = _figures(local, sub)
+        maps = write_figures(local, sub)
         _write_parts(sub, diag, local)
         sections.append(f"<h2>{html.escape(name)} layer</h2>"
                         + diagnosis_html(diag, f"{name}/localisation.png",
                                          f"{name}/{maps}" if maps else ""))
-    rows = "".join(f"<tr><td>{html.escape(n)}</td><td>{g[0]:.4f}</td><td>[{g[1]:.4f}, "
-                   f"{g[2]:.4f}]</td></tr>" for n, g in which["gaps"].items())
-    page = f"""<!doctype html><html><head><meta charset="utf-8">
-<title>Sim-to-real gap: all layers</title></head><body>
-<h1>Sim-to-real gap, all layers</h1>
-<p><b>{html.escape(which["text"])}</b></p>
-<table border="1"><tr><th>layer</th><th>held-out gap (nats per unit)</th><th>95 % CI</th></tr>
-{rows}</table>
-{"".join(sections)}</body></html>"""
-    return _atomic_page(out, page)
+    rows = "".join(f'<tr><td>{html.escape(n)}</td><td class="num">{g[0]:.4f}</td>'
+                   f'<td class="num">[{g[1]:.4f}, {g[2]:.4f}]</td></tr>'
+                   for n, g in which["gaps"].items())
+    body = ("<h1>Sim-to-real gap, all layers</h1>\n"
+            + _verdict_block(_which_lead(which), f"<p>{html.escape(which['text'])}</p>")
+            + "<table><tr><th>layer</th><th>held-out gap (nats per unit)</th><th>95 % CI</th>"
+            f"</tr>{rows}</table>\n" + "".join(sections))
+    return _atomic_page(out, _page("Sim-to-real gap: all layers", body))

@@ -74,11 +74,17 @@ def test_a_small_significant_misfit_is_reported_within_the_tolerance(plain_fit, 
     assert "below the tolerance of 1 % (the design's [gap] render_tolerance_pct)" in (
         diag.summary), diag.summary
     assert "mostly in the" in diag.summary and "unexplained by the catalogue" not in diag.summary
-    # The HTML report says the same beside the nats.
-    from analysis.gap.report import verdict_text
+    # The HTML report says the same: the verdict's words once, and the ceiling's table beside
+    # the nats with the size, the tolerance and how it counts.
+    from analysis.gap.report import remaining_html, verdict_text
 
-    assert ("below the tolerance of 1 % (the design&#x27;s [gap] render_tolerance_pct); "
-            "significant in nats but within the tolerance") in verdict_text(diag)
+    assert ("below the tolerance of 1 % (the design&#x27;s [gap] render_tolerance_pct)"
+            in verdict_text(diag))
+    table = remaining_html(diag)
+    assert f"about {rem['size']:.2g} % of the photos&#x27; RMS luminance" in table
+    assert ("1 % (the design&#x27;s [gap] render_tolerance_pct); the misfit is below it"
+            in table)
+    assert "significant in nats but within the tolerance" in table
 
 
 @pytest.mark.slow

@@ -1,0 +1,82 @@
+"""A chosen effect's parameters as rows for people (analysis.gap.params_table): readable
+names, units, 3 significant digits, one row per level / illumination / response."""
+
+from __future__ import annotations
+
+import pytest
+
+from analysis.gap import catalogue
+from analysis.gap.params_table import PARAMS, ParamRow, format_sig, param_rows
+
+
+@pytest.mark.parametrize("value,text", [
+    (0.7857862614134724, "0.786"), (-0.17338036235935594, "-0.173"), (1.062474840957927, "1.06"),
+    (600.0, "600"), (17.4778, "17.5"), (1234.5, "1230"), (9.996, "10"), (0.0012345, "0.00123"),
+    (0.5, "0.5"), (0.0, "0"), (-0.0, "0"), (1e-7, "1e-07"), (2.5e7, "2.5e+07"), (6, "6"),
+    (True, "yes"), ("gloss_020", "gloss_020"), (float("nan"), "nan"), (None, ""),
+])
+def test_format_sig(value, text):
+    assert format_sig(value) == text
+
+
+def test_format_sig_needs_a_digit():
+    with pytest.raises(ValueError, match="at least 1 significant digit"):
+        format_sig(1.0, 0)
+
+
+def test_render_parameters_per_level_as_rows():
+    """The vignetting step of a real render diagnosis (analysis gap diagnose on
+    inject.write_render_fit(vignetting 0.5, seed 1)): scales per level split into their
+    diffuse and specular parts, each part's levels together."""
+    params = {"c": 0.5009257904710719, "c2": -0.17338036235935594,
+              "scale": {"gloss_020": [1.062474840957927, 1.0744645174266922],
+                        "gloss_050": [1.0630221503736024, 1.0629456120249399]}}
+    rows = param_rows("render", "vignetting", params)
+    assert [(r.name, r.where, r.value) for r in rows] == [
+        ("darkening \u221d \u03c1\u00b2", "", "0.501"),
+        ("darkening \u221d \u03c1\u2074", "", "-0.173"),
+        ("diffuse scale", "gloss_020", "1.06"), ("diffuse scale", "gloss_050", "1.06"),
+        ("specular scale", "gloss_020", "1.07"), ("specular scale", "gloss_050", "1.06")]
+    assert rows[0].unit.startswith("fraction") and "gloss fit" in rows[2].unit
+
+
+def test_units_follow_the_value_where_the_form_does():
+    rows = param_rows("render", "long_tail", {"c": {"g20": 0.3, "g50": 0.1},
+                                              "width": {"g20": "g10", "g50": -4.0, "g80": 2.0}})
+    width = {r.where: r for r in rows if r.name == "wing form"}
+    assert width["g20"].value == "g10" and "less glossy level" in width["g20"].unit
+    assert "GTR1" in width["g50"].unit and "Gaussian" in width["g80"].unit
+    assert param_rows("render", "misregistration", {"shift_px": {"g20": [0.1, -0.25]}}) == [
+        ParamRow("render shift down", "g20", "0.1", "px"),
+        ParamRow("render shift right", "g20", "-0.25", "px")]
+
+
+def test_observer_and_display_parameters():
+    assert param_rows("observer", "central_tendency", {"gloss": 0.2, "depth": 0.1}) == [
+        ParamRow("pull toward the slider's middle", f"{r} response", v,
+                 "share of the distance to the middle") for r, v in (("gloss", "0.2"),
+                                                                     ("depth", "0.1"))]
+    gain = param_rows("observer", "illumination_gain", {"gain": {"lab_A": 0.31, "lab_B": -0.29}})
+    assert [(r.where, r.value) for r in gain] == [("lab_A", "0.31"), ("lab_B", "-0.29")]
+    assert param_rows("display", "warmup_drift", {"w": 0.0288555, "tau_s": 801.668}) == [
+        ParamRow("luminance deficit at switch-on", "", "0.0289", "fraction"),
+        ParamRow("warm-up time constant", "", "802", "s")]
+
+
+def test_an_unlisted_effect_reads_its_keys():
+    """A candidate registered later still gets a table: its keys as names, a unit suffix as
+    the unit, nested values per participant as rows."""
+    rows = param_rows("observer", "new_effect", {"offset_px": 1.23456,
+                                                 "per": {"P01": [1, 2.5]}, "on": True})
+    assert rows == [ParamRow("offset", "", "1.23", "px"), ParamRow("per", "P01 / [0]", "1", ""),
+                    ParamRow("per", "P01 / [1]", "2.5", ""), ParamRow("on", "", "yes", "")]
+    assert param_rows("display", "black_offset", {}) == []
+    with pytest.raises(TypeError, match="not a dict"):
+        param_rows("display", "black_offset", [0.05])
+
+
+@pytest.mark.parametrize("layer", ["observer", "display", "render"])
+def test_every_registered_candidate_has_readable_parameters(layer):
+    """Each candidate of the catalogue is listed, so its table has names and units."""
+    for cand in catalogue(layer):
+        assert (layer, cand.name) in PARAMS, (layer, cand.name)
