@@ -11,8 +11,6 @@ from analysis.gap import diagnose
 from analysis.gap.bench_observer import HarderCase, generate_sessions
 from analysis.gap.engine import candidate
 from analysis.gap.observer import (
-    _ceiling_pred,
-    _cell_offsets,
     base_from_params,
     ceiling_loss,
     fit_ceiling,
@@ -20,6 +18,7 @@ from analysis.gap.observer import (
     observer_frame,
     observer_loss,
 )
+from analysis.gap.observer.ceiling import _ceiling_pred, _cell_offsets
 from experiment import load_observer_params
 from studydesign import load_design
 

@@ -1,0 +1,95 @@
+"""Observer layer: session-CSV responses vs a simulated observer (fitted or ideal).
+
+Both responses are modelled in raw slider units (the design's slider spec maps physical units
+to slider positions). The *base* model is the simulation: the observer a lab fitted to its own
+pilot (``python -m experiment fit-observer``, the ``humanlike`` model's population means), an
+observers TOML table, or the observer that generated simulated session CSVs (its mean response
+fitted in the humanlike model's form). Each catalogue candidate (one :class:`Candidate` per
+effect, registered here) extends the base; the per-trial loss is the negative log-likelihood
+of both responses (nats), Gaussian noise censored at the slider ends. The noise SDs are fitted
+on the training data for every model, so a uniformly noisier lab is no gap; noise that changes
+with the stimulus is (the ceiling models it).
+
+The *ceiling* (:func:`fit_ceiling`) is a flexible extension of a model, fitted to the real
+data: the model's mean plus a ridge-penalised correction (a quadratic surface in gloss x depth
+with illumination-specific terms and the previous response), per-cell offsets (stimulus gloss
+x depth x illumination) shrunk across participants (empirical Bayes), a log-linear noise
+variance shrunk toward the model's constant one, and lapse and label-rounding shares; each
+penalty is chosen by held-out loss within the training data. The remaining gap is tested with
+the ceiling built on the *chosen* model, so that the ceiling loses next to nothing where the
+chosen model is right and a shortfall is not hidden by the cost of fitting the flexible model
+from scratch. The noise *floor* is the loss the ceiling over the plain simulation has on data
+it generates itself (its own noise, estimated from the data), not an assumed noise of an ideal
+observer.
+
+Where things are
+----------------
+``model.py``
+    The simulation's prediction and likelihood: :func:`to_slider_units`, the base model
+    (:class:`ObserverBase`, :func:`base_from_params`, :func:`adapt_base`), :func:`predict`,
+    :func:`observer_nll`, :func:`observer_loss` (noise SDs fitted per model),
+    :data:`OBSERVER_MIN_GAIN`.
+``data.py``
+    Reading and checking the files: :func:`read_session_csvs`, :func:`load_sim`
+    (:func:`base_from_sessions`), :func:`check_sim`, :func:`observer_frame` (column checks,
+    slider units, previous response, the base's mean); the held-out scheme
+    (:func:`observer_folds`, :func:`observer_unit_ids`).
+``ceiling.py``
+    The flexible model and the noise floor: :func:`fit_ceiling`, :func:`ceiling_loss`,
+    :func:`ceiling_floor`.
+``where.py``
+    Where the remaining gap lies: :func:`observer_where`, :func:`localise_observer`.
+``candidates.py``
+    The catalogue, one registered :class:`Candidate` per effect
+    (:data:`OBSERVER_CANDIDATES`).
+
+Imports run model <- data, model <- ceiling <- where, model <- candidates; importing this
+package registers the candidates (:func:`analysis.gap.engine.catalogue` imports it for that).
+"""
+
+from analysis.gap.observer.candidates import OBSERVER_CANDIDATES
+from analysis.gap.observer.ceiling import ceiling_floor, ceiling_loss, fit_ceiling
+from analysis.gap.observer.data import (
+    base_from_sessions,
+    check_sim,
+    load_sim,
+    observer_folds,
+    observer_frame,
+    observer_unit_ids,
+    read_session_csvs,
+)
+from analysis.gap.observer.model import (
+    OBSERVER_MIN_GAIN,
+    ObserverBase,
+    adapt_base,
+    base_from_params,
+    observer_loss,
+    observer_nll,
+    predict,
+    to_slider_units,
+)
+from analysis.gap.observer.where import localise_observer, observer_where
+
+__all__ = [
+    "OBSERVER_CANDIDATES",
+    "OBSERVER_MIN_GAIN",
+    "ObserverBase",
+    "adapt_base",
+    "base_from_params",
+    "base_from_sessions",
+    "ceiling_floor",
+    "ceiling_loss",
+    "check_sim",
+    "fit_ceiling",
+    "load_sim",
+    "localise_observer",
+    "observer_folds",
+    "observer_frame",
+    "observer_loss",
+    "observer_nll",
+    "observer_unit_ids",
+    "observer_where",
+    "predict",
+    "read_session_csvs",
+    "to_slider_units",
+]

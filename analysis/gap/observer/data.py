@@ -1,0 +1,233 @@
+"""Reading and checking the observer layer's files (observer layer).
+
+The real responses are session CSVs read with the experiment's own reader
+(:func:`read_session_csvs`); the simulation (``--sim``) is an observers TOML table, simulated
+session CSVs or a frame (:func:`load_sim`, :func:`base_from_sessions`), checked against the real
+data (:func:`check_sim`). :func:`observer_frame` checks the columns and adds the truth in slider
+units, the previous response and the base model's mean; :func:`observer_folds` is the held-out
+scheme (by participant, else by trial) and :func:`observer_unit_ids` names the held-out units.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from analysis.gap.engine import GapError
+from analysis.gap.observer.model import (
+    RESP,
+    ObserverBase,
+    base_from_params,
+    to_slider_units,
+)
+
+__all__ = [
+    "base_from_sessions",
+    "check_sim",
+    "load_sim",
+    "observer_folds",
+    "observer_frame",
+    "observer_unit_ids",
+    "read_session_csvs",
+]
+
+
+# --- reading ------------------------------------------------------------------------------
+
+def read_session_csvs(path: str | Path) -> pd.DataFrame:
+    """Read every ``*.csv`` session file under ``path`` (a folder searched recursively, or one
+    file) with the experiment's own reader (:func:`experiment.read_session`)."""
+    from experiment import DataFileError, read_session
+
+    path = Path(path)
+    if not path.exists():
+        raise GapError(f"{path} does not exist; pass a folder holding <P>_s<N>.csv session files")
+    files = [path] if path.is_file() else sorted(path.rglob("*.csv"))
+    if not files:
+        raise GapError(f"no session CSVs found at {path}; pass a folder holding <P>_s<N>.csv files")
+    frames = []
+    for f in files:
+        try:
+            frames.append(read_session(f))
+        except DataFileError as exc:
+            raise GapError(f"{exc} (session CSVs need the experiment's SESSION_COLUMNS)") from exc
+    out = pd.concat([f for f in frames if len(f)], ignore_index=True) if frames else None
+    if out is None or not len(out):
+        raise GapError(f"the session CSVs at {path} hold no trials")
+    return out
+
+
+# --- the simulation's files ---------------------------------------------------------------
+
+def base_from_sessions(frame: pd.DataFrame, design, *, source: str = "sessions") -> ObserverBase:
+    """The base model of simulated session CSVs: their mean response fitted (least squares,
+    slider units) in the humanlike form; the kind is read from the files' ``app_version``
+    ('simulate_dataset:<kind>') where it says."""
+    s = design.slider
+    mid = 0.5 * (s.min + s.max)
+    gu, du = to_slider_units(s, frame["true_gloss_pct"], frame["true_depth_cm"])
+    g, d = gu - mid, du - mid
+    yg = frame["gloss_match"].to_numpy(float) - mid
+    yd = frame["depth_match"].to_numpy(float) - mid
+    x = np.c_[np.ones(len(g)), g, d, g * d]
+    cg = np.linalg.lstsq(x, yg, rcond=None)[0]
+    cd = np.linalg.lstsq(x[:, [0, 2]], yd, rcond=None)[0]
+    kinds = {str(v).rsplit(":", 1)[1] for v in frame.get("app_version", pd.Series(dtype=str))
+             .dropna().astype(str) if ":" in str(v)}
+    kind = kinds.pop() if len(kinds) == 1 else "unknown"
+    return ObserverBase(kind=kind, source=source,
+                        coef={"gloss": tuple(float(v) for v in cg),
+                              "depth": tuple(float(v) for v in cd)},
+                        participants=tuple(sorted(frame["participant"].astype(str).unique())),
+                        stimuli=_stimuli(frame),
+                        n_illuminations=int(frame["illumination"].nunique()))
+
+
+def _stimuli(frame: pd.DataFrame) -> tuple:
+    pairs = {(round(float(g), 6), round(float(d), 6))
+             for g, d in zip(frame["true_gloss_pct"], frame["true_depth_cm"])}
+    return tuple(sorted(pairs))
+
+
+def load_sim(sim, design, *, kind: str | None = None) -> ObserverBase:
+    """The base model from ``--sim``: an observers TOML (``.toml``: the ``humanlike`` table, or
+    ``kind``), a folder or file of simulated session CSVs, a session frame, or an
+    ``ObserverBase``.
+
+    Raises
+    ------
+    GapError
+        A missing or unreadable file, or a kind the file lacks.
+    """
+    if isinstance(sim, ObserverBase):
+        return sim
+    if isinstance(sim, pd.DataFrame):
+        return base_from_sessions(sim, design)
+    path = Path(sim)
+    if path.suffix.lower() == ".toml":
+        from experiment import load_observer_params
+
+        try:
+            params = load_observer_params(path)
+        except (ValueError, TypeError) as exc:
+            raise GapError(f"--sim {path}: {exc}") from exc
+        kind = kind or "humanlike"
+        if kind not in params:
+            raise GapError(f"--sim {path} has no [{kind}] table; it has {sorted(params)}")
+        fit = params.get("fit") if isinstance(params.get("fit"), Mapping) else None
+        return base_from_params(params[kind], kind if fit is None or kind == "ideal"
+                                else "fitted", design.slider, source=str(path), fit_info=fit)
+    return base_from_sessions(read_session_csvs(path), design, source=str(path))
+
+
+def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:
+    """Warnings where the simulation does not match the real data: participant ids, stimuli
+    or illuminations that differ, or a simulation of the ideal observer (truth + noise),
+    which is not an observer fitted to the lab's data."""
+    out = []
+    real_ids = tuple(sorted(real["participant"].astype(str).unique()))
+    if base.participants:
+        shared = sorted(set(base.participants) & set(real_ids))
+        if base.kind == "fitted" and shared:
+            out.append(f"the observer was fitted to participants {list(base.participants)}, "
+                       f"of whom {shared} are in the data diagnosed: the diagnosis is then "
+                       "in-sample for them; fit to a pilot or to other sessions")
+        elif base.kind != "fitted" and set(base.participants) != set(real_ids):
+            out.append(f"the simulated participants {list(base.participants)} are not the real "
+                       f"ones {list(real_ids)}: their plans (stimulus orders) differ; simulate "
+                       "with the same participant ids")
+    if base.stimuli and base.stimuli != _stimuli(real):
+        out.append(f"the simulated sessions show other stimuli ({len(base.stimuli)} gloss x depth "
+                   f"levels) than the real ones ({len(_stimuli(real))}); simulate with the "
+                   "real data's study design")
+    if base.n_illuminations is not None and base.n_illuminations != real["illumination"].nunique():
+        out.append(f"the simulation has {base.n_illuminations} illuminations, the real data "
+                   f"{real['illumination'].nunique()}")
+    if base.kind == "ideal":
+        out.append("the simulation is the ideal observer (truth + noise), not an observer fitted "
+                   "to your data: the diagnosis names every way your observers differ from "
+                   "the truth; to compare with the humanlike simulation, fit one with python -m "
+                   "experiment fit-observer PILOT_SESSIONS --out observers.toml and pass --sim "
+                   "observers.toml")
+    elif base.kind == "humanlike" and base.source.endswith(".toml"):
+        out.append(f"the simulation is the humanlike table of {base.source}, which was not "
+                   "fitted to a pilot (no [fit] table): fit one with python -m experiment "
+                   "fit-observer PILOT_SESSIONS --out observers.toml")
+    elif base.kind == "unknown":
+        out.append("the simulated sessions do not say which observer made them (app_version)")
+    return out
+
+
+def observer_frame(frame: pd.DataFrame, design, base: ObserverBase | None = None) -> pd.DataFrame:
+    """Add truth in slider units (``gloss_u``, ``depth_u``), the previous response of the same
+    session (``*_prev``, NaN on a session's first trial) and the base model's mean
+    (``*_base``; the ideal observer's without ``base``)."""
+    s = design.slider
+    need = ("participant", "session", "order", "illumination", "gloss_level", "depth_level",
+            "true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match")
+    missing = [c for c in need if c not in frame.columns]
+    if missing:
+        raise GapError(f"session rows lack the columns {missing}")
+    out = frame.copy()
+    bad = ~np.isfinite(out[["gloss_match", "depth_match"]].apply(
+        pd.to_numeric, errors="coerce").to_numpy(float)).all(axis=1)
+    if bad.any():
+        raise GapError(f"{int(bad.sum())} rows have non-numeric matches; drop or fix them")
+    out["participant"] = out["participant"].astype(str)
+    out["gloss_u"], out["depth_u"] = to_slider_units(s, out["true_gloss_pct"],
+                                                     out["true_depth_cm"])
+    out["illumination"] = out["illumination"].astype(str)
+    out = out.sort_values(["participant", "session", "order"]).reset_index(drop=True)
+    for r in RESP:
+        out[f"{r}_match"] = out[f"{r}_match"].astype(float)
+        out[f"{r}_prev"] = out.groupby(["participant", "session"])[f"{r}_match"].shift(1)
+    mid = 0.5 * (s.min + s.max)
+    base = base or base_from_params({}, "ideal", s)
+    mu = base.mean(out["gloss_u"], out["depth_u"], mid)
+    for r in RESP:
+        out[f"{r}_base"] = mu[r]
+    out.attrs["mid"] = mid
+    out.attrs["range"] = (float(s.min), float(s.max))
+    return out
+
+
+# --- held-out units and folds ------------------------------------------------------------
+
+def observer_unit_ids(data: pd.DataFrame) -> list[str]:
+    """Trial names ``participant|session|order`` (the held-out units of the diagnosis)."""
+    return [f"{p}|{s}|{o}" for p, s, o in
+            zip(data["participant"], data["session"], data["order"])]
+
+
+def observer_folds(data: pd.DataFrame, k: int = 5) -> tuple[list, str]:
+    """Deterministic K-fold held-out scheme (no random split, so the seed cannot change it):
+    by participant (sorted ids, id i in fold i mod K, K = min(k, participants)) when there are
+    >= 4 participants, else by trial (presentation order mod K within each session).
+
+    Returns
+    -------
+    (folds, description)
+        ``folds`` a list of (train, test) frames that keep ``data.attrs``.
+    """
+    parts = sorted(data["participant"].unique())
+    if len(parts) >= 4:
+        kk = min(k, len(parts))
+        fold_of = {p: i % kk for i, p in enumerate(parts)}
+        fold = data["participant"].map(fold_of).to_numpy(int)
+        text = f"{kk}-fold by participant ({len(parts)} participants)"
+    else:
+        kk = k
+        rank = data.groupby(["participant", "session"])["order"].rank(method="first")
+        fold = (rank.to_numpy(int) - 1) % kk
+        text = (f"{kk}-fold by trial within each session ({len(parts)} participant(s); >= 4 "
+                "allow held-out participants)")
+    folds = []
+    for f in range(kk):
+        m = fold == f
+        tr, te = data[~m].copy(), data[m].copy()
+        tr.attrs, te.attrs = dict(data.attrs), dict(data.attrs)
+        folds.append((tr, te))
+    return folds, text

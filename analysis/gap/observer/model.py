@@ -1,0 +1,314 @@
+"""The simulation's prediction and likelihood (observer layer).
+
+Both responses are modelled in raw slider units (the design's slider spec maps physical units
+to slider positions, :func:`to_slider_units`). The *base* model (:class:`ObserverBase`) is the
+simulation: the observer a lab fitted to its own pilot (``python -m experiment fit-observer``,
+the ``humanlike`` model's population means), an observers TOML table, or the observer that
+generated simulated session CSVs; :func:`adapt_base` gives each participant their own base
+within the simulation's between-observer spread. :func:`predict` extends the base by the chosen
+catalogue candidates; the per-trial loss (:func:`observer_nll`, :func:`observer_loss`) is the
+negative log-likelihood of both responses (nats), Gaussian noise censored at the slider ends,
+with a lapse and a label-rounding mixture. The noise SDs are fitted on the training data for
+every model (:func:`_fit_sigma`), so a uniformly noisier lab is no gap.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import optimize
+from scipy.special import ndtr
+
+from analysis.gap.engine import GapError, candidate
+
+__all__ = [
+    "OBSERVER_MIN_GAIN",
+    "RESP",
+    "ObserverBase",
+    "adapt_base",
+    "base_from_params",
+    "observer_loss",
+    "observer_nll",
+    "predict",
+    "to_slider_units",
+]
+
+
+RESP = ("gloss", "depth")
+#: A candidate, a step or a remaining gap must be >= 0.02 nats per held-out trial (the
+#: tolerance below which analysis.gap.layers treats a gap as none): with thousands of trials a
+#: gain of a few thousandths of a nat is significant, and one such was attributed on
+#: effect-free data.
+OBSERVER_MIN_GAIN = 0.02
+_LABEL_HALF_WIDTH = 0.025  # slider units: a response this close to a tick label counts as on it
+
+
+def to_slider_units(slider, gloss_pct, depth_cm) -> tuple[np.ndarray, np.ndarray]:
+    """Physical gloss (%) and depth (cm) -> slider positions, the inverse of the design's
+    ``slider.to_gloss_pct`` / ``slider.to_depth_cm`` (linear maps, read off at the slider's
+    ``min`` and one unit above it); not clipped."""
+    lo = float(slider.min)
+    g0, g1 = (float(slider.to_gloss_pct(v)) for v in (lo, lo + 1.0))
+    d0, d1 = (float(slider.to_depth_cm(v)) for v in (lo, lo + 1.0))
+    return (lo + (np.asarray(gloss_pct, float) - g0) / (g1 - g0),
+            lo + (np.asarray(depth_cm, float) - d0) / (d1 - d0))
+
+
+# --- the simulation (base model) ----------------------------------------------------------
+
+@dataclass(frozen=True)
+class ObserverBase:
+    """The simulated observer's mean response in slider units, ``mid`` the slider's middle::
+
+        depth = mid + a_d + b_d (depth_true - mid)
+        gloss = mid + a_g + b_g (gloss_true - mid) + c (depth_true - mid)
+                + k (gloss_true - mid)(depth_true - mid)
+
+    (the experiment's humanlike form; the ideal observer is a = c = k = 0, b = 1).
+
+    Attributes
+    ----------
+    kind : str
+        'ideal', 'humanlike' or 'fitted' (a table written by ``experiment fit-observer``).
+    source : str
+        Where it came from (a path or 'sessions').
+    coef : dict
+        ``{"gloss": (a_g, b_g, c, k), "depth": (a_d, b_d)}``, slider units.
+    participants : tuple of str
+        Participant ids of the simulated sessions (or of the fit), if known.
+    stimuli : tuple
+        Sorted (true_gloss_pct, true_depth_cm) levels of the simulated sessions, if known.
+    n_illuminations : int or None
+    sd : dict or None
+        Between-observer SDs of ``coef`` (same layout, slider units), from a table's
+        ``{mean, sd}`` entries: how far one observer may depart from the population.
+    """
+
+    kind: str
+    source: str
+    coef: dict
+    participants: tuple = ()
+    stimuli: tuple = ()
+    n_illuminations: int | None = None
+    sd: dict | None = None
+
+    def mean(self, gloss_u, depth_u, mid: float) -> dict:
+        g, d = np.asarray(gloss_u, float) - mid, np.asarray(depth_u, float) - mid
+        ag, bg, c, k = self.coef["gloss"]
+        ad, bd = self.coef["depth"]
+        return {"gloss": mid + ag + bg * g + c * d + k * g * d, "depth": mid + ad + bd * d}
+
+
+def _table_means(table: Mapping) -> dict:
+    """A parameter table's population values: numbers as given, ``{mean, sd}`` -> mean."""
+    out = {}
+    for name, spec in table.items():
+        if isinstance(spec, Mapping) and "mean" in spec:
+            out[name] = float(spec["mean"])
+        elif isinstance(spec, (int, float)):
+            out[name] = float(spec)
+    return out
+
+
+def base_from_params(table: Mapping, kind: str, slider, *, source: str = "",
+                     fit_info: Mapping | None = None) -> ObserverBase:
+    """The base model of an observers-TOML table (``ideal`` or ``humanlike``, physical units),
+    at its population means, converted to slider units with the design's slider.
+
+    Raises
+    ------
+    GapError
+        Unknown kind, or a humanlike table missing a parameter.
+    """
+    p = _table_means(table)
+    sd = None
+    if kind == "ideal":
+        coef = {"gloss": (0.0, 1.0, 0.0, 0.0), "depth": (0.0, 1.0)}
+    elif kind in ("humanlike", "fitted"):
+        need = ("depth_slope", "depth_intercept_cm", "gloss_slope", "gloss_intercept_pct",
+                "crosstalk_pct_per_cm", "interaction_per_cm")
+        missing = [n for n in need if n not in p]
+        if missing:
+            raise GapError(f"observer table {source or ''} lacks {missing}; write it with "
+                           "python -m experiment fit-observer")
+        coef = _humanlike_coef(p, slider)
+        var = {r: np.zeros(len(v)) for r, v in coef.items()}
+        for name in need:
+            spec = table.get(name)
+            if isinstance(spec, Mapping) and float(spec.get("sd", 0.0)) > 0:
+                moved = _humanlike_coef({**p, name: p[name] + float(spec["sd"])}, slider)
+                for r in var:
+                    var[r] += (np.asarray(moved[r]) - np.asarray(coef[r])) ** 2
+        sd = {r: tuple(float(v) for v in np.sqrt(var[r])) for r in var}
+    else:
+        raise GapError(f"unknown observer kind {kind!r}; use ideal or humanlike")
+    info = dict(fit_info or {})
+    parts = tuple(str(v) for v in info.get("participants", ()))
+    return ObserverBase(kind=kind, source=source, coef=coef, participants=parts, sd=sd)
+
+
+def _humanlike_coef(p: Mapping, slider) -> dict:
+    """Slider-unit coefficients of the humanlike model at parameters ``p`` (physical units):
+    the physical model evaluated on a grid and read off (exact: both the model and the
+    slider map are linear in each variable)."""
+    mid = 0.5 * (slider.min + slider.max)
+    m_g, m_d = float(slider.to_gloss_pct(mid)), float(slider.to_depth_cm(mid))
+    gu = np.array([mid - 1, mid + 1, mid - 1, mid + 1, mid])
+    du = np.array([mid - 1, mid - 1, mid + 1, mid + 1, mid])
+    g_pct = np.array([float(slider.to_gloss_pct(v)) for v in gu])
+    d_cm = np.array([float(slider.to_depth_cm(v)) for v in du])
+    dh = m_d + p["depth_slope"] * (d_cm - m_d) + p["depth_intercept_cm"]
+    gh = (m_g + p["gloss_slope"] * (g_pct - m_g) + p["crosstalk_pct_per_cm"] * (d_cm - m_d)
+          + p["interaction_per_cm"] * (g_pct - m_g) * (d_cm - m_d) + p["gloss_intercept_pct"])
+    ghu, dhu = to_slider_units(slider, gh, dh)
+    x = np.c_[np.ones(5), gu - mid, du - mid, (gu - mid) * (du - mid)]
+    cg = np.linalg.lstsq(x, ghu - mid, rcond=None)[0]
+    cd = np.linalg.lstsq(x[:, [0, 2]], dhu - mid, rcond=None)[0]
+    return {"gloss": tuple(float(v) for v in cg), "depth": tuple(float(v) for v in cd)}
+
+
+def _base_x(data: pd.DataFrame, r: str) -> np.ndarray:
+    """The base model's regressors of response ``r`` (centred at the slider's middle)."""
+    mid = data.attrs["mid"]
+    g = data["gloss_u"].to_numpy(float) - mid
+    d = data["depth_u"].to_numpy(float) - mid
+    return np.c_[np.ones(len(g)), g, d, g * d] if r == "gloss" else np.c_[np.ones(len(g)), d]
+
+
+def adapt_base(train: pd.DataFrame, test: pd.DataFrame, base: ObserverBase) -> None:
+    """Each participant's own base, in place: where a participant is in both parts (folds by
+    trial), their coefficients are the posterior mean given their training trials, with the
+    simulation's population values as the prior mean and its between-observer SDs as the
+    prior SDs (a random-effects model's best linear unbiased predictor): the simulated
+    observer allows each observer that much individual departure, so it is no gap. Without
+    SDs (the ideal observer, simulated sessions) nothing changes."""
+    if not base.sd or not any(any(v > 0 for v in sd) for sd in base.sd.values()):
+        return
+    lo, hi = train.attrs["range"]
+    shared = set(train["participant"]) & set(test["participant"])
+    for r in RESP:
+        prior_var = np.maximum(np.asarray(base.sd[r], float) ** 2, 1e-10)
+        x_tr, x_te = _base_x(train, r), _base_x(test, r)
+        y = train[f"{r}_match"].to_numpy(float)
+        res = y - train[f"{r}_base"].to_numpy(float)
+        inside = (y > lo + 1e-9) & (y < hi - 1e-9)
+        noise = float(np.var(res[inside]))
+        add_tr, add_te = np.zeros(len(train)), np.zeros(len(test))
+        for pid in shared:
+            m_tr = (train["participant"] == pid).to_numpy() & inside
+            xx = x_tr[m_tr]
+            prec = xx.T @ xx / noise + np.diag(1 / prior_var)
+            delta = np.linalg.solve(prec, xx.T @ res[m_tr] / noise)
+            add_tr[(train["participant"] == pid).to_numpy()] = (
+                x_tr[(train["participant"] == pid).to_numpy()] @ delta)
+            m_te = (test["participant"] == pid).to_numpy()
+            add_te[m_te] = x_te[m_te] @ delta
+        train[f"{r}_base"] = train[f"{r}_base"].to_numpy(float) + add_tr
+        test[f"{r}_base"] = test[f"{r}_base"].to_numpy(float) + add_te
+
+
+# --- the extended model -------------------------------------------------------------------
+
+def predict(data: pd.DataFrame, fitted: list) -> dict:
+    """The base model extended by ``fitted`` (``[(candidate name, params), ...]``, applied in
+    order): ``{"mu": {response: mean}, "sd": {response: 1}, "lapse": rate, "label": weight}``
+    (``sd`` a multiplier of the fitted noise SD)."""
+    pred = {"mu": {r: data[f"{r}_base"].to_numpy(float).copy() for r in RESP},
+            "sd": {r: 1.0 for r in RESP}, "lapse": 0.0, "label": 0.0}
+    for name, p in fitted:
+        pred = candidate("observer", name).apply(data, pred, p)
+    return pred
+
+
+def _nll_parts(data: pd.DataFrame, pred: dict, sigma: dict) -> dict:
+    """Per-trial NLL (nats) of each response."""
+    lam, w = pred["lapse"], pred["label"]
+    lo, hi = data.attrs["range"]
+    out = {}
+    for r in RESP:
+        x = data[f"{r}_match"].to_numpy(float)
+        mu = pred["mu"][r]
+        sd = np.maximum(np.asarray(sigma[r], float) * pred["sd"][r], 1e-6)
+        z = (x - mu) / sd
+        dens = np.exp(-0.5 * z * z) / (sd * np.sqrt(2 * np.pi))
+        # The slider stops at its ends: a response there is a censored draw, whose probability
+        # is the Gaussian tail, spread over the label window so the measure matches rounding.
+        at_lo, at_hi = x <= lo + 1e-9, x >= hi - 1e-9
+        dens = np.where(at_lo, ndtr((lo - mu) / sd) / _LABEL_HALF_WIDTH, dens)
+        dens = np.where(at_hi, ndtr((mu - hi) / sd) / _LABEL_HALF_WIDTH, dens)
+        if w > 0:
+            k = np.clip(np.round(x), lo, hi)
+            on_label = np.abs(x - k) <= _LABEL_HALF_WIDTH
+            p_k = ndtr((k + 0.5 - mu) / sd) - ndtr((k - 0.5 - mu) / sd)
+            dens = (1 - w) * dens + w * on_label * p_k / (2 * _LABEL_HALF_WIDTH)
+        if lam > 0:
+            dens = (1 - lam) * dens + lam / (hi - lo)
+        out[r] = -np.log(np.maximum(dens, 1e-300))
+    return out
+
+
+def _nll(data, pred, sigma) -> np.ndarray:
+    parts = _nll_parts(data, pred, sigma)
+    return parts["gloss"] + parts["depth"]
+
+
+def observer_nll(data: pd.DataFrame, fitted: list, sigma: dict) -> np.ndarray:
+    """Per-trial NLL (nats) of the base extended by ``fitted`` at noise SDs ``sigma``
+    ({'gloss', 'depth'}, slider units), on a frame from :func:`observer_frame`."""
+    return _nll(data, predict(data, fitted), sigma)
+
+
+def _fit_sigma(train: pd.DataFrame, pred: dict) -> dict:
+    """Maximum-likelihood noise SD per response given the prediction (closed form for a plain
+    Gaussian; a bounded search when lapses, label rounding or censored responses count)."""
+    lo, hi = train.attrs["range"]
+    sig, mads, refine = {}, {}, pred["lapse"] > 0 or pred["label"] > 0
+    for r in RESP:
+        x = train[f"{r}_match"].to_numpy(float)
+        res = (x - pred["mu"][r]) / pred["sd"][r]
+        inside = (x > lo + 1e-9) & (x < hi - 1e-9)
+        if not inside.any():
+            raise GapError(f"every {r} response lies at a slider end; nothing to fit")
+        sig[r] = max(float(np.sqrt(np.mean(res[inside] ** 2))), 1e-3)
+        mads[r] = max(1.4826 * float(np.median(np.abs(res[inside] - np.median(res[inside])))),
+                      1e-2)
+        refine = refine or inside.mean() < 0.98
+    if refine:
+        for r in RESP:
+            def f(log_s, r=r):
+                return _nll_parts(train, pred, {**sig, r: float(np.exp(log_s))})[r].sum()
+            opt = optimize.minimize_scalar(
+                f, bounds=(np.log(mads[r] / 3), np.log(3 * max(mads[r], sig[r]))),
+                method="bounded", options={"xatol": 2e-3})
+            sig[r] = float(np.exp(opt.x))
+    return sig
+
+
+def observer_loss(train: pd.DataFrame):
+    """Loss for the engine: noise SDs fitted on ``train`` for each model, per-trial NLL
+    (nats) on the data."""
+    cache = {}
+
+    def loss(data: pd.DataFrame, fitted: list) -> np.ndarray:
+        key = repr(fitted)
+        if key not in cache:
+            cache[key] = _fit_sigma(train, predict(train, fitted))
+        return observer_nll(data, fitted, cache[key])
+    return loss
+
+
+# --- the lapse mixture's E-step (shared by the ceiling and the candidates) ----------------
+
+def _phi(z):
+    return np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)
+
+
+def _gauss_share(res: np.ndarray, sd: np.ndarray, lapse: float, width: float) -> np.ndarray:
+    """Posterior probability that a response is no lapse (the E-step of the lapse mixture)."""
+    if lapse <= 0:
+        return np.ones(res.size)
+    g = (1 - lapse) * _phi(res / sd) / sd
+    return g / (g + lapse / width)

@@ -1,0 +1,131 @@
+"""Where the observer's remaining gap lies (observer layer).
+
+:func:`observer_where` puts into words where the chosen model falls short of the ceiling (which
+response, its mean or its spread, and which trend); :func:`localise_observer` is the table of
+mean residuals from the simulation per gloss x depth x illumination cell with bootstrap CIs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from analysis.gap.observer.ceiling import _ceiling_pred, fit_ceiling
+from analysis.gap.observer.model import RESP, _fit_sigma, _nll_parts, predict
+
+__all__ = ["localise_observer", "observer_where"]
+
+
+_TRENDS = ("gloss", "depth", "gloss x depth", "the previous response")
+
+
+def observer_where(fits: list) -> str:
+    """Words for where the chosen model falls short of the ceiling: which response, its mean or
+    its spread, and the trend (rising or falling with gloss, depth, their product, the previous
+    response, or differing between illuminations) that best describes the shortfall.
+
+    ``fits``: ``[(train, test, fitted, ceiling_loss), ...]`` per fold (see
+    engine.diagnose_losses; the ceiling is refitted here for its predictions)."""
+    rows = []
+    for train, test, fitted, *_ in fits:
+        model = fit_ceiling(train, by_participant=bool(
+            set(train["participant"]) & set(test["participant"])), fitted=fitted)
+        chosen = predict(test, fitted)
+        sig = _fit_sigma(train, predict(train, fitted))
+        c_pred, c_sd = _ceiling_pred(model, test)
+        own = _nll_parts(test, chosen, sig)
+        ceil = _nll_parts(test, c_pred, c_sd)
+        for r in RESP:
+            rows.append(pd.DataFrame({
+                "response": r, "excess": own[r] - ceil[r],
+                "d_mu": c_pred["mu"][r] - chosen["mu"][r],
+                "log_sd": np.log(c_sd[r] / (sig[r] * chosen["sd"][r])),
+                "sd": sig[r] * chosen["sd"][r],
+                "gloss": test["gloss_u"].to_numpy(float),
+                "depth": test["depth_u"].to_numpy(float),
+                "prev": (test[f"{r}_prev"] - test[f"{r}_u"]).fillna(0.0).to_numpy(float),
+                "illumination": test["illumination"].to_numpy(str),
+                "participant": test["participant"].to_numpy(str)}))
+    frame = pd.concat(rows, ignore_index=True)
+    r = frame.groupby("response")["excess"].mean().idxmax()
+    sub = frame[frame["response"] == r]
+    mean_part = float(np.mean(sub["d_mu"] ** 2 / (2 * sub["sd"] ** 2)))
+    ratio2 = np.exp(2 * sub["log_sd"])
+    spread_part = float(np.mean(0.5 * (ratio2 - 1 - np.log(ratio2))))
+    target, what = ((sub["d_mu"], f"in the {r} response") if mean_part >= spread_part
+                    else (sub["log_sd"], f"in the spread of the {r} response"))
+    t = target.to_numpy(float)
+    g = sub["gloss"].to_numpy(float) - sub["gloss"].mean()
+    d = sub["depth"].to_numpy(float) - sub["depth"].mean()
+    feats = {"gloss": g, "depth": d, "gloss x depth": g * d,
+             "the previous response": sub["prev"].to_numpy(float)}
+    corr = {n: _corr(t, v) for n, v in feats.items()}
+    # A shortfall that lives in single stimuli, not in a smooth trend: the stimulus means of
+    # the shortfall hold far more of its variance than the smooth features together.
+    smooth = np.c_[np.ones(t.size), *feats.values(),
+                   *[(sub["illumination"] == i).to_numpy(float) for i in _ill_levels(sub)]]
+    r2_smooth = 1 - np.var(t - smooth @ np.linalg.lstsq(smooth, t, rcond=None)[0]) / max(
+        np.var(t), 1e-12)
+    stim_key = sub["gloss"].round(6).astype(str) + "|" + sub["depth"].round(6).astype(str)
+    r2_stim = float(np.var(pd.Series(t).groupby(stim_key.to_numpy()).transform("mean"))
+                    / max(np.var(t), 1e-12))
+    # Shortfalls of single participants (their own intercepts and slopes), where the same
+    # participants were trained on: a participant-specific linear fit explains far more.
+    parts = sorted(sub["participant"].unique())
+    if len(parts) > 1:
+        who = sub["participant"].to_numpy(str)
+        own = np.c_[*[(who == q) * v for q in parts for v in (np.ones(t.size), g, d)]]
+        r2_own = 1 - np.var(t - own @ np.linalg.lstsq(own, t, rcond=None)[0]) / max(
+            np.var(t), 1e-12)
+        if r2_own > 0.3 and r2_own > 2 * r2_smooth:
+            return (f"{what}, differing between participants (their own intercepts and "
+                    "slopes; the simulation has no such individual differences)")
+    ill_means = sub.assign(t=t).groupby("illumination")["t"].mean()
+    ill_spread = float(ill_means.max() - ill_means.min()) if ill_means.size > 1 else 0.0
+    name = max(corr, key=lambda n: abs(corr[n]))
+    if ill_spread > 2 * np.std(t) * 0.5 and abs(corr[name]) < 0.5:
+        hi_ill = ill_means.idxmax()
+        return f"{what}, differing between illuminations (highest under {hi_ill})"
+    if abs(corr[name]) < 0.3 or r2_smooth < 0.5 * r2_stim:
+        return f"{what}, varying from stimulus to stimulus without a smooth trend"
+    return f"{what}, {'rising' if corr[name] > 0 else 'falling'} with {name}"
+
+
+def _ill_levels(frame: pd.DataFrame) -> list:
+    """Illumination names but the first (dummy coding)."""
+    return sorted(frame["illumination"].unique())[1:]
+
+
+def _corr(a: np.ndarray, b: np.ndarray) -> float:
+    if np.std(a) == 0 or np.std(b) == 0:
+        return 0.0
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+# --- localisation table -------------------------------------------------------------------
+
+def localise_observer(data: pd.DataFrame, design, rng: np.random.Generator,
+                      n_boot: int = 1000) -> pd.DataFrame:
+    """Mean residual (response - the simulation's mean, slider units) per gloss x depth x
+    illumination cell and response, with a 95 % bootstrap CI; cells use the design's analysis
+    bins."""
+    def bin_of(values, bins):
+        out = np.full(len(values), "other", dtype=object)
+        for name, members in bins.items():
+            out[np.isin(np.round(values, 6), np.round(members, 6))] = name
+        return out
+    g = bin_of(data["true_gloss_pct"].to_numpy(float), design.analysis.gloss_bins_pct)
+    d = bin_of(data["true_depth_cm"].to_numpy(float), design.analysis.depth_bins_cm)
+    rows = []
+    for r in RESP:
+        res = data[f"{r}_match"].to_numpy(float) - data[f"{r}_base"].to_numpy(float)
+        frame = pd.DataFrame({"gloss_bin": g, "depth_bin": d,
+                              "illumination": data["illumination"].to_numpy(), "res": res})
+        for key, grp in frame.groupby(["gloss_bin", "depth_bin", "illumination"]):
+            v = grp["res"].to_numpy()
+            b = v[rng.integers(0, v.size, (n_boot, v.size))].mean(axis=1)
+            lo, hi = np.percentile(b, [2.5, 97.5])
+            rows.append({"response": r, "gloss_bin": key[0], "depth_bin": key[1],
+                         "illumination": key[2], "n": v.size, "mean_residual": v.mean(),
+                         "ci_low": lo, "ci_high": hi})
+    return pd.DataFrame(rows)
