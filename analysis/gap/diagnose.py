@@ -7,7 +7,14 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.engine import Diagnosis, GapError, catalogue, diagnose_losses
+from analysis.gap.engine import (
+    Diagnosis,
+    DiagnosisSettings,
+    GapError,
+    LayerFunctions,
+    catalogue,
+    diagnose_losses,
+)
 
 __all__ = ["LAYERS", "diagnose"]
 
@@ -58,12 +65,13 @@ def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None
     def ceiling(tr, te, fitted):
         # The ceiling over the chosen model: what a flexible extension of it still gains.
         return ceiling_loss(fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted), te)
+    functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
+                               ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
+                               unit_ids=observer_unit_ids)
     diag = diagnose_losses(
-        "observer", catalogue("observer"), None, None, observer_loss,
-        lambda te: floor[id(te)], rng=rng, seed=seed, n_boot=n_boot,
-        unit_ids=observer_unit_ids, min_gain=OBSERVER_MIN_GAIN,
-        ceiling=ceiling, ceiling_given_chosen=True, folds=folds, where=observer_where, split=text,
-        warnings=notes,
+        "observer", catalogue("observer"), functions,
+        DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN),
+        rng=rng, seed=seed, folds=folds, split=text, warnings=notes,
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})
@@ -91,12 +99,13 @@ def _display(real, sim, design, *, seed: int, n_boot: int, **_):
     rng = np.random.default_rng(seed)
     data = display_frame(readings, cal)
     folds, text = display_folds(data, rng)
-    diag = diagnose_losses("display", catalogue("display"), None, None,
-                           lambda _train: display_loss, display_floor, rng=rng, seed=seed,
-                           n_boot=n_boot, unit_ids=display_unit_ids,
-                           min_share=DISPLAY_MIN_SHARE, loss_info=display_loss_info(data),
-                           ceiling=display_ceiling, folds=folds, split=text,
-                           where=display_where)
+    functions = LayerFunctions(loss=lambda _train: display_loss, floor=display_floor,
+                               ceiling=display_ceiling, where=display_where,
+                               unit_ids=display_unit_ids)
+    diag = diagnose_losses("display", catalogue("display"), functions,
+                           DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
+                           rng=rng, seed=seed, folds=folds,
+                           loss_info=display_loss_info(data), split=text)
     return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
 
 
@@ -129,20 +138,20 @@ def _render(real, sim, design, *, seed: int, n_boot: int, **_):
         design = load_design()
     rng = np.random.default_rng(seed)
     train, test = split_render(data, rng)
-    diag = diagnose_losses("render", catalogue("render"), train, test, render_loss, render_floor,
-                           rng=rng, seed=seed, n_boot=n_boot, unit_ids=render_unit_ids,
-                           min_share=RENDER_MIN_SHARE, min_gain=RENDER_MIN_GAIN,
-                           ceiling=render_ceiling,
-                           ceiling_given_chosen=True, where=render_where,
-                           size=render_misfit_pct,
-                           min_size=design.gap.render_tolerance_pct,
-                           size_unit=RENDER_SIZE_UNIT,
-                           size_source="the design's [gap] render_tolerance_pct",
-                           # Each held-out pixel its own cluster: the tests' normal limit, with
-                           # no Monte-Carlo error (the split is fixed, so the verdict does not
-                           # depend on the seed). Under the null of nothing systematic left,
-                           # the pixels' camera noise is independent.
-                           cluster_of=str,
+    functions = LayerFunctions(
+        loss=render_loss, floor=render_floor, ceiling=render_ceiling, ceiling_given_chosen=True,
+        where=render_where, size=render_misfit_pct, unit_ids=render_unit_ids,
+        # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
+        # error (the split is fixed, so the verdict does not depend on the seed). Under the
+        # null of nothing systematic left, the pixels' camera noise is independent.
+        cluster_of=str)
+    settings = DiagnosisSettings(n_boot=n_boot, min_share=RENDER_MIN_SHARE,
+                                 min_gain=RENDER_MIN_GAIN,
+                                 min_size=design.gap.render_tolerance_pct,
+                                 size_unit=RENDER_SIZE_UNIT,
+                                 size_source="the design's [gap] render_tolerance_pct")
+    diag = diagnose_losses("render", catalogue("render"), functions, settings, rng=rng,
+                           seed=seed, train=train, test=test,
                            loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
                                                      for lv in data.levels}})
     local = localise_render(data, rng, n_boot=min(n_boot, 500))

@@ -14,6 +14,7 @@ from analysis.gap.engine import (
     out_of_catalogue,
     register,
     register_out_of_catalogue,
+    registry,
     strengths,
 )
 
@@ -22,8 +23,8 @@ from analysis.gap.engine import (
 def scratch_layer(monkeypatch):
     """A layer of one candidate and one out-of-catalogue effect, registered in copies of the
     engine's registries (the real ones are left as they are)."""
-    monkeypatch.setattr(engine, "_REGISTRY", dict(engine._REGISTRY))
-    monkeypatch.setattr(engine, "_OUT_REGISTRY", dict(engine._OUT_REGISTRY))
+    monkeypatch.setattr(registry, "_REGISTRY", dict(registry._REGISTRY))
+    monkeypatch.setattr(registry, "_OUT_REGISTRY", dict(registry._OUT_REGISTRY))
     register("scratch", Candidate("tilt", lambda train, chosen: {}, default_strength=0.2))
     register_out_of_catalogue("scratch", OutOfCatalogue("ripple", lambda *a: None, 0.7))
     return "scratch"

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from analysis.gap.benchmark import draw_schedule
-from analysis.gap.engine import Candidate, diagnose_losses
+from analysis.gap.engine import Candidate, DiagnosisSettings, LayerFunctions, diagnose_losses
 
 N_UNITS = 2000
 
@@ -26,8 +26,9 @@ def _problem(gains: dict, seed: int = 0):
 
 def _diagnose(gains, **kw):
     cands, loss = _problem(gains)
-    return diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
-                           rng=np.random.default_rng(1), seed=1, n_boot=400, **kw)
+    return diagnose_losses("test", cands, LayerFunctions(loss, lambda _d: np.zeros(N_UNITS)),
+                           DiagnosisSettings(n_boot=400, **kw), rng=np.random.default_rng(1),
+                           seed=1)
 
 
 def test_greedy_combination_adds_every_effect_that_helps():
@@ -68,19 +69,20 @@ def test_greedy_re_tests_candidates_that_were_not_significant_at_first():
             out = out - (0.1 if "a" in names else -0.05)
         return out
     cands = [Candidate(n, lambda _train, _chosen: {}) for n in ("a", "b")]
-    diag = diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
-                           rng=np.random.default_rng(1), seed=1, n_boot=400)
+    diag = diagnose_losses("test", cands, LayerFunctions(loss, lambda _d: np.zeros(N_UNITS)),
+                           DiagnosisSettings(n_boot=400), rng=np.random.default_rng(1), seed=1)
     assert not next(s for s in diag.ranking if s["name"] == "b")["significant"]
     assert [s["added"] for s in diag.steps] == ["a", "b"]
 
 
 def _with_ceiling(ceiling_drop: float, floor_shift: float = 0.0, **kw):
     cands, loss = _problem({"a": 0.3})
-    return diagnose_losses("test", cands, None, None, loss,
-                           lambda _d: np.full(N_UNITS, floor_shift), rng=np.random.default_rng(1),
-                           seed=1, n_boot=400, min_gain=0.02, **kw,
-                           ceiling=lambda _tr, _te: loss(None, []) - ceiling_drop,
-                           where=lambda fits: "in the depth response, rising with gloss")
+    functions = LayerFunctions(loss, lambda _d: np.full(N_UNITS, floor_shift),
+                               ceiling=lambda _tr, _te: loss(None, []) - ceiling_drop,
+                               where=lambda fits: "in the depth response, rising with gloss")
+    return diagnose_losses("test", cands, functions,
+                           DiagnosisSettings(n_boot=400, min_gain=0.02, **kw),
+                           rng=np.random.default_rng(1), seed=1)
 
 
 def test_a_gap_beyond_the_catalogue_is_reported_with_where_it_lies():
@@ -122,9 +124,11 @@ def test_cluster_robust_tests_do_not_depend_on_the_seed_and_count_clusters():
     units = [f"u{k:04d}" for k in range(N_UNITS)]
 
     def run(seed, **kw):
-        return diagnose_losses("test", [Candidate("a", lambda _t, _c: {})], None, None, loss,
-                               lambda _d: np.zeros(N_UNITS), rng=np.random.default_rng(seed),
-                               seed=seed, n_boot=300, unit_ids=lambda _d: units, **kw)
+        functions = LayerFunctions(loss, lambda _d: np.zeros(N_UNITS),
+                                   unit_ids=lambda _d: units, **kw)
+        return diagnose_losses("test", [Candidate("a", lambda _t, _c: {})], functions,
+                               DiagnosisSettings(n_boot=300), rng=np.random.default_rng(seed),
+                               seed=seed)
     clustered = [run(s, cluster_of=lambda u: str(int(u[1:]) // 20)) for s in (0, 1, 2)]
     p = {d.ranking[0]["p_one_sided"] for d in clustered}
     assert len(p) == 1  # the same p under every seed
@@ -154,9 +158,11 @@ def test_cross_fitting_averages_each_unit_over_repeats():
 
     def loss_for(_train):
         return lambda data, fitted: data["x"].to_numpy() + (0 if not fitted else -1.0)
-    diag = diagnose_losses("test", [Candidate("c", lambda _t, _c: {})], None, None, loss_for,
-                           lambda d: np.zeros(len(d)), rng=np.random.default_rng(0), seed=0,
-                           n_boot=200, folds=folds, unit_ids=lambda d: list(d["u"]))
+    functions = LayerFunctions(loss_for, lambda d: np.zeros(len(d)),
+                               unit_ids=lambda d: list(d["u"]))
+    diag = diagnose_losses("test", [Candidate("c", lambda _t, _c: {})], functions,
+                           DiagnosisSettings(n_boot=200), rng=np.random.default_rng(0), seed=0,
+                           folds=folds)
     assert diag.heldout == tuple(units["u"])
     assert diag.loss_before == pytest.approx(3.5)
     assert diag.loss_after == pytest.approx(2.5)
@@ -240,9 +246,10 @@ def test_ceiling_given_chosen_sees_each_folds_chosen_candidates():
         seen.append([n for n, _ in fitted])
         return loss(None, fitted) - 0.05  # 0.05 nats per unit the catalogue leaves
 
-    diag = diagnose_losses("test", cands, None, None, loss, lambda _d: np.zeros(N_UNITS),
-                           rng=np.random.default_rng(1), seed=1, n_boot=400, ceiling=ceiling,
-                           ceiling_given_chosen=True)
+    functions = LayerFunctions(loss, lambda _d: np.zeros(N_UNITS), ceiling=ceiling,
+                               ceiling_given_chosen=True)
+    diag = diagnose_losses("test", cands, functions, DiagnosisSettings(n_boot=400),
+                           rng=np.random.default_rng(1), seed=1)
     assert seen == [["a"]]
     assert diag.verdict == "a" and diag.remaining["significant"]
     assert diag.remaining["gap"] == pytest.approx(0.05, abs=1e-9)

@@ -1,0 +1,107 @@
+"""What a diagnosis returns: one :class:`CandidateScore` per candidate and the
+:class:`Diagnosis` record, which round-trips to JSON through :meth:`Diagnosis.to_dict`."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["CandidateScore", "Diagnosis", "jsonable"]
+
+
+@dataclass(frozen=True)
+class CandidateScore:
+    """One candidate alone against the plain simulation (loss units: mean NLL per held-out
+    unit): its mean held-out ``gain``, the 95 % CI ``ci_low``-``ci_high``, the one-sided
+    p-value (H1: gain > 0), the Holm-adjusted one and whether it counts (``p_holm < alpha``
+    and ``gain >= min_gain``)."""
+
+    name: str
+    gain: float
+    ci_low: float
+    ci_high: float
+    p_one_sided: float
+    p_holm: float
+    significant: bool
+
+
+@dataclass(frozen=True)
+class Diagnosis:
+    """Ranking, greedy steps, before/after gap and the remaining gap (loss units: mean NLL per
+    held-out unit).
+
+    ``verdict`` names the chosen candidates (``a + b``) or is ``'unexplained'``; ``summary`` is
+    the plain-language sentence. ``remaining`` (with a ceiling) holds the chosen model's
+    held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
+    in a layer with a practical tolerance also ``size`` (the misfit in the data's units),
+    ``tolerance``, ``size_unit``, ``size_source`` and ``within_tolerance`` (significant in
+    nats but smaller than the tolerance: then ``significant`` is False).
+    ``floor_status`` is ``'ok'`` or ``'misestimated'`` (a gap, before or after, whose 95 % CI
+    lies wholly below zero: the floor is wrong, not the simulation right).
+    ``explained_share``, in [0, 1], is the share of the held-out loss above the floor that the
+    chosen candidates remove or, with a ceiling that removes any, the share of what the ceiling
+    removes (so a share never exceeds what a flexible model of the data allows; all of it
+    where the ceiling removes nothing and the chosen candidates remove something);
+    ``ceiling_share`` is the share of the gap above the floor that the ceiling removes.
+    """
+
+    layer: str
+    ranking: tuple
+    steps: tuple
+    verdict: str
+    gap_before: float
+    gap_after: float
+    shrink_abs: float
+    shrink_abs_ci: tuple
+    shrink_pct: float
+    shrink_pct_ci: tuple
+    seed: int
+    loss_before: float = float("nan")
+    loss_after: float = float("nan")
+    heldout: tuple = ()
+    explained_share: float = float("nan")
+    min_share: float = 0.0
+    min_gain: float = 0.0
+    loss_info: dict | None = None
+    gap_before_ci: tuple = ()
+    gap_after_ci: tuple = ()
+    remaining: dict | None = None
+    ceiling_share: float = float("nan")
+    floor_status: str = "ok"
+    summary: str = ""
+    split: str = ""
+    warnings: tuple = ()
+
+    @property
+    def unexplained_remains(self) -> bool:
+        """True when a gap is left that the catalogue does not explain: with a ceiling, the
+        chosen model (or the plain simulation, if nothing is chosen) falls significantly short
+        of it; without one, nothing (or too little) attributed of a gap above tolerance."""
+        if self.remaining is not None:
+            return bool(self.remaining.get("significant"))
+        if self.verdict != "unexplained":
+            return False
+        return bool(self.steps) or bool(
+            self.gap_before_ci and self.gap_before_ci[0] > max(self.min_gain, 0.0))
+
+    def to_dict(self) -> dict:
+        """The record as plain JSON types, with ``unexplained_remains``."""
+        out = asdict(self)
+        out["ranking"] = [asdict(s) if not isinstance(s, dict) else s for s in self.ranking]
+        out["unexplained_remains"] = self.unexplained_remains
+        return jsonable(out)
+
+
+def jsonable(params):
+    """``params`` with numpy scalars and arrays turned into Python numbers and lists, dict
+    keys into strings (tuples become lists), ready for ``json.dump``."""
+    if isinstance(params, dict):
+        return {str(k): jsonable(v) for k, v in params.items()}
+    if isinstance(params, (list, tuple)):
+        return [jsonable(v) for v in params]
+    if isinstance(params, (np.floating, np.integer, np.bool_)):
+        return params.item()
+    if isinstance(params, np.ndarray):
+        return params.tolist()
+    return params

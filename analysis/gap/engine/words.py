@@ -1,0 +1,115 @@
+"""The diagnosis in words: :func:`summarise` turns a :class:`Diagnosis` into one or two plain
+sentences (the report's verdict), from the floor's status, what remains beyond the catalogue
+and the chosen candidates' share."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from analysis.gap.engine.result import Diagnosis
+
+__all__ = ["summarise", "with_summary"]
+
+
+def _names(steps) -> str:
+    return " + ".join(s["added"].replace("_", " ") for s in steps)
+
+
+def summarise(d: Diagnosis) -> str:
+    """The verdict in one or two plain sentences (no markup)."""
+    if d.floor_status == "misestimated":
+        return _floor_words(d)
+    rem = d.remaining or {}
+    further, within = _remaining_words(rem)
+    if not d.steps:
+        return _nothing_chosen_words(d, rem, further, within)
+    share = (f"{100 * d.explained_share:.0f} %" if np.isfinite(d.explained_share)
+             else "all")
+    if d.verdict == "unexplained":
+        one = len(d.steps) == 1
+        text = (f"{_names(d.steps)} {'reduces' if one else 'reduce'} the gap significantly but "
+                f"{'explains' if one else 'explain'} only {share} of "
+                f"it (an attribution needs {100 * d.min_share:.0f} %): unexplained by the "
+                "catalogue")
+    else:
+        of = " a flexible model of the data removes" if rem else ""
+        verb = "explains" if len(d.steps) == 1 else "explain"
+        text = f"{_names(d.steps)} {verb} {share} of the gap{of}"
+    if further:
+        return f"{text}; {further}."
+    if within:
+        return f"{text}; {within}."
+    if rem:
+        return f"{text}; nothing significant remains beyond a flexible model of the data."
+    return f"{text}."
+
+
+def _floor_words(d: Diagnosis) -> str:
+    """The sentence for a mis-estimated floor (a gap whose CI lies wholly below zero)."""
+    ci = d.gap_before_ci or (float("nan"), float("nan"))
+    which = ("before any extension" if d.gap_before_ci and d.gap_before_ci[1] < 0
+             else "after the chosen extensions")
+    text = (f"The noise floor is mis-estimated: the held-out loss lies below it {which} "
+            f"(gap {d.gap_before:.3f} -> {d.gap_after:.3f} nats per unit; 95 % CI before "
+            f"{ci[0]:.3f} to {ci[1]:.3f}). This is not a match between simulation and data; "
+            "check the floor's inputs.")
+    if d.steps:
+        text += f" Attributed: {_names(d.steps)}."
+    return text
+
+
+def _remaining_words(rem: dict) -> tuple[str, str]:
+    """(further, within): the clause for a gap that remains beyond the catalogue, and the one
+    for a significant remainder within the tolerance; each '' where it does not apply."""
+    further = within = ""
+    nats = (f"{rem.get('gap', float('nan')):.3f} nats per unit above a flexible model of the "
+            f"data, 95 % CI {rem.get('ci', (float('nan'),) * 2)[0]:.3f} to "
+            f"{rem.get('ci', (float('nan'),) * 2)[1]:.3f}")
+    if rem.get("significant"):
+        where = f" {rem['where']}" if rem.get("where") else ""
+        size = f"; {_size_words(rem, 'above')}" if "size" in rem else ""
+        further = (f"a further gap remains, unexplained by the catalogue,{where} ({nats}{size})")
+    elif rem.get("within_tolerance"):
+        where = f", {rem['where']}" if rem.get("where") else ""
+        within = (f"what remains is statistically significant ({nats}) but within the "
+                  f"tolerance: {_size_words(rem, 'below')}{where}; not counted as a gap beyond "
+                  "the catalogue")
+    return further, within
+
+
+def _nothing_chosen_words(d: Diagnosis, rem: dict, further: str, within: str) -> str:
+    """The sentence when no candidate was chosen."""
+    ci = d.gap_before_ci or (float("nan"), float("nan"))
+    if further:
+        return f"No catalogue effect explains the gap; {further}."
+    if within:
+        return f"No catalogue effect improves the simulation; {within}."
+    if rem:
+        return (f"No significant gap: the simulation predicts the held-out data as well as "
+                f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
+                f"CI {-rem['ci'][1]:+.3f} to {-rem['ci'][0]:+.3f}; positive: the simulation "
+                "is better), and no catalogue effect improves it.")
+    if d.gap_before_ci and d.gap_before_ci[0] <= max(d.min_gain, 0.0):
+        above = (f"{d.min_gain:g} nats per unit above the noise floor" if d.min_gain > 0
+                 else "above the noise floor")
+        return (f"No significant gap: the held-out gap ({d.gap_before:.3f} nats per unit, "
+                f"95 % CI {ci[0]:.3f} to {ci[1]:.3f}) is not {above}.")
+    return (f"The gap ({d.gap_before:.3f} nats per unit, 95 % CI {ci[0]:.3f} to "
+            f"{ci[1]:.3f}) is unexplained: no catalogue effect reduces it significantly.")
+
+
+def _size_words(rem: dict, side: str) -> str:
+    """'a misfit of about 0.24 % of the photos' RMS luminance, below the tolerance of 1 % (the
+    design's [gap] render_tolerance_pct)' from a remaining gap's size fields."""
+    unit = rem.get("size_unit", "")
+    tol_unit = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    source = f" ({rem['size_source']})" if rem.get("size_source") else ""
+    return (f"a misfit of about {rem['size']:.2g} {unit}, {side} the tolerance of "
+            f"{rem['tolerance']:g}{tol_unit}{source}").replace("  ", " ")
+
+
+def with_summary(d: Diagnosis) -> Diagnosis:
+    """``d`` with its ``summary`` written by :func:`summarise`."""
+    return replace(d, summary=summarise(d))
