@@ -278,15 +278,12 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
     print(f"warning: {message}", file=sys.stderr if file is None else file)
 
 
-def main(argv: list[str] | None = None) -> int:
-    from calibration.check import CHECK_DEFAULTS
-
-    parser = argparse.ArgumentParser(prog="python -m calibration",
-                                     description="Calibrate the display.")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _add_ports(sub) -> None:
     p = sub.add_parser("ports", help="list serial ports")
     p.set_defaults(func=_cmd_ports)
 
+
+def _add_fake_photometer(sub) -> None:
     p = sub.add_parser("fake-photometer",
                        help="simulated photometer on a pseudo-terminal (prints the port path)")
     p.add_argument("--device", choices=["pr655", "pr650", "ls100"], required=True)
@@ -304,6 +301,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--port-file", default=None, help="also write the port path to this file")
     p.set_defaults(func=_cmd_fake)
 
+
+def _add_run(sub) -> None:
     p = sub.add_parser("run", help="measure, fit and write a calibration (resumes in --out)")
     p.add_argument("--device", choices=["pr655", "pr650", "ls100"], required=True)
     p.add_argument("--port", required=True, help="serial port (python -m calibration ports)")
@@ -326,6 +325,8 @@ def main(argv: list[str] | None = None) -> int:
                         "instrument instead of asking the experimenter")
     p.set_defaults(func=_cmd_run)
 
+
+def _add_fit(sub) -> None:
     p = sub.add_parser(
         "fit", help="fit a readings file (any tool's) into --out, or refit a calibration folder",
         description="`fit READINGS.csv --out DIR` fits a readings file alone: columns level and "
@@ -362,6 +363,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
     p.set_defaults(func=_cmd_fit)
 
+
+def _add_check(sub) -> None:
+    from calibration.check import CHECK_DEFAULTS
+
     p = sub.add_parser(
         "check", help="measure warm-up drift and a few patches against a calibration (no refit)")
     p.add_argument("--calibration", required=True,
@@ -386,12 +391,31 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sim-aim", default=None, help="simulation only (see `run --sim-aim`)")
     p.set_defaults(func=_cmd_check)
 
+
+def _add_default(sub) -> None:
     p = sub.add_parser("default", help="write the default (unmeasured) calibration JSON")
     p.add_argument("--out", required=True)
     p.add_argument("--design", default=None)
     p.set_defaults(func=_cmd_default)
 
-    args = parser.parse_args(argv)
+
+#: One function per subcommand, each adding its parser and handler (``func``); in help order.
+_SUBCOMMANDS = (_add_ports, _add_fake_photometer, _add_run, _add_fit, _add_check, _add_default)
+
+
+def _build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m calibration``: one subparser per subcommand."""
+    parser = argparse.ArgumentParser(prog="python -m calibration",
+                                     description="Calibrate the display.")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in _SUBCOMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Parse ``argv`` and run the subcommand's handler; returns its exit code."""
+    args = _build_parser().parse_args(argv)
     import warnings
 
     warnings.showwarning = _show_warning  # one line per warning, no source line

@@ -246,6 +246,196 @@ def _number(text: str, name: str) -> tuple[float | None, str | None]:
     return v, None
 
 
+def _read_lines(path: Path, own_file: bool | None) -> tuple[str, list[str], tuple[str, ...]]:
+    """The first line as written, the file's lines, and the torn-tail messages.
+
+    ``own_file`` None is decided by the header (exactly :data:`READINGS_COLUMNS`). The
+    procedure's own file is read with the torn-tail rule of :mod:`labfiles` (a torn last row is
+    moved to a side file; its warning is returned, not shown); another tool's file as it is.
+
+    Raises
+    ------
+    CalibrationError
+        If another tool's file is not UTF-8 text.
+    """
+    with open(path, encoding="utf-8-sig", errors="replace") as fh:
+        first = fh.readline()
+    header = [h.strip() for h in next(csv.reader([first]), [])]
+    if own_file is None:
+        own_file = tuple(header) == READINGS_COLUMNS
+    if own_file:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", TornTailWarning)
+            lines = read_records(path, check=csv_fields_check(len(header)))
+        return first, lines, tuple(str(w.message) for w in caught)
+    try:
+        lines = path.read_text(encoding="utf-8-sig").splitlines()
+    except UnicodeDecodeError as exc:
+        raise CalibrationError(f"{path} is not UTF-8 text ({exc}); export it as UTF-8 "
+                               "CSV") from exc
+    return first, lines, ()
+
+
+def _check_header(path: Path, header: list[str], first: str) -> list[str]:
+    """The note on ignored columns, after checking the header's columns.
+
+    Raises
+    ------
+    CalibrationError
+        If a column of :data:`REQUIRED_COLUMNS` is missing (the message names a ';' or tab
+        separator when the header is one such field), or a column appears twice.
+    """
+    missing = [c for c in REQUIRED_COLUMNS if c not in header]
+    if missing:
+        sep = next((name for ch, name in ((";", "';'"), ("\t", "tabs"))
+                    if len(header) == 1 and ch in header[0]), None)
+        hint = (f"; its columns are separated by {sep}: export it as CSV with commas (and a "
+                "decimal point)" if sep else "")
+        raise CalibrationError(
+            f"{path} has no column {missing}; a readings file needs at least the columns "
+            f"{list(REQUIRED_COLUMNS)} (optional: x_norm, y_norm, repeat, timestamp_utc, "
+            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200])
+            + hint)
+    dupes = [c for c in set(header) if header.count(c) > 1]
+    if dupes:
+        raise CalibrationError(f"{path}: column(s) {sorted(dupes)} appear twice in the header")
+    ignored = [c for c in header if c not in READINGS_COLUMNS]
+    return [f"{path}: column(s) {ignored} ignored"] if ignored else []
+
+
+def _row_values(fields: list[str], col: dict[str, int]) -> tuple[dict, str | None]:
+    """One row's numbers: ``(record, None)``, or ``(partial record, why the row is dropped)``.
+
+    A position the file lacks is 0 (the centre); positions are rounded to
+    :data:`POSITION_DECIMALS`; ``repeat`` must be a whole number >= 0 and the luminance >= 0.
+    """
+    rec = {}
+    for name in ("level", "luminance_cd_m2", "x_norm", "y_norm"):
+        if name not in col:
+            rec[name] = 0.0
+            continue
+        rec[name], why = _number(fields[col[name]], name)
+        if why:
+            return rec, why
+    # One position, one value: 1e-12 or -0.0 written by another tool is the centre.
+    for name in ("x_norm", "y_norm"):
+        rec[name] = round(rec[name], POSITION_DECIMALS) + 0.0
+    if "repeat" in col:
+        r, why = _number(fields[col["repeat"]], "repeat")
+        if why is None and (r < 0 or r != int(r)):
+            why = f"repeat {fields[col['repeat']]!r} is not a whole number >= 0"
+        rec["repeat"] = None if why else int(r)
+        if why is not None:
+            return rec, why
+    if rec["luminance_cd_m2"] < 0:
+        return rec, f"luminance_cd_m2 {rec['luminance_cd_m2']:g} is negative"
+    return rec, None
+
+
+def _parse_rows(path: Path, header: list[str], rows: list) -> tuple[list[dict], list[str], int, int]:
+    """The usable rows as records, with their line numbers and levels not yet scaled.
+
+    Returns
+    -------
+    records : list of dict
+        Values of :data:`READINGS_COLUMNS` (``repeat`` only when the file has it) and ``line``.
+    notes : list of str
+        One per dropped row (not a CSV row, a wrong number of fields, an unusable value) and per
+        exact repeat of an earlier row.
+    n_dropped, n_duplicates : int
+        Rows dropped; rows counted once as exact duplicates (looked for only when the file has
+        ``repeat`` or ``timestamp_utc``, which tell readings of one patch apart).
+    """
+    col = {c: header.index(c) for c in header}
+    n = len(header)
+    good, notes, seen, dropped, n_dup = [], [], {}, 0, 0
+    check_dupes = "repeat" in col or "timestamp_utc" in col
+    for line_no, fields in rows:
+        where = f"{path} line {line_no}"
+        if not isinstance(fields, list):
+            notes.append(f"{where} dropped: not a CSV row ({fields[:80]!r})")
+            dropped += 1
+            continue
+        if len(fields) != n:
+            notes.append(f"{where} dropped: {len(fields)} fields, the header has {n}")
+            dropped += 1
+            continue
+        if check_dupes:
+            key = tuple(fields)
+            if key in seen:
+                notes.append(f"{where} repeats line {seen[key]} exactly; counted once")
+                n_dup += 1
+                continue
+            seen[key] = line_no
+        rec, why = _row_values(fields, col)
+        if why is not None:
+            notes.append(f"{where} dropped: {why}")
+            dropped += 1
+            continue
+        rec["line"] = line_no
+        for name in ("calibration_id", "timestamp_utc", "device", "raw_reply"):
+            rec[name] = fields[col[name]].strip() if name in col else ""
+        good.append(rec)
+    return good, notes, dropped, n_dup
+
+
+def _scale_levels(path: Path, records: list[dict], level_scale: float
+                  ) -> tuple[list[dict], list[str]]:
+    """The records whose level, divided by ``level_scale``, lies in [0, 1] (changed in place to
+    the scaled level), and one note per record dropped for its level.
+
+    Raises
+    ------
+    CalibrationError
+        If most levels exceed 1 while read as 0-1 (the message names the ``--level-scale``).
+    """
+    raw = np.asarray([rec["level"] for rec in records], float)
+    if raw.size and level_scale == 1.0 and np.mean(raw > 1) > 0.5:
+        guess = "0-255" if raw.max() <= 255 else ("0-1023" if raw.max() <= 1023 else
+                                                  f"0-{raw.max():g}")
+        raise CalibrationError(
+            f"{path}: levels run up to {raw.max():g}, but levels are read as 0-1; pass "
+            f"--level-scale {guess} (the drive value of full white)")
+    kept, notes = [], []
+    for rec in records:
+        level = rec["level"] / level_scale
+        if not 0 <= level <= 1:
+            notes.append(f"{path} line {rec['line']} dropped: level {rec['level']:g} lies "
+                         f"outside [0, {level_scale:g}]")
+            continue
+        rec["level"] = level
+        kept.append(rec)
+    return kept, notes
+
+
+def _readings_frame(path: Path, records: list[dict], *, has_repeat: bool
+                    ) -> tuple[pd.DataFrame, list[str]]:
+    """The records as a frame of :data:`READINGS_COLUMNS`, and one note per patch and repeat
+    read more than once (every such reading is kept).
+
+    Without a ``repeat`` column a reading's repeat is its order among the readings of its
+    patch (calibration, position, level) in the file.
+    """
+    frame = (pd.DataFrame(records, columns=[*READINGS_COLUMNS, "line"]) if records
+             else _empty_frame())
+    if records and not has_repeat:
+        frame["repeat"] = frame.groupby(["calibration_id", "x_norm", "y_norm", "level"]
+                                        ).cumcount()
+    notes = []
+    if len(frame):
+        frame["repeat"] = frame["repeat"].astype(int)
+        key = ["calibration_id", "x_norm", "y_norm", "level", "repeat"]
+        twice = frame[frame.duplicated(key, keep=False)]
+        for _, grp in twice.groupby(key, sort=False):
+            lines = ", ".join(str(v) for v in grp["line"])
+            notes.append(f"{path} lines {lines}: the same patch and repeat (level "
+                         f"{grp['level'].iloc[0]:.4f} at ({grp['x_norm'].iloc[0]:g}, "
+                         f"{grp['y_norm'].iloc[0]:g}), repeat {grp['repeat'].iloc[0]}) was "
+                         "measured more than once; every reading is used")
+        frame = frame.drop(columns="line")
+    return frame.reset_index(drop=True), notes
+
+
 def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = None
                   ) -> ReadingsTable:
     """Read a readings file (the procedure's or any tool's) and account for every row.
@@ -277,132 +467,17 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
     path = Path(path)
     if not path.is_file() or path.stat().st_size == 0:
         return ReadingsTable(path=path, frame=_empty_frame())
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        first = fh.readline()
-    header = [h.strip() for h in next(csv.reader([first]), [])]
-    if own_file is None:
-        own_file = tuple(header) == READINGS_COLUMNS
-    notes: list[str] = []
-    torn: tuple = ()
-    if own_file:
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", TornTailWarning)
-            lines = read_records(path, check=csv_fields_check(len(header)))
-        torn = tuple(str(w.message) for w in caught)
-        notes += torn
-    else:
-        try:
-            lines = path.read_text(encoding="utf-8-sig").splitlines()
-        except UnicodeDecodeError as exc:
-            raise CalibrationError(f"{path} is not UTF-8 text ({exc}); export it as UTF-8 "
-                                   "CSV") from exc
+    first, lines, torn = _read_lines(path, own_file)
     if not lines:  # a torn header line was moved aside: nothing was recorded
-        return ReadingsTable(path=path, frame=_empty_frame(), notes=tuple(notes), torn=torn)
+        return ReadingsTable(path=path, frame=_empty_frame(), notes=torn, torn=torn)
     header, rows = _parse_csv_lines(lines, path)
-    missing = [c for c in REQUIRED_COLUMNS if c not in header]
-    if missing:
-        sep = next((name for ch, name in ((";", "';'"), ("\t", "tabs"))
-                    if len(header) == 1 and ch in header[0]), None)
-        hint = (f"; its columns are separated by {sep}: export it as CSV with commas (and a "
-                "decimal point)" if sep else "")
-        raise CalibrationError(
-            f"{path} has no column {missing}; a readings file needs at least the columns "
-            f"{list(REQUIRED_COLUMNS)} (optional: x_norm, y_norm, repeat, timestamp_utc, "
-            "calibration_id, device, raw_reply); its header is " + repr(first.strip()[:200])
-            + hint)
-    dupes = [c for c in set(header) if header.count(c) > 1]
-    if dupes:
-        raise CalibrationError(f"{path}: column(s) {sorted(dupes)} appear twice in the header")
-    ignored = [c for c in header if c not in READINGS_COLUMNS]
-    if ignored:
-        notes.append(f"{path}: column(s) {ignored} ignored")
-    col = {c: header.index(c) for c in header}
-    n = len(header)
-
-    good, seen, dropped, n_dup = [], {}, 0, 0
-    check_dupes = "repeat" in col or "timestamp_utc" in col
-    raw_levels = []
-    for line_no, fields in rows:
-        where = f"{path} line {line_no}"
-        if not isinstance(fields, list):
-            notes.append(f"{where} dropped: not a CSV row ({fields[:80]!r})")
-            dropped += 1
-            continue
-        if len(fields) != n:
-            notes.append(f"{where} dropped: {len(fields)} fields, the header has {n}")
-            dropped += 1
-            continue
-        if check_dupes:
-            key = tuple(fields)
-            if key in seen:
-                notes.append(f"{where} repeats line {seen[key]} exactly; counted once")
-                n_dup += 1
-                continue
-            seen[key] = line_no
-        why = None
-        rec = {}
-        for name in ("level", "luminance_cd_m2", "x_norm", "y_norm"):
-            if name not in col:
-                rec[name] = 0.0
-                continue
-            rec[name], why = _number(fields[col[name]], name)
-            if why:
-                break
-        if why is None:
-            # One position, one value: 1e-12 or -0.0 written by another tool is the centre.
-            for name in ("x_norm", "y_norm"):
-                rec[name] = round(rec[name], POSITION_DECIMALS) + 0.0
-        if why is None and "repeat" in col:
-            r, why = _number(fields[col["repeat"]], "repeat")
-            if why is None and (r < 0 or r != int(r)):
-                why = f"repeat {fields[col['repeat']]!r} is not a whole number >= 0"
-            rec["repeat"] = None if why else int(r)
-        if why is None and rec["luminance_cd_m2"] < 0:
-            why = f"luminance_cd_m2 {rec['luminance_cd_m2']:g} is negative"
-        if why is not None:
-            notes.append(f"{where} dropped: {why}")
-            dropped += 1
-            continue
-        raw_levels.append(rec["level"])
-        rec["line"] = line_no
-        for name in ("calibration_id", "timestamp_utc", "device", "raw_reply"):
-            rec[name] = fields[col[name]].strip() if name in col else ""
-        good.append(rec)
-
-    raw = np.asarray(raw_levels, float)
-    if raw.size and level_scale == 1.0 and np.mean(raw > 1) > 0.5:
-        guess = "0-255" if raw.max() <= 255 else ("0-1023" if raw.max() <= 1023 else
-                                                  f"0-{raw.max():g}")
-        raise CalibrationError(
-            f"{path}: levels run up to {raw.max():g}, but levels are read as 0-1; pass "
-            f"--level-scale {guess} (the drive value of full white)")
-    kept = []
-    for rec in good:
-        level = rec["level"] / level_scale
-        if not 0 <= level <= 1:
-            notes.append(f"{path} line {rec['line']} dropped: level {rec['level']:g} lies "
-                         f"outside [0, {level_scale:g}]")
-            dropped += 1
-            continue
-        rec["level"] = level
-        kept.append(rec)
-    frame = pd.DataFrame(kept, columns=[*READINGS_COLUMNS, "line"]) if kept else _empty_frame()
-    if kept and "repeat" not in col:
-        frame["repeat"] = frame.groupby(["calibration_id", "x_norm", "y_norm", "level"]
-                                        ).cumcount()
-    if len(frame):
-        frame["repeat"] = frame["repeat"].astype(int)
-        key = ["calibration_id", "x_norm", "y_norm", "level", "repeat"]
-        twice = frame[frame.duplicated(key, keep=False)]
-        for _, grp in twice.groupby(key, sort=False):
-            lines = ", ".join(str(v) for v in grp["line"])
-            notes.append(f"{path} lines {lines}: the same patch and repeat (level "
-                         f"{grp['level'].iloc[0]:.4f} at ({grp['x_norm'].iloc[0]:g}, "
-                         f"{grp['y_norm'].iloc[0]:g}), repeat {grp['repeat'].iloc[0]}) was "
-                         "measured more than once; every reading is used")
-        frame = frame.drop(columns="line")
-    return ReadingsTable(path=path, frame=frame.reset_index(drop=True), notes=tuple(notes),
-                         n_rows=len(rows), n_dropped=dropped, n_duplicates=n_dup,
+    header_notes = _check_header(path, header, first)
+    records, row_notes, n_bad, n_dup = _parse_rows(path, header, rows)
+    records, level_notes = _scale_levels(path, records, level_scale)
+    frame, twice_notes = _readings_frame(path, records, has_repeat="repeat" in header)
+    notes = (*torn, *header_notes, *row_notes, *level_notes, *twice_notes)
+    return ReadingsTable(path=path, frame=frame, notes=notes, n_rows=len(rows),
+                         n_dropped=n_bad + len(level_notes), n_duplicates=n_dup,
                          columns=tuple(header), torn=torn)
 
 

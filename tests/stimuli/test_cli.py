@@ -17,8 +17,9 @@ import pandas as pd
 import pytest
 from PIL import Image
 
-from stimuli import load_manifest, read_exr, verify_manifest
+from stimuli import load_manifest, verify_manifest
 from stimuli.__main__ import main
+from stimuli.illumination import read_exr
 
 TINY = ["--size", "32", "--spp", "4", "--no-progress"]
 

@@ -6,14 +6,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from stimuli import (
-    GLOSS_TABLE_COLUMNS,
-    GlossTableError,
-    default_gloss_table,
-    load_gloss_table,
-    ward_params_for_gloss,
-    write_gloss_table,
-)
+from stimuli import default_gloss_table, ward_params_for_gloss
+from stimuli.errors import GlossTableError
+from stimuli.glosstable import GLOSS_TABLE_COLUMNS, load_gloss_table, write_gloss_table
 
 
 def test_default_table_covers_the_design(design):

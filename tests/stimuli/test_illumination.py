@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from stimuli import IlluminationError, load_light_probe, read_exr, write_exr
-from stimuli.illumination import luminance, rotate_latlong, solid_angle_weights
+from stimuli import load_light_probe
+from stimuli.errors import IlluminationError
+from stimuli.illumination import (
+    luminance,
+    read_exr,
+    rotate_latlong,
+    solid_angle_weights,
+    write_exr,
+)
 
 
 @pytest.mark.parametrize("name", ["interior.exr", "courtyard.exr"])

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from stimuli import apply_filters, parse_filters, stimulus_set
+from stimuli import apply_filters, stimulus_set
+from stimuli.sets import parse_filters
 
 
 def test_experiment_set_is_the_design_with_one_array_per_depth(design):

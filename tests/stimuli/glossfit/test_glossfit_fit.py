@@ -41,7 +41,7 @@ def test_output_folder(ward_fit):
     fits = pd.read_csv(out / "fits.csv")
     assert list(fits.columns) == FITS_COLUMNS
     assert set(fits["method"]) == {"basis"}
-    from stimuli import load_gloss_table
+    from stimuli.glosstable import load_gloss_table
 
     table = load_gloss_table(out / "gloss_table.csv")
     assert list(table["gloss_pct"]) == [50.0, 100.0]
