@@ -1,0 +1,145 @@
+"""Render layer: photos of the physical spheres vs their fitted Ward renders.
+
+Input: the gloss fit's output folder (``OUT_DIR/residuals/*.npz``, one per gloss level, with
+float32 ``photo``, ``render``, ``diffuse``, ``specular`` (h x w x 3, linear, photo units) and
+boolean masks ``highlight``, ``body``, ``rim``, ``background``, ``sphere``, ``valid``), and, if
+there, ``OUT_DIR/fit.json``, whose ``setup`` gives the camera's distance and the sphere's radius
+(cm). Everything is compared in Rec. 709 luminance.
+
+The plain simulation predicts the photo by the render ``R = B + D + S`` (background, the
+panorama around the sphere, which reaches into the rim's edge pixels; diffuse; specular). Each
+candidate is an image-space or component-space extension (approximations, documented):
+
+=================  ===========================================================================
+candidate          extension (c = fitted amplitude; geometry from the sphere mask, orthographic
+                   unless noted)
+=================  ===========================================================================
+fresnel            S * (1 + c (1 - cos t)^5): Schlick's rise towards grazing view, with the
+                   view angle t (cos t = sqrt(1 - r^2), r = distance from the sphere's centre in
+                   radii) standing in for the half-vector angle
+clearcoat          D * (1 + c (T(t) g - 1)), T = (1 - F(t)) / (1 - F(0)), F the exact
+                   Fresnel reflectance of a coat of IOR 1.5: diffuse light leaves through the
+                   coat at the view angle t, dimmed towards grazing, having entered it at the
+                   light's angles: g = E_T / E, the irradiance weighted by T at entry over the
+                   plain irradiance; g = 1 (entry "surround": a uniform surround, its entry
+                   loss in rho_d), T(t) ("view": light along the view), ("lights") from the
+                   diffuse shading fitted as a surround (spherical harmonics of bands 0-1) plus
+                   a round key light (direction and half-angle searched from the highlight's
+                   mirror direction), or ("mirror") from the room as the glossiest level's
+                   specular render mirrors it (each pixel's light from its mirror direction);
+                   T g normalised at the centre; the entry chosen by the fit. Normals and
+                   view directions are a pinhole's when the folder's fit.json gives the
+                   camera distance and sphere radius (the gloss fit's setup), else
+                   orthographic
+vignetting         R * (1 - c rho^2 - c2 rho^4), rho = distance from the image centre / half
+                   diagonal (two terms of real lenses' calibration polynomial)
+veiling_glare      R + c G_s * R: a blurred copy of the image spread by the lens (Gaussian, s
+                   from a grid of large widths, or a power law (1 + (r / w)^2)^(-3/2) with a
+                   narrow core w, from a grid)
+misregistration    R shifted by (dx, dy) px per gloss level: the radiance by cubic splines, the
+                   silhouette's pixel coverage recomputed at the shifted sphere
+long_tail          S + c (W - S): highlight energy moved into wider wings W, either the lobe
+                   blurred (Gaussian, 1-8 px, or a GTR1 haze's kernel 1 / (1 + (r / w)^2),
+                   w 2-16 px), raised to a power k < 1 (a Ward lobe of alpha / sqrt(k)), or
+                   a less glossy level's specular render (the same room through a wider
+                   lobe: a haze reflects the room into the body, where the lobe itself shows
+                   little of it), at the same energy; c and the form (from a grid) per
+                   gloss level, as the tails' width follows the lobe's
+=================  ===========================================================================
+
+With every extension the Ward fit's diffuse and specular scales (its rho_d, rho_s) are fitted
+again per level, as the gloss fit would have done had it known the effect.
+
+Loss: Gaussian NLL per pixel on the sphere (highlight, body, rim; valid pixels) with a
+Poisson-Gaussian noise model per level, ``sd^2 = a2 + b R`` (read noise and shot noise of the
+camera; the render's Monte-Carlo noise grows with the signal too), measured from the second
+differences of photo - render (:func:`noise_model`; a smooth misfit drops out), so the floor is
+``0.5 log(2 pi sd^2) + 0.5`` per pixel. A constant SD would count a highlight's shot noise as a
+gap. Held out: pixels in a checkerboard of 4 x 4 blocks (half train, half test) in every level.
+
+Each candidate is one object registered with the engine (``register("render", ...)``): its fit,
+its term (``apply``, in the registration order), its injector (the effect built into a Mitsuba
+material or the camera, drawn with the benchmark's renderer), its default strength and the
+parameters a right fit recovers. The ceiling (:func:`render_ceiling`) is the chosen model plus a
+local smooth of what it leaves; a chosen model that stays significantly above it leaves a gap
+outside the catalogue.
+
+Files (each imports only those above it; the model is the bottom, as the reader measures each
+photo's noise with its noise model):
+
+=============  ===============================================================================
+model.py       the photo's noise model, the effects' image-forming forms, the extended render
+               and its likelihood (Gaussian NLL), pixel units and the held-out split, and the
+               fit helpers the candidates share (the diffuse and specular scales' fit)
+data.py        reading and checking the residual files and fit.json (:func:`load_render`,
+               :class:`RenderData`) with the geometry and the coat's entry factors computed
+               once per level
+ceiling.py     the floor, the ceiling (:func:`render_ceiling`) and the remaining misfit's size
+               (:func:`render_misfit_pct`), with the thresholds for what counts
+where.py       where the misfit lies (:func:`render_where`, :func:`localise_render`,
+               :func:`residual_maps`)
+candidates.py  one registered Candidate per effect (its term, fit and injector), in the order
+               their terms apply
+=============  ===============================================================================
+
+Importing the package registers the candidates (the engine's ``catalogue("render")`` imports
+it).
+"""
+
+# The private names are re-exported for the tests that reach them (as before the split).
+from analysis.gap.render.candidates import RENDER_CANDIDATES
+from analysis.gap.render.ceiling import (
+    RENDER_MIN_GAIN,
+    RENDER_MIN_SHARE,
+    RENDER_SIZE_UNIT,
+    render_ceiling,
+    render_floor,
+    render_misfit_pct,
+)
+from analysis.gap.render.data import (
+    NPZ_ARRAYS,
+    NPZ_MASKS,
+    RenderData,
+    load_render,
+)
+from analysis.gap.render.data import _aligned_lobe as _aligned_lobe
+from analysis.gap.render.data import _camera_distance as _camera_distance
+from analysis.gap.render.data import _coat_mirror as _coat_mirror
+from analysis.gap.render.data import _mirror_light as _mirror_light
+from analysis.gap.render.data import _sphere_view as _sphere_view
+from analysis.gap.render.model import _coverage as _coverage
+from analysis.gap.render.model import _fill as _fill
+from analysis.gap.render.model import _glare_blur as _glare_blur
+from analysis.gap.render.model import _predict as _predict
+from analysis.gap.render.model import _wider_lobe as _wider_lobe
+from analysis.gap.render.model import _wings as _wings
+from analysis.gap.render.model import (
+    noise_model,
+    noise_sd,
+    render_loss,
+    render_unit_ids,
+    split_render,
+)
+from analysis.gap.render.where import localise_render, residual_maps
+from analysis.gap.render.where import render_where as render_where
+
+__all__ = [
+    "NPZ_ARRAYS",
+    "NPZ_MASKS",
+    "RENDER_CANDIDATES",
+    "RENDER_MIN_GAIN",
+    "RENDER_MIN_SHARE",
+    "RENDER_SIZE_UNIT",
+    "RenderData",
+    "load_render",
+    "localise_render",
+    "noise_model",
+    "noise_sd",
+    "render_ceiling",
+    "render_floor",
+    "render_loss",
+    "render_misfit_pct",
+    "render_unit_ids",
+    "residual_maps",
+    "split_render",
+]

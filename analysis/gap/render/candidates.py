@@ -1,0 +1,257 @@
+"""The render layer's catalogue: one registered Candidate per effect.
+
+fresnel, long_tail, clearcoat, veiling_glare, vignetting and misregistration, registered in
+the order their terms apply (``model._basis``). Each has its term (``_apply_*``, with the forms
+of ``model``; the package's docstring tabulates them), its fit (one bounded amplitude and a
+form from a grid, ``model._fit_amp``, or its own: ``_fit_long_tail``, ``_fit_vignetting``,
+``_fit_misregistration``), its injector (``_inject_*``: the effect built into a Mitsuba material
+or the camera), its default strength and the parameters a right fit recovers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import optimize
+
+from analysis.gap.engine import Candidate, catalogue, register
+from analysis.gap.render.data import _FRESNEL_CAPS, RenderData
+from analysis.gap.render.model import (
+    _basis,
+    _best_on_grid,
+    _fit_amp,
+    _glare_blur,
+    _scaled_residuals,
+    _scaled_sse,
+    _shift_scene,
+    _wider_lobe,
+    _wings,
+)
+
+#: Glare spreads (x image width): a Gaussian's SD (> 0) or a power-law kernel's core (< 0).
+_GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
+#: Where the diffuse light entered the coat (see _coat_t, _coat_lights and _coat_mirror): from
+#: a uniform surround, along the view, from the lights seen in the shading and the highlight,
+#: or from the room seen in the specular render.
+_COAT_ENTRY = ("surround", "view", "lights", "mirror")
+#: Wing forms (see _wings): Gaussian blur px (>= 1), lobe power (in (0, 1)) or a GTR1 kernel
+#: of that many px half width (< 0); besides these, each less glossy level's name (_wider_lobe).
+_TAIL_WIDTHS = (1.0, 2.0, 4.0, 8.0, 0.5, 0.25, 0.12, -2.0, -4.0, -8.0, -16.0)
+
+
+# --- each effect's term (the forms in model) ------------------------------------------------
+
+def _apply_fresnel(lv, im, q):
+    return im | {"S": im["S"] * (1 + q["c"] * lv["fres5"][q["kappa"]])}
+
+
+def _apply_long_tail(lv, im, q):
+    c, width = q["c"].get(lv["name"], 0.0), q["width"].get(lv["name"], 1.0)
+    if isinstance(width, str):
+        wide = _wider_lobe(lv, im["S"], width)
+    else:
+        wide = _wings(im["S"], width, lv["cover"])
+    return im | {"S": im["S"] + c * (wide - im["S"])}
+
+
+def _apply_clearcoat(lv, im, q):
+    return im | {"D": im["D"] * (1 + q["c"] * (lv["coat"][q["entry"]] - 1))}
+
+
+def _apply_glare(lv, im, q):
+    # The image-space effects are linear: apply them to each component.
+    return {k: v + q["c"] * _glare_blur(v, q["sigma_frac"] * lv["width"])
+            for k, v in im.items()}
+
+
+def _apply_vignetting(lv, im, q):
+    rho2 = lv["rho2"]
+    return {k: v * (1 - q["c"] * rho2 - q.get("c2", 0.0) * rho2**2) for k, v in im.items()}
+
+
+def _apply_misregistration(lv, im, q):
+    dy, dx = q["shift_px"].get(lv["name"], (0.0, 0.0))
+    d, s, b = _shift_scene(lv, [im["D"], im["S"], im["B"]], dy, dx)
+    return {"D": d, "S": s, "B": b}
+
+
+# --- the fits of their own ------------------------------------------------------------------
+
+def _fit_misregistration(train, chosen):
+    base = [f for f in chosen if f[0] != "misregistration"]
+    shifts = {}
+    for lv in train.levels:
+        m = lv["use"]
+        dy = dx = 0.0
+        one = RenderData([lv])
+        for _ in range(4):
+            p = [("misregistration", {"shift_px": {lv["name"]: (dy, dx)}})]
+            _, scale = _scaled_sse(one, base + p)
+            a, b = scale[lv["name"]]
+            D, S, B = _basis(lv, base + p)
+            pred = B + a * D + b * S
+            gy, gx = np.gradient(pred)
+            w = 1 / lv["sd"][m]
+            step, *_ = np.linalg.lstsq(np.c_[-gy[m], -gx[m]] * w[:, None],
+                                       (lv["P"] - pred)[m] * w, rcond=None)
+            dy, dx = float(np.clip(dy + step[0], -3, 3)), float(np.clip(dx + step[1], -3, 3))
+        shifts[lv["name"]] = (dy, dx)
+    params = {"shift_px": shifts}
+    params["scale"] = _scaled_sse(train, base + [("misregistration", params)])[1]
+    return params
+
+
+def _fit_vignetting(train, chosen):
+    """The falloff 1 - c rho^2 - c2 rho^4 with the scales re-fitted.
+
+    Two terms of the even polynomial that real lenses' vignetting calibrations use (lensfun's
+    'pa' model has three): fitted by least squares to the falloff alone of the 12,272 distinct
+    lens profiles of the lensfun database (0.3.3), over a photo that spans the whole frame, one
+    term leaves a median 0.56 % (95th percentile 3.3 %) of the luminance RMS, two terms 0.15 %
+    (1.2 %); over half the frame's radius one term suffices (0.05 %, 0.34 %). On photos of 300
+    of those lenses, this fit: tests/analysis/gap/test_render_vignetting_lenses.py.
+    Fitted by nonlinear least squares (trust region) on the weighted residuals with the scales
+    solved at each point (variable projection): rho^2 and rho^4 are strongly collinear over a
+    photo and coupled to the scales, so alternating the two converges too slowly. The
+    parameters searched are c and the corners' darkening c + c2, the latter bounded to
+    [-2, 0.95] (c to [-2, 2]): the corners keep at least 5 % of the centre's light, and the
+    falloff stays above 4 % everywhere between (its least value inside, where c2 < 0, is
+    1 - c^2 / (4 (c - d)) with d = c + c2), so no fit darkens a photo below zero."""
+    base = [f for f in chosen if f[0] != "vignetting"]
+
+    def params(x):
+        return {"c": float(x[0]), "c2": float(x[1] - x[0])}
+
+    def residuals(x):
+        return _scaled_residuals(train, base + [("vignetting", params(x))])
+    fit = optimize.least_squares(residuals, np.zeros(2), bounds=([-2.0, -2.0], [2.0, 0.95]),
+                                 x_scale=0.1, diff_step=1e-4)
+    q = params(fit.x)
+    q["scale"] = _scaled_sse(train, base + [("vignetting", q)])[1]
+    return q
+
+
+def _fit_long_tail(train, chosen):
+    """Amplitude and wing form per gloss level: the tails' width follows the lobe's, which
+    differs between the levels (each level's loss depends on its own parameters only)."""
+    base = [f for f in chosen if f[0] != "long_tail"]
+    cs, widths = {}, {}
+    for lv in train.levels:
+        name, one = lv["name"], RenderData([lv])
+        c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
+            one, base + [("long_tail", {"c": {name: c}, "width": {name: g}})])[0],
+            0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
+        cs[name], widths[name] = c, g if isinstance(g, str) else float(g)
+    params = {"c": cs, "width": widths}
+    params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]
+    return params
+
+
+# --- the catalogue: each effect's fit, term, injector, default strength and truth -----------
+# An injector makes the photo's noiseless luminance of one gloss level with the effect:
+# ``inject(studio, level, strength, rng)``. ``studio`` is the benchmark's renderer (Mitsuba
+# scenes of the gloss fit's sphere, analysis.gap.inject): ``level(k)`` -> (rho_d, rho_s,
+# alpha), ``base(k)`` -> the plain diffuse and specular renders, ``background(shift)``,
+# ``render(material, seed, shift)``, ``ward(...)``, ``rgb(v)``, ``sphere_r()``,
+# ``mean_ratio(a, b, where)``, ``plain(k)`` (background + diffuse + specular). The effect is
+# built into the material or the camera with Mitsuba's own plugins, never with the forms
+# of the terms above (model.py).
+
+def _inject_fresnel(studio, level, s, rng):
+    """The Ward lobe with Schlick's term on the half vector, F0 = 1 / (1 + s)."""
+    _, rho_s, alpha = studio.level(level)
+    d0, _ = studio.base(level)
+    # The same sampler seed as the plain lobe: the Fresnel term does not change sampling.
+    return studio.background() + d0 + studio.render(
+        studio.ward(0.0, rho_s, alpha, fresnel_f0=1 / (1 + s)), 21 + level)
+
+
+def _inject_clearcoat(studio, level, s, rng):
+    """A share ``s`` of the diffuse light through a clear coat (``plastic``, IOR 1.5)."""
+    rho_d, _, _ = studio.level(level)
+    d0, s0 = studio.base(level)
+    coat = studio.render({"type": "plastic", "diffuse_reflectance": studio.rgb(rho_d),
+                          "specular_reflectance": studio.rgb(0.0), "int_ior": 1.5,
+                          "nonlinear": False}, 31 + level)
+    # The coat's light loss at normal view is absorbed by the fit's rho_d: match the centre.
+    coat *= studio.mean_ratio(d0, coat, studio.sphere_r() < 0.3)
+    return studio.background() + ((1 - s) * d0 + s * coat) + s0
+
+
+def _inject_long_tail(studio, level, s, rng):
+    """A share ``s`` of the lobe's energy in a GGX haze of 2.5 times the Ward alpha."""
+    _, rho_s, alpha = studio.level(level)
+    d0, s0 = studio.base(level)
+    ggx = studio.render({"type": "roughconductor", "distribution": "ggx", "alpha": 2.5 * alpha,
+                         "material": "none", "specular_reflectance": studio.rgb(rho_s)},
+                        41 + level)
+    ggx *= studio.mean_ratio(s0, ggx, studio.sphere_r() < 1)
+    return studio.background() + d0 + ((1 - s) * s0 + s * ggx)
+
+
+def _inject_vignetting(studio, level, s, rng):
+    """cos^4-like natural vignetting of the photo, 1 / (1 + (s rho)^2)^2."""
+    img = studio.plain(level)
+    h, w = img.shape
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    rho = np.hypot(yy - (h - 1) / 2, xx - (w - 1) / 2) / np.hypot(h / 2, w / 2)
+    return img / (1 + (s * rho) ** 2) ** 2
+
+
+def _inject_glare(studio, level, s, rng):
+    """A long-tailed (Cauchy-like) lens PSF carrying a share ``s`` of the light."""
+    from scipy.signal import fftconvolve
+
+    img = studio.plain(level)
+    h, w = img.shape
+    k = 2 * max(h, w) + 1
+    yy, xx = np.mgrid[0:k, 0:k] - k // 2
+    psf = 1 / (1 + (np.hypot(yy, xx) / (0.03 * w)) ** 2) ** 1.5
+    psf /= psf.sum()
+    return img + s * fftconvolve(img, psf, mode="same")
+
+
+def _inject_misregistration(studio, level, s, rng):
+    """The camera moved by ``s`` px in a random direction, the scene rendered there."""
+    rho_d, rho_s, alpha = studio.level(level)
+    ang = rng.uniform(0, 2 * np.pi)
+    shift = (s * np.cos(ang), s * np.sin(ang))
+    return (studio.background(shift)
+            + studio.render(studio.ward(rho_d, 0.0, alpha), 11 + level, shift=shift)
+            + studio.render(studio.ward(0.0, rho_s, alpha), 21 + level, shift=shift))
+
+
+# Registered in the order their terms apply (_basis): the material's terms on the specular
+# and diffuse components, then the camera's glare and vignetting, then the shift.
+register("render", Candidate(
+    "fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
+    "specular reflectance rising towards grazing angles (Schlick)", apply=_apply_fresnel,
+    inject=_inject_fresnel, default_strength=6.0, units="Schlick gain (1 - F0) / F0",
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "long_tail", _fit_long_tail, "highlight lobe with longer tails than Ward's",
+    apply=_apply_long_tail, inject=_inject_long_tail, default_strength=0.6,
+    units="share of the lobe's energy in the haze",
+    # The amount per level; the form (blur or power) has no counterpart in the injector.
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
+    "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
+    apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
+    units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
+    "lens glare: a blurred copy of the image added", apply=_apply_glare,
+    inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
+    truth=lambda s: {"c": float(s)}))
+register("render", Candidate(
+    "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
+    apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
+    units="vignetting coefficient",
+    # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
+    truth=lambda s: {"c": 2 * float(s) ** 2}))
+register("render", Candidate(
+    "misregistration", _fit_misregistration, "photo and render still offset after registration",
+    apply=_apply_misregistration, inject=_inject_misregistration, default_strength=0.6,
+    units="px", truth=lambda s: {"shift_norm_px": float(s)}))
+
+RENDER_CANDIDATES = catalogue("render")

@@ -1,0 +1,303 @@
+"""The render layer's simulation: what the renders predict of the photos, and how likely
+the photos are under that prediction.
+
+- the photo's noise (:func:`noise_model`, :func:`noise_sd`): Poisson-Gaussian, measured from
+  the second differences of photo - render when the files are read (``data.load_render``);
+- the effects' image-forming forms the candidates' terms use: wider lobes (``_wings``,
+  ``_wider_lobe``), the glare's blur (``_glare_blur``), the scene shifted with the
+  silhouette's pixel coverage recomputed (``_shift_scene``, ``_coverage``, ``_fill``);
+- the extended render (``_basis``: each registered candidate's term in the catalogue's order;
+  ``_predict``: with the diffuse and specular scales re-fitted) and its Gaussian NLL per pixel
+  (:func:`render_loss`);
+- the pixel units and the held-out split (:func:`render_unit_ids`, :func:`split_render`);
+- the fit helpers the candidates share: the scales' least-squares fit (``_scaled_fit``,
+  ``_scaled_sse``, ``_scaled_residuals``) and one bounded amplitude with a form from a grid
+  (``_best_on_grid``, ``_fit_amp``).
+
+The bottom of the layer: it imports nothing else of it at run time (the reader, ``data``,
+measures the noise with it).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from scipy import ndimage, optimize, signal
+
+from analysis.gap.engine import GapError, catalogue
+
+if TYPE_CHECKING:
+    from analysis.gap.render.data import RenderData
+
+
+def noise_model(resid: np.ndarray, render: np.ndarray, mask: np.ndarray,
+                n_bins: int = 8) -> tuple[float, float]:
+    """Poisson-Gaussian noise of a photo, ``var = a2 + b * max(render, 0)`` (photo units).
+
+    A camera's raw values carry read noise (constant variance ``a2``) and shot noise (variance
+    proportional to the signal, ``b``); a Monte-Carlo render's noise also grows with the
+    signal. Both are measured without a model of the scene from the second differences of
+    ``resid`` = photo - render along rows and columns (a smooth misfit drops out):
+    ``d2 = r[i-1] - 2 r[i] + r[i+1]`` has variance ``6 a2 + b w``, ``w = R[i-1] + 4 R[i] +
+    R[i+1]``. The variance of ``d2`` is measured robustly (MAD) in ``n_bins`` quantile bins of
+    ``w`` and the line fitted by non-negative least squares weighted by each bin's count
+    (a highlight's residual curvature affects a few pixels, which MAD ignores).
+
+    Returns
+    -------
+    (a2, b) : tuple of float
+        Read-noise variance (photo units^2) and shot-noise gain (photo units).
+
+    Raises
+    ------
+    GapError
+        If fewer than 10 stencils lie inside ``mask``, or the photo shows no noise at all.
+    """
+    d2s, ws = [], []
+    rr = np.maximum(render, 0.0)
+    for ax in (0, 1):
+        lo, mid, hi = ((slice(None, -2), slice(1, -1), slice(2, None)) if ax == 0 else
+                       ((slice(None), slice(None, -2)), (slice(None), slice(1, -1)),
+                        (slice(None), slice(2, None))))
+        m = mask[lo] & mask[mid] & mask[hi]
+        d2s.append((resid[lo] - 2 * resid[mid] + resid[hi])[m])
+        ws.append((rr[lo] + 4 * rr[mid] + rr[hi])[m])
+    d2, w = np.concatenate(d2s), np.concatenate(ws)
+    if d2.size < 10:
+        raise GapError("too few valid sphere pixels to measure the photo's noise")
+    edges = np.unique(np.quantile(w, np.linspace(0, 1, n_bins + 1)))
+    which = np.clip(np.searchsorted(edges, w, side="right") - 1, 0, max(edges.size - 2, 0))
+    rows, var, cnt = [], [], []
+    for k in np.unique(which):
+        sel = which == k
+        if sel.sum() < 5:
+            continue
+        v = d2[sel]
+        mad = 1.4826 * np.median(np.abs(v - np.median(v)))
+        rows.append([6.0, float(np.mean(w[sel]))])
+        var.append(mad**2)
+        cnt.append(np.sqrt(sel.sum()))
+    a_mat, var, cnt = np.asarray(rows), np.asarray(var), np.asarray(cnt)
+    if a_mat.shape[0] >= 2 and np.ptp(a_mat[:, 1]) > 0:
+        (a2, b), _ = optimize.nnls(a_mat * cnt[:, None], var * cnt)
+    else:
+        a2, b = float(np.average(var, weights=cnt)) / 6.0, 0.0
+    if a2 <= 0 and b <= 0:
+        raise GapError("the photo has no measurable noise (photo - render is smooth to the last "
+                       "bit): was a render passed as the photo? Pass the camera's photos")
+    return float(a2), float(b)
+
+
+def noise_sd(render: np.ndarray, a2: float, b: float) -> np.ndarray:
+    """Per-pixel noise SD of the Poisson-Gaussian model (:func:`noise_model`); the read-noise
+    part keeps it above 0 where the render is black."""
+    return np.sqrt(np.maximum(a2 + b * np.maximum(render, 0.0), 1e-30))
+
+
+# --- the effects' forms ---------------------------------------------------------------------
+
+def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
+    """A wider lobe from the fitted one. ``width`` >= 1: Gaussian blur of that many px within
+    the sphere (``inside``: the share of each pixel the sphere covers; a wider lobe moves light
+    across the sphere, not onto the background); ``width`` in (0, 1): the lobe raised to that
+    power (Ward's lobe exp(-tan^2 / alpha^2) raised to alpha^2 / alpha_t^2 is the lobe of the
+    wider alpha_t), rescaled to the same energy; ``width`` < 0: the lobe spread within the
+    sphere (as the Gaussian) by a kernel 1 / (1 + (r / w)^2), w = -width px: the GTR1 haze
+    of Burley (2012, eq. 4), whose tails fall as the square of the angle (tan^-2) where a Ward
+    lobe's fall as a Gaussian -- with angle ~ distance on the sphere near the highlight."""
+    if width < 0:
+        h, w = S.shape
+        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+        kern = 1 / (1 + (yy**2 + xx**2) / width**2)
+        kern /= kern.sum()
+        blurred = signal.fftconvolve(S * inside, kern, mode="same")
+        weight = signal.fftconvolve(inside, kern, mode="same")
+        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
+    if width >= 1:
+        blurred = ndimage.gaussian_filter(S * inside, width)
+        weight = ndimage.gaussian_filter(inside, width)
+        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
+    top = float(S.max())
+    if top <= 0:
+        return S
+    wide = top * np.clip(S / top, 0, None) ** width
+    return wide * (S.sum() / max(wide.sum(), 1e-12))
+
+
+def _wider_lobe(lv: dict, S: np.ndarray, other: str) -> np.ndarray:
+    """Wings from a less glossy level: ``other``'s specular render (the same room, camera and
+    sphere through its wider Ward lobe) with the factor the material terms fitted before it
+    put on this level's lobe (Fresnel's rise), at this lobe's energy on the sphere. A haze
+    reflects the whole room into the body, where this level's own lobe shows little of it;
+    the image-space forms (:func:`_wings`) can only spread what this lobe shows."""
+    So = lv["wider"][other]
+    base = lv["S"]
+    ok = base > 1e-6 * max(float(base.max()), 1e-30)
+    factor = np.where(ok, S / np.where(ok, base, 1.0), 1.0)
+    wide = So * factor * lv["cover"]
+    return wide * (float((S * lv["cover"]).sum()) / max(float(wide.sum()), 1e-30))
+
+
+def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
+    """``img`` spread by a unit-sum glare kernel, zero outside the frame: a Gaussian of SD
+    ``width_px`` (> 0), or (< 0) a power law (1 + (r / w)^2)^(-3/2) of core w = -width_px: a
+    lens's stray light falls off as a power of the angle with a narrow core (inverse-cube
+    spread functions, e.g. the CIE 1999 glare spread function's dominant term), which no one
+    Gaussian follows both near and far."""
+    if width_px > 0:
+        return ndimage.gaussian_filter(img, width_px, mode="constant")
+    h, w = img.shape
+    yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+    kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
+    return signal.fftconvolve(img, kern / kern.sum(), mode="same")
+
+
+def _coverage(shape, cy: float, cx: float, radius: float, n: int = 8) -> np.ndarray:
+    """Share of each pixel (centres at integers) inside the sphere's silhouette (n x n
+    sub-pixels)."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    offs = (np.arange(n) + 0.5) / n - 0.5
+    cover = np.zeros(shape)
+    for oy in offs:
+        for ox in offs:
+            cover += ((yy + oy - cy) ** 2 + (xx + ox - cx) ** 2) < radius**2
+    return cover / n**2
+
+
+def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """``values`` with the pixels outside ``known`` set to their nearest known pixel's."""
+    if known.all() or not known.any():
+        return values
+    idx = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+    return values[tuple(idx)]
+
+
+def _shift_scene(lv: dict, images: list, dy: float, dx: float) -> list:
+    """Diffuse, specular and background images of the scene shifted by (dy, dx) px.
+
+    A pixel on the silhouette mixes the sphere and the background by the share it covers; a
+    shift changes that share as geometry, not as an interpolation of a step. So each image is
+    split into radiance (sphere parts: image / coverage; background: image / (1 - coverage),
+    edge pixels filled from their nearest well-covered neighbour), the radiance shifted by
+    cubic-spline interpolation, and the shares recomputed at the shifted silhouette."""
+    cy, cx, radius = lv["geometry"]
+    cov = lv["cover"]
+    cov_s = _coverage(cov.shape, cy + dy, cx + dx, radius)
+    out = []
+    for k, img in enumerate(images):
+        share, share_s = (cov, cov_s) if k < 2 else (1 - cov, 1 - cov_s)
+        known = share > 0.5
+        rad = _fill(np.where(known, img / np.maximum(share, 1e-6), 0.0), known)
+        out.append(share_s * ndimage.shift(rad, (dy, dx), order=3, mode="nearest"))
+    return out
+
+
+# --- the extended model ---------------------------------------------------------------------
+
+def _basis(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Diffuse, specular and background images after every fitted extension (before the
+    diffuse and specular scales): each registered candidate's ``apply``, in the catalogue's
+    order (material terms, then the camera's, then the shift)."""
+    p = dict(fitted)
+    unknown = set(p) - {c.name for c in catalogue("render")}
+    if unknown:
+        raise GapError(f"no render candidate(s) {sorted(unknown)}; known: "
+                       f"{[c.name for c in catalogue('render')]}")
+    images = {"D": lv["D"], "S": lv["S"], "B": lv["B"]}
+    for cand in catalogue("render"):
+        if cand.name in p:
+            images = cand.apply(lv, images, p[cand.name])
+    return images["D"], images["S"], images["B"]
+
+
+def _predict(lv: dict, fitted: list) -> np.ndarray:
+    """The extended render: the Ward fit's diffuse and specular scales re-fitted with the
+    extension (``scale`` of the last fitted step, per level; 1 for the plain render)."""
+    D, S, B = _basis(lv, fitted)
+    scale = next((q["scale"] for _, q in reversed(fitted) if "scale" in q), {})
+    a, b = scale.get(lv["name"], (1.0, 1.0))
+    return B + a * D + b * S
+
+
+def render_loss(data: RenderData, fitted: list) -> np.ndarray:
+    """Per-pixel Gaussian NLL (nats) on the view's pixels, levels concatenated."""
+    out = []
+    for lv in data.levels:
+        m = lv["use"]
+        r = (lv["P"] - _predict(lv, fitted))[m]
+        sd = lv["sd"][m]
+        out.append(0.5 * np.log(2 * np.pi * sd**2) + 0.5 * (r / sd) ** 2)
+    return np.concatenate(out)
+
+
+def render_unit_ids(data: RenderData) -> list[str]:
+    """Pixel names ``level|y|x``."""
+    ids = []
+    for lv in data.levels:
+        ys, xs = np.nonzero(lv["use"])
+        ids += [f"{lv['name']}|{y}|{x}" for y, x in zip(ys, xs)]
+    return ids
+
+
+def split_render(data: RenderData, rng: np.random.Generator):
+    """Held-out pixels: a checkerboard of 4 x 4 px blocks (``rng`` unused: fixed split)."""
+    return data.view("train"), data.view("test")
+
+
+# --- fit helpers the candidates share -------------------------------------------------------
+
+def _scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
+    """Weighted residuals per level with the diffuse and specular scales re-fitted per level
+    (least squares), and the scales."""
+    residuals, scale = [], {}
+    for lv in train.levels:
+        m = lv["use"]
+        D, S, B = _basis(lv, fitted)
+        w = 1 / lv["sd"][m]
+        a = np.c_[D[m], S[m]] * w[:, None]
+        y = (lv["P"] - B)[m] * w
+        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        scale[lv["name"]] = (float(coef[0]), float(coef[1]))
+        residuals.append(y - a @ coef)
+    return residuals, scale
+
+
+def _scaled_sse(train: RenderData, fitted: list):
+    """Weighted SSE with the diffuse and specular scales re-fitted per level (least squares)."""
+    residuals, scale = _scaled_fit(train, fitted)
+    return sum(float(np.sum(r**2)) for r in residuals), scale
+
+
+def _scaled_residuals(train: RenderData, fitted: list) -> np.ndarray:
+    """The weighted residuals behind :func:`_scaled_sse` (scales re-fitted per level)."""
+    return np.concatenate(_scaled_fit(train, fitted)[0])
+
+
+def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
+    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
+    best = None
+    for g in grid:
+        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
+                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+        if best is None or res.fun < best[0]:
+            best = (res.fun, float(res.x), g)
+    return best[1], best[2]
+
+
+def _fit_amp(name, lo, hi, key=None, grid=(None,)):
+    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
+    re-fitted."""
+    def fit(train, chosen):
+        base = [f for f in chosen if f[0] != name]
+
+        def params_of(c, g):
+            if key is None:
+                return {"c": c}
+            return {key: g if isinstance(g, str) else float(g), "c": c}
+        c, g = _best_on_grid(
+            lambda c, g: _scaled_sse(train, base + [(name, params_of(c, g))])[0], lo, hi, grid)
+        params = params_of(c, g)
+        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
+        return params
+    return fit
