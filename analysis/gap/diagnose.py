@@ -1,167 +1,35 @@
 """One entry point for every layer: :func:`diagnose` reads real and simulated data (files or
-loaded objects), ranks the layer's registered candidates, tests what remains, and localises."""
+loaded objects), ranks the layer's registered candidates, tests what remains, and localises.
+
+It is written once for all layers: each layer package ``analysis.gap.<layer>`` hands it a
+:class:`analysis.gap.engine.LayerPlan` from its ``plan(real, sim, design, rng, *, n_boot,
+**options)`` (the files read and checked, the held-out units, the floor, the ceiling, where),
+and :func:`analysis.gap.engine.diagnose_losses` does the rest."""
 
 from __future__ import annotations
 
-from pathlib import Path
+import importlib
 
 import numpy as np
 
-from analysis.gap.engine import (
-    Diagnosis,
-    DiagnosisSettings,
-    GapError,
-    LayerFunctions,
-    catalogue,
-    diagnose_losses,
-)
+from analysis.gap.engine import LAYER_NAMES, Diagnosis, GapError, catalogue, diagnose_losses
 
 __all__ = ["LAYERS", "diagnose"]
 
-
-def _same_path(real, sim) -> None:
-    if (isinstance(real, (str, Path)) and isinstance(sim, (str, Path))
-            and Path(real).resolve() == Path(sim).resolve()):
-        raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
+#: The layers :func:`diagnose` knows (each a package ``analysis.gap.<layer>`` with ``plan``).
+LAYERS = LAYER_NAMES
 
 
-def _observer(real, sim, design, *, seed: int, n_boot: int, sim_kind: str | None = None,
-              k_folds: int = 5):
-    """Observer layer: session CSVs (or a session frame) against the simulated observer
-    (``sim``: an observers TOML, simulated session CSVs or a frame; see
-    :func:`analysis.gap.observer.load_sim`)."""
-    from analysis.gap.observer import (
-        OBSERVER_MIN_GAIN,
-        adapt_base,
-        ceiling_floor,
-        ceiling_loss,
-        check_sim,
-        fit_ceiling,
-        load_sim,
-        localise_observer,
-        observer_folds,
-        observer_frame,
-        observer_loss,
-        observer_unit_ids,
-        observer_where,
-        read_session_csvs,
-    )
-
-    _same_path(real, sim)
-    frame = real if not isinstance(real, (str, Path)) else read_session_csvs(real)
-    base = load_sim(sim, design, kind=sim_kind)
-    notes = check_sim(frame, base)
-    data = observer_frame(frame, design, base)
-    folds, text = observer_folds(data, k_folds)
+def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **options):
+    """One layer: its plan, the engine's diagnosis, then the layer's localisation, all drawing
+    from one Generator seeded with ``seed`` in that order."""
     rng = np.random.default_rng(seed)
-    floor, shared = {}, {}
-    for tr, te in folds:
-        shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
-        adapt_base(tr, te, base)
-        # The floor: the noise of the ceiling over the plain simulation (data-driven).
-        model = fit_ceiling(tr, by_participant=shared[id(te)])
-        floor[id(te)] = ceiling_floor(model, te, rng)
-
-    def ceiling(tr, te, fitted):
-        # The ceiling over the chosen model: what a flexible extension of it still gains.
-        return ceiling_loss(fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted), te)
-    functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
-                               ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
-                               unit_ids=observer_unit_ids)
-    diag = diagnose_losses(
-        "observer", catalogue("observer"), functions,
-        DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN),
-        rng=rng, seed=seed, folds=folds, split=text, warnings=notes,
-        loss_info={"base": {"kind": base.kind, "source": base.source,
-                            "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
-                   "floor": "the ceiling model's own loss on data it draws (data-driven)"})
-    return diag, localise_observer(data, design, rng, n_boot=min(n_boot, 500))
-
-
-def _display(real, sim, design, *, seed: int, n_boot: int, **_):
-    """Display layer: photometer readings (``readings.csv``, its folder or a frame) against
-    the calibration (``calibration.json``, its folder or a Calibration)."""
-    from analysis.gap.display import (
-        DISPLAY_MIN_SHARE,
-        display_ceiling,
-        display_floor,
-        display_folds,
-        display_frame,
-        display_loss,
-        display_loss_info,
-        display_unit_ids,
-        display_where,
-        load_display,
-        localise_display,
-    )
-
-    readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
-    rng = np.random.default_rng(seed)
-    data = display_frame(readings, cal)
-    folds, text = display_folds(data, rng)
-    functions = LayerFunctions(loss=lambda _train: display_loss, floor=display_floor,
-                               ceiling=display_ceiling, where=display_where,
-                               unit_ids=display_unit_ids)
-    diag = diagnose_losses("display", catalogue("display"), functions,
-                           DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
-                           rng=rng, seed=seed, folds=folds,
-                           loss_info=display_loss_info(data), split=text)
-    return diag, localise_display(data, rng, n_boot=min(n_boot, 500))
-
-
-def _render(real, sim, design, *, seed: int, n_boot: int, **_):
-    """Render layer: photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss
-    fit's output folder, usually the same), or loaded residual files. A remaining gap counts
-    only from the design's ``[gap] render_tolerance_pct`` (the shipped design's when
-    ``design`` is None)."""
-    from analysis.gap.render import (
-        RENDER_MIN_GAIN,
-        RENDER_MIN_SHARE,
-        RENDER_SIZE_UNIT,
-        load_render,
-        localise_render,
-        render_ceiling,
-        render_floor,
-        render_loss,
-        render_misfit_pct,
-        render_unit_ids,
-        render_where,
-        residual_maps,
-        split_render,
-    )
-
-    data = load_render(real, sim if sim is not None else real) if isinstance(
-        real, (str, Path)) else real
-    if design is None:
-        from studydesign import load_design
-
-        design = load_design()
-    rng = np.random.default_rng(seed)
-    train, test = split_render(data, rng)
-    functions = LayerFunctions(
-        loss=render_loss, floor=render_floor, ceiling=render_ceiling, ceiling_given_chosen=True,
-        where=render_where, size=render_misfit_pct, unit_ids=render_unit_ids,
-        # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
-        # error (the split is fixed, so the verdict does not depend on the seed). Under the
-        # null of nothing systematic left, the pixels' camera noise is independent.
-        cluster_of=str)
-    settings = DiagnosisSettings(n_boot=n_boot, min_share=RENDER_MIN_SHARE,
-                                 min_gain=RENDER_MIN_GAIN,
-                                 min_size=design.gap.render_tolerance_pct,
-                                 size_unit=RENDER_SIZE_UNIT,
-                                 size_source="the design's [gap] render_tolerance_pct")
-    diag = diagnose_losses("render", catalogue("render"), functions, settings, rng=rng,
-                           seed=seed, train=train, test=test,
-                           loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
-                                                     for lv in data.levels}})
-    local = localise_render(data, rng, n_boot=min(n_boot, 500))
-    local.attrs["maps"] = residual_maps(data, [(s["added"], s["params"]) for s in diag.steps])
-    return diag, local
-
-
-#: The layers :func:`diagnose` knows, each ``fn(real, sim, design, *, seed, n_boot, **options)
-#: -> (Diagnosis, localisation)``.
-LAYERS = {"observer": _observer, "display": _display, "render": _render}
+    plan = importlib.import_module(f"analysis.gap.{layer}").plan(
+        real, sim, design, rng, n_boot=n_boot, **options)
+    diag = diagnose_losses(layer, catalogue(layer), plan.functions, plan.settings, rng=rng,
+                           seed=seed, train=plan.train, test=plan.test, folds=plan.folds,
+                           loss_info=plan.loss_info, split=plan.split, warnings=plan.warnings)
+    return diag, plan.localise(diag, rng)
 
 
 def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
@@ -205,4 +73,4 @@ def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
     if layer not in LAYERS:
         raise GapError(f"unknown layer {layer!r}; use {', '.join(LAYERS)} or all")
     opts = options if layer == "observer" else {}
-    return LAYERS[layer](real, sim, design, seed=seed, n_boot=n_boot, **opts)
+    return _diagnose_layer(layer, real, sim, design, seed=seed, n_boot=n_boot, **opts)

@@ -60,9 +60,16 @@ Files (the shape every gap layer shares)
     One registered Candidate per effect (the table above), :data:`DISPLAY_CANDIDATES` and
     :data:`DISPLAY_MIN_SHARE`.
 
+``__init__.py`` (here)
+    The layer's face to the engine, :func:`plan` (the same in every layer).
+
 Importing the package registers the display candidates (the engine's ``catalogue("display")``
 imports it).
 """
+
+from pathlib import Path
+
+import numpy as np
 
 from analysis.gap.display.candidates import DISPLAY_CANDIDATES, DISPLAY_MIN_SHARE
 from analysis.gap.display.ceiling import display_ceiling, display_floor
@@ -78,6 +85,7 @@ from analysis.gap.display.model import (
     split_display,
 )
 from analysis.gap.display.where import display_where, localise_display
+from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
 
 __all__ = [
     "DISPLAY_CANDIDATES",
@@ -94,5 +102,22 @@ __all__ = [
     "fit_noise_drift",
     "load_display",
     "localise_display",
+    "plan",
     "split_display",
 ]
+
+
+def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> LayerPlan:
+    """Photometer readings (``readings.csv``, its folder or a frame) against the calibration
+    (``calibration.json``, its folder or a Calibration), cross-fitted over folds of readings
+    drawn from ``rng``. ``design`` is not used: the calibration is the display's simulation."""
+    readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
+    data = display_frame(readings, cal)
+    folds, text = display_folds(data, rng)
+    functions = LayerFunctions(loss=lambda _train: display_loss, floor=display_floor,
+                               ceiling=display_ceiling, where=display_where,
+                               unit_ids=display_unit_ids)
+    return LayerPlan(
+        functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
+        localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
+        folds=folds, split=text, loss_info=display_loss_info(data))

@@ -18,15 +18,18 @@ that the verdict does not hinge on one random split (:mod:`.heldout`).
 :func:`diagnose_losses` (:mod:`.pipeline`) runs the steps of :mod:`.steps` in order, given
 the layer's functions (:class:`LayerFunctions`) and the statistical choices
 (:class:`DiagnosisSettings`) of :mod:`.settings`; the tests they share are in :mod:`.stats`,
-the result records in :mod:`.result`, the summary sentence in :mod:`.words`.
+the result records in :mod:`.result`, the summary sentence in :mod:`.words`. Each layer
+folder hands the engine one :class:`LayerPlan` (:mod:`.layer`).
 """
 
 from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.heldout import split_held_out
+from analysis.gap.engine.layer import LayerPlan
 from analysis.gap.engine.pipeline import diagnose_losses
 from analysis.gap.engine.registry import _OUT_REGISTRY as _OUT_REGISTRY  # patch in .registry
 from analysis.gap.engine.registry import _REGISTRY as _REGISTRY  # a test pops an entry
 from analysis.gap.engine.registry import (
+    LAYER_NAMES,
     Candidate,
     OutOfCatalogue,
     candidate,
@@ -43,7 +46,7 @@ from analysis.gap.engine.stats import holm
 from analysis.gap.engine.words import _size_words as _size_words  # report.py's size clause
 from analysis.gap.engine.words import summarise
 
-__all__ = ["Candidate", "CandidateScore", "Diagnosis", "DiagnosisSettings", "GapError",
-           "LayerFunctions", "OutOfCatalogue", "candidate", "catalogue", "diagnose_losses",
+__all__ = ["LAYER_NAMES", "Candidate", "CandidateScore", "Diagnosis", "DiagnosisSettings",
+           "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue", "candidate", "catalogue", "diagnose_losses",
            "effect", "holm", "out_of_catalogue", "register", "register_out_of_catalogue",
            "split_held_out", "strengths", "summarise"]

@@ -10,11 +10,13 @@ from dataclasses import dataclass
 
 from analysis.gap.engine.errors import GapError
 
-__all__ = ["Candidate", "OutOfCatalogue", "candidate", "catalogue", "effect", "out_of_catalogue",
+__all__ = ["LAYER_NAMES", "Candidate", "OutOfCatalogue", "candidate", "catalogue", "effect", "out_of_catalogue",
            "register", "register_out_of_catalogue", "strengths"]
 
-#: Layers whose catalogue is registered by importing ``analysis.gap.<layer>``.
-_LAYER_MODULES = ("observer", "display", "render")
+#: The layers, in the pipeline's order of diagnosis; each is a package ``analysis.gap.<layer>``
+#: whose import registers its catalogue and which defines ``plan`` (:mod:`.layer`).
+LAYER_NAMES = ("observer", "display", "render")
+_LAYER_MODULES = LAYER_NAMES
 
 @dataclass(frozen=True)
 class Candidate:

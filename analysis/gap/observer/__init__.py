@@ -43,10 +43,18 @@ Where things are
     The catalogue, one registered :class:`Candidate` per effect
     (:data:`OBSERVER_CANDIDATES`).
 
+``__init__.py`` (here)
+    The layer's face to the engine, :func:`plan` (the same in every layer).
+
 Imports run model <- data, model <- ceiling <- where, model <- candidates; importing this
 package registers the candidates (:func:`analysis.gap.engine.catalogue` imports it for that).
 """
 
+from pathlib import Path
+
+import numpy as np
+
+from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
 from analysis.gap.observer.candidates import OBSERVER_CANDIDATES
 from analysis.gap.observer.ceiling import ceiling_floor, ceiling_loss, fit_ceiling
 from analysis.gap.observer.data import (
@@ -89,7 +97,51 @@ __all__ = [
     "observer_nll",
     "observer_unit_ids",
     "observer_where",
+    "plan",
     "predict",
     "read_session_csvs",
     "to_slider_units",
 ]
+
+
+def _same_path(real, sim) -> None:
+    if (isinstance(real, (str, Path)) and isinstance(sim, (str, Path))
+            and Path(real).resolve() == Path(sim).resolve()):
+        raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
+
+
+def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
+         sim_kind: str | None = None, k_folds: int = 5) -> LayerPlan:
+    """Session CSVs (or a session frame) against the simulated observer (``sim``: an
+    observers TOML, simulated session CSVs or a frame; see :func:`load_sim`), cross-fitted
+    over ``k_folds`` folds of participants or trials.
+
+    The floor of each fold is the noise of the ceiling over the plain simulation (data-driven,
+    drawn from ``rng``); the ceiling of the chosen model is what a flexible extension of it
+    still gains.
+    """
+    _same_path(real, sim)
+    frame = real if not isinstance(real, (str, Path)) else read_session_csvs(real)
+    base = load_sim(sim, design, kind=sim_kind)
+    notes = check_sim(frame, base)
+    data = observer_frame(frame, design, base)
+    folds, text = observer_folds(data, k_folds)
+    floor, shared = {}, {}
+    for tr, te in folds:
+        shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
+        adapt_base(tr, te, base)
+        model = fit_ceiling(tr, by_participant=shared[id(te)])
+        floor[id(te)] = ceiling_floor(model, te, rng)
+
+    def ceiling(tr, te, fitted):
+        return ceiling_loss(fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted), te)
+    functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
+                               ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
+                               unit_ids=observer_unit_ids)
+    return LayerPlan(
+        functions, DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN),
+        localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
+        folds=folds, split=text, warnings=notes,
+        loss_info={"base": {"kind": base.kind, "source": base.source,
+                            "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
+                   "floor": "the ceiling model's own loss on data it draws (data-driven)"})

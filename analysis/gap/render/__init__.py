@@ -82,11 +82,19 @@ candidates.py  one registered Candidate per effect (its term, fit and injector),
                their terms apply
 =============  ===============================================================================
 
+``__init__.py`` (here)
+    The layer's face to the engine, :func:`plan` (the same in every layer).
+
 Importing the package registers the candidates (the engine's ``catalogue("render")`` imports
 it).
 """
 
 # The private names are re-exported for the tests that reach them (as before the split).
+from pathlib import Path
+
+import numpy as np
+
+from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
 from analysis.gap.render.candidates import RENDER_CANDIDATES
 from analysis.gap.render.ceiling import (
     RENDER_MIN_GAIN,
@@ -135,6 +143,7 @@ __all__ = [
     "localise_render",
     "noise_model",
     "noise_sd",
+    "plan",
     "render_ceiling",
     "render_floor",
     "render_loss",
@@ -143,3 +152,37 @@ __all__ = [
     "residual_maps",
     "split_render",
 ]
+
+
+def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> LayerPlan:
+    """Photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss fit's output
+    folder, usually the same; SIM None: REAL's), or loaded residual files, split once into
+    training and held-out blocks drawn from ``rng``. A remaining gap counts only from the
+    design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is None)."""
+    data = load_render(real, sim if sim is not None else real) if isinstance(
+        real, (str, Path)) else real
+    if design is None:
+        from studydesign import load_design
+
+        design = load_design()
+    train, test = split_render(data, rng)
+    functions = LayerFunctions(
+        loss=render_loss, floor=render_floor, ceiling=render_ceiling, ceiling_given_chosen=True,
+        where=render_where, size=render_misfit_pct, unit_ids=render_unit_ids,
+        # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
+        # error (the split is fixed, so the verdict does not depend on the seed). Under the
+        # null of nothing systematic left, the pixels' camera noise is independent.
+        cluster_of=str)
+    settings = DiagnosisSettings(n_boot=n_boot, min_share=RENDER_MIN_SHARE,
+                                 min_gain=RENDER_MIN_GAIN,
+                                 min_size=design.gap.render_tolerance_pct,
+                                 size_unit=RENDER_SIZE_UNIT,
+                                 size_source="the design's [gap] render_tolerance_pct")
+
+    def localise(diag, rng):
+        local = localise_render(data, rng, n_boot=min(n_boot, 500))
+        local.attrs["maps"] = residual_maps(data, [(s["added"], s["params"])
+                                                   for s in diag.steps])
+        return local
+    return LayerPlan(functions, settings, localise=localise, train=train, test=test,
+                     loss_info={"noise_a2_b": {lv["name"]: lv["noise"] for lv in data.levels}})

@@ -1,0 +1,51 @@
+"""A layer's one face to the engine: what each layer folder hands :func:`diagnose_losses`.
+
+Every layer package ``analysis.gap.<layer>`` defines ``plan(real, sim, design, rng, *,
+n_boot, **options) -> LayerPlan``: it reads and checks the files (its ``data.py``), builds the
+held-out units, the floor and the ceiling (``model.py``, ``ceiling.py``) and says how to
+localise (``where.py``). :func:`analysis.gap.diagnose.diagnose` is written once over these
+plans, so a fourth layer is a fourth folder of the same shape plus its name in
+:data:`analysis.gap.engine.registry.LAYER_NAMES`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from analysis.gap.engine.result import Diagnosis
+from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
+
+__all__ = ["LayerPlan"]
+
+
+@dataclass(frozen=True)
+class LayerPlan:
+    """What a layer prepares for one diagnosis.
+
+    ========== =========================================================================
+    field      meaning
+    ========== =========================================================================
+    functions  the layer's loss, floor, ceiling, where and size (:class:`LayerFunctions`)
+    settings   the statistical choices (:class:`DiagnosisSettings`)
+    localise   ``localise(diag, rng) -> table``: where real and simulated data part, with
+               the diagnosis's chosen effects (drawn from the same Generator, after it)
+    folds      cross-fitting folds ``[(train, test), ...]``, or None with ``train`` and
+               ``test`` (one split)
+    split      how the held-out units were made, in words
+    loss_info  what the loss assumes (noise model, base model), recorded in the result
+    warnings   notes on the input, shown with the verdict
+    ========== =========================================================================
+    """
+
+    functions: LayerFunctions
+    settings: DiagnosisSettings
+    localise: Callable[[Diagnosis, np.random.Generator], object]
+    folds: Sequence | None = None
+    train: object = None
+    test: object = None
+    split: str = ""
+    loss_info: dict | None = None
+    warnings: tuple = field(default_factory=tuple)
