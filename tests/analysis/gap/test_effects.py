@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from analysis.gap import engine, inject
+from analysis.gap import engine
 from analysis.gap.engine import (
     Candidate,
     GapError,
@@ -16,6 +16,7 @@ from analysis.gap.engine import (
     register_out_of_catalogue,
     strengths,
 )
+from analysis.gapbench import inject
 
 
 @pytest.fixture

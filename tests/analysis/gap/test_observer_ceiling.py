@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from analysis.gap import diagnose
-from analysis.gap.bench_observer import HarderCase, generate_sessions
 from analysis.gap.engine import candidate
 from analysis.gap.observer import (
     _ceiling_pred,
@@ -20,6 +19,7 @@ from analysis.gap.observer import (
     observer_frame,
     observer_loss,
 )
+from analysis.gapbench.bench_observer import HarderCase, generate_sessions
 from experiment import load_observer_params
 from studydesign import load_design
 
