@@ -194,7 +194,7 @@ if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
     --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"
 fi
-echo "blind benchmarks (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gap benchmark --layer all --trials 40 --seed 1 --threshold-reps 5; harder, seeds pooled: $PY -m analysis gap benchmark --layer observer --harder --trials 30 --seed 1 2 3"
+echo "blind benchmarks (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gapbench --layer all --trials 40 --seed 1 --threshold-reps 5; harder, seeds pooled: $PY -m analysis gapbench --layer observer --harder --trials 30 --seed 1 2 3"
 # --- end sim-to-real gap ---
 
 step "done"

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, diagnose, inject
+from analysis.gap import GapError, diagnose
 from analysis.gap.__main__ import main
-from analysis.gap.benchmark import run_benchmark
 from analysis.gap.engine import catalogue, strengths
+from analysis.gapbench import inject
 from studydesign import load_design
 
 
@@ -59,8 +59,3 @@ def test_display_needs_repeats(tmp_path):
         diagnose("display", tmp_path / "r", tmp_path / "cal", load_design(), seed=0)
     with pytest.raises(GapError, match="calibration.json"):
         diagnose("display", tmp_path / "r", tmp_path / "nothing", load_design(), seed=0)
-
-
-def test_display_benchmark_small():
-    r = run_benchmark(load_design(), "display", trials=3, seed=2, n_boot=200, log=None)
-    assert len(r["records"]) == 3 and all(x["layer"] == "display" for x in r["records"])

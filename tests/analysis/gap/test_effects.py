@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from analysis.gap import engine, inject
+from analysis.gap import engine
 from analysis.gap.engine import (
     Candidate,
     GapError,
@@ -17,6 +17,7 @@ from analysis.gap.engine import (
     registry,
     strengths,
 )
+from analysis.gapbench import inject
 
 
 @pytest.fixture

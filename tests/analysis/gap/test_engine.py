@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap.benchmark import draw_schedule
 from analysis.gap.engine import Candidate, DiagnosisSettings, LayerFunctions, diagnose_losses
 
 N_UNITS = 2000
@@ -45,16 +44,6 @@ def test_a_significant_but_negligible_gain_is_not_attributed_under_a_minimum_gai
     diag = _diagnose(gains, min_gain=0.02)
     assert diag.verdict == "unexplained" and not diag.steps
     assert not any(s["significant"] for s in diag.ranking)
-
-
-def test_benchmark_schedule_scores_every_effect_equally_often():
-    effects, out = ("a", "b", "c", "d", "e", "f"), ("x", "y")
-    runs = draw_schedule(np.random.default_rng(3), 40, effects, out)
-    kinds = [k for _, k in runs]
-    assert (kinds.count("none"), kinds.count("out"), kinds.count("in")) == (10, 10, 20)
-    counts = {e: sum(r == (e, "in") for r in runs) for e in effects}
-    assert set(counts.values()) <= {3, 4} and sum(counts.values()) == 20
-    assert all(sum(r == (e, "out") for r in runs) == 5 for e in out)
 
 
 def test_greedy_re_tests_candidates_that_were_not_significant_at_first():
@@ -210,30 +199,6 @@ def test_a_new_candidate_is_one_object():
         from analysis.gap import engine
 
         engine._REGISTRY["observer"].pop("depth_shift_for_test")
-
-
-def test_harder_benchmark_scores_remaining_gaps_and_seed_agreement():
-    from analysis.gap.bench_observer import format_harder, score_harder
-
-    def rec(case, added, chosen, remains, agree=True):
-        return {"case": case, "added": added, "chosen": chosen, "remains": remains,
-                "verdict": " + ".join(chosen) or "unexplained", "agree": agree,
-                "expected": sorted({"central_tendency", "crosstalk"}
-                                   | {n for n in added if n == "lapses"}
-                                   if case != "null" else set()),
-                "pred_shrink": 0.5, "true_shrink": 0.55}
-    base = ["central_tendency", "crosstalk"]
-    r = score_harder([rec("null", {}, [], True), rec("null", {}, [], False),
-                      rec("base", {}, base, False), rec("catalogue", {"lapses": 0.1},
-                                                        [*base, "lapses"], False),
-                      rec("out", {"interaction": 0.06}, base, True),
-                      rec("both", {"lapses": 0.1, "interaction": 0.06}, base, False, False)])
-    assert r["false_attribution"] == (0.5, 2)  # a flagged remaining gap counts as attribution
-    assert r["unexplained_out"] == (0.5, 2) and r["unexplained_out_with_catalogue"] == (0.0, 1)
-    assert r["top1"] == (0.5, 2) and r["exact"] == (1.0, 2)
-    assert r["seed_agreement"][0] == pytest.approx(5 / 6)
-    assert r["shrink_error"][0] == pytest.approx(0.05 / 0.55)
-    assert "NOT met" in format_harder(r)
 
 
 def test_ceiling_given_chosen_sees_each_folds_chosen_candidates():

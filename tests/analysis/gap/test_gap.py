@@ -11,11 +11,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, diagnose, holm, inject
+from analysis.gap import GapError, diagnose, holm
 from analysis.gap.__main__ import main
-from analysis.gap.bench_observer import HarderCase, generate_sessions
-from analysis.gap.benchmark import run_observer_benchmark
 from analysis.gap.observer import base_from_params, to_slider_units
+from analysis.gapbench import inject
+from analysis.gapbench.bench_observer import HarderCase, generate_sessions
 from experiment import load_observer_params, make_observer, simulate_dataset
 from studydesign import load_design
 
@@ -214,19 +214,6 @@ def test_bad_input(tmp_path):
         diagnose("observer", _humanlike(1, 1), tmp_path / "obs.toml", DESIGN, seed=0)
     with pytest.raises(GapError, match="unknown layer"):
         diagnose("optics", tmp_path, tmp_path, DESIGN, seed=0)
-
-
-def test_benchmark_small():
-    r = run_observer_benchmark(DESIGN, trials=4, seed=1, n_boot=300)
-    assert len(r["records"]) == 4
-
-
-@pytest.mark.slow
-def test_benchmark_targets():
-    r = run_observer_benchmark(DESIGN, trials=24, seed=3, n_boot=400)
-    assert r["false_attribution"] <= 0.34
-    assert r["top1"] >= 0.8
-    assert r["shrink_error"] <= 0.10
 
 
 def _diagnosis(**kw):

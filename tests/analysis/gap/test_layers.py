@@ -5,9 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, inject
+from analysis.gap import GapError
 from analysis.gap.__main__ import main
 from analysis.gap.layers import parse_layer_paths
+from analysis.gapbench import inject
 from studydesign import load_design
 
 

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from analysis.gap import diagnose
-from analysis.gap.bench_observer import HarderCase, generate_sessions
 from analysis.gap.engine import candidate
 from analysis.gap.observer import (
     base_from_params,
@@ -19,6 +18,7 @@ from analysis.gap.observer import (
     observer_loss,
 )
 from analysis.gap.observer.ceiling import _ceiling_pred, _cell_offsets
+from analysis.gapbench.bench_observer import HarderCase, generate_sessions
 from experiment import load_observer_params
 from studydesign import load_design
 

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import GapError, diagnose, inject
+from analysis.gap import GapError, diagnose
 from analysis.gap.__main__ import main
-from analysis.gap.benchmark import run_benchmark
 from analysis.gap.engine import catalogue, strengths
+from analysis.gapbench import inject
 from studydesign import load_design
 
 
@@ -81,11 +81,6 @@ def test_cli_render_report(tmp_path):
     assert "vignetting" in page
     # Where in image space: residual maps before and after the chosen extension.
     assert 'src="residual_maps.png"' in page and (tmp_path / "rep" / "residual_maps.png").is_file()
-
-
-def test_render_benchmark_small():
-    r = run_benchmark(load_design(), "render", trials=3, seed=4, n_boot=200, log=None)
-    assert len(r["records"]) == 3
 
 
 @pytest.mark.slow

@@ -100,9 +100,9 @@ def test_render_vignetting_term_darkens_every_component():
 def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path):
     """Mitsuba photos of a textured sphere (out of catalogue): nothing attributed, and the
     held-out loss stays significantly above the local smooth of the residual."""
-    from analysis.gap import inject
     from analysis.gap.diagnose import diagnose
     from analysis.gap.engine import effect
+    from analysis.gapbench import inject
 
     rng = np.random.default_rng(7)
     inject.write_render_fit(tmp_path / "fit", rng, "albedo_texture",
@@ -156,8 +156,8 @@ def test_clearcoat_form_follows_a_coat_lit_by_a_key_light(tmp_path):
     whole share (c = 1). The view-angle-only forms leave 2.5-3 nats/px (the light's entry
     angle darkens the key light's terminator); the form whose entry factor comes from the
     render's own shading ('lights') leaves 0.04-0.05."""
-    from analysis.gap import bench_render as br
     from analysis.gap.render import load_render
+    from analysis.gapbench import bench_render as br
 
     br.write_analytic_fit(tmp_path, {}, np.random.default_rng(0))
     level = load_render(tmp_path).levels[1]
@@ -185,7 +185,7 @@ def _lamp_lit_coat(folder, lamp_half_deg: float):
     (IOR 1.5): at entry from each direction and at exit along the view."""
     from functools import partial
 
-    from analysis.gap import bench_render as br
+    from analysis.gapbench import bench_render as br
 
     frame = br._FRAME
     nx, ny, nz, inside, _ = br._subpixels(frame)

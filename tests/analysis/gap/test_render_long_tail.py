@@ -32,8 +32,8 @@ def test_wider_lobe_keeps_this_lobes_energy_and_its_fresnel_factor():
 
 
 def test_load_render_offers_each_level_the_wider_lobes_of_the_others(tmp_path):
-    from analysis.gap import bench_render as br
     from analysis.gap.render import load_render
+    from analysis.gapbench import bench_render as br
 
     br.write_analytic_fit(tmp_path / "fit", {}, np.random.default_rng(0))
     levels = {lv["name"]: lv for lv in load_render(tmp_path / "fit").levels}
@@ -73,8 +73,8 @@ def test_studio_haze_beside_vignetting_leaves_nothing_beyond_the_catalogue(tmp_p
     With image-space wings only (blur, lobe power, GTR1 kernel) the haze's room in the body of
     the glossiest level was left: 0.049 nats per pixel, 1.3 % of the photos' RMS luminance,
     flagged; with the wider level's lobe 0.008 nats per pixel."""
-    from analysis.gap import bench_render as br
     from analysis.gap.diagnose import diagnose
+    from analysis.gapbench import bench_render as br
 
     br.write_studio_fit(tmp_path / "fit", {"long_tail": 0.538, "vignetting": 0.452},
                         np.random.default_rng(5), 4096)

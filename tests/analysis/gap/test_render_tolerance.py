@@ -14,7 +14,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from analysis.gap import diagnose, inject
+from analysis.gap import diagnose
+from analysis.gapbench import inject
 from studydesign import load_design
 
 DESIGN = load_design()

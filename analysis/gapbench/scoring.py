@@ -72,7 +72,7 @@ def render_true_shrink(diag, fit_folder: Path, truth: dict) -> float:
     """Held-out loss of the plain simulation minus that of the generating photo (``truth``:
     noiseless image per level name), under the diagnosis's noise model (read and shot noise,
     ``loss_info['noise_a2_b']``), on the diagnosis's held-out pixels."""
-    from analysis.gap.render import noise_sd
+    from analysis.gap import noise_sd
 
     photos, renders = {}, {}
     for name in truth:

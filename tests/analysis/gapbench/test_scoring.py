@@ -1,4 +1,4 @@
-"""The benchmarks' shared scores (analysis.gap.scoring)."""
+"""The benchmarks' shared scores (analysis.gapbench.scoring)."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from collections import Counter
 
 import numpy as np
 
-from analysis.gap.scoring import per_case, rate, score_line, seed_agreement, shrink_errors
+from analysis.gapbench.scoring import per_case, rate, score_line, seed_agreement, shrink_errors
 
 RECORDS = [
     {"case": "a", "ok": True, "seed_verdicts": ["x", "x", "x"], "pred_shrink": 1.1,
@@ -42,7 +42,7 @@ def test_per_case_and_score_line_say_what_was_measured():
 
 
 def test_balanced_draw_gives_every_name_as_often_as_the_others_up_to_one():
-    from analysis.gap.scoring import balanced_draw
+    from analysis.gapbench.scoring import balanced_draw
 
     for n in (0, 3, 7, 11):
         counts = Counter(balanced_draw(np.random.default_rng(n), ("a", "b", "c", "d"), n))

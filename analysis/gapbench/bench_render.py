@@ -5,7 +5,7 @@ diagnosis's own injectors.
 Two generators write gloss-fit output folders (``residuals/gloss_XXX.npz``, the fit's format)
 that the diagnosis reads blind:
 
-* the **studio** (:class:`analysis.gap.inject._Studio`, Mitsuba renders of a Ward sphere in the
+* the **studio** (:class:`analysis.gapbench.inject._Studio`, Mitsuba renders of a Ward sphere in the
   room panorama) with several effects at once, each drawn by its own effect object's injector
   and composed physically: material effects on the same (possibly shifted) scene, the camera's
   glare and vignetting applied to the composed photo;
@@ -55,9 +55,9 @@ import numpy as np
 import pandas as pd
 from scipy.signal import fftconvolve
 
-from analysis.gap import inject
-from analysis.gap.engine import catalogue, effect, out_of_catalogue
-from analysis.gap.scoring import (
+from analysis.gap import catalogue, diagnose, effect, out_of_catalogue
+from analysis.gapbench import inject
+from analysis.gapbench.scoring import (
     balanced_draw,
     per_case,
     render_true_shrink,
@@ -65,7 +65,7 @@ from analysis.gap.scoring import (
     seed_agreement,
     shrink_errors,
 )
-from analysis.gap.scoring import rate as _rate
+from analysis.gapbench.scoring import rate as _rate
 
 __all__ = [
     "CASES",
@@ -473,7 +473,7 @@ def write_studio_fit(folder, effects: dict, rng: np.random.Generator,
                      spp: int = 4096) -> dict:
     """A gloss fit's output folder from the studio with several effects (:func:`studio_photo`),
     with the studio's camera noise and the plain Ward fit's renders (as
-    :func:`analysis.gap.inject.write_render_fit` writes one effect)."""
+    :func:`analysis.gapbench.inject.write_render_fit` writes one effect)."""
     folder = Path(folder)
     (folder / "residuals").mkdir(parents=True, exist_ok=True)
     studio = _CachedStudio(spp)
@@ -526,9 +526,6 @@ def _case_plan(case: str, rng: np.random.Generator) -> dict:
 
 def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
               spp: int, design=None) -> dict:
-    from analysis.gap.diagnose import diagnose
-    from analysis.gap.render import load_render
-
     plan = _case_plan(case, rng)
     cat = {c.name for c in catalogue("render")}
     with tempfile.TemporaryDirectory() as tmp:
@@ -537,8 +534,7 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
             truth = write_analytic_fit(folder, plan["effects"], rng)
         else:
             truth = write_studio_fit(folder, plan["effects"], rng, spp)
-        data = load_render(folder, folder)
-        diags = [diagnose("render", data, None, design, seed=int(rng.integers(2**31)),
+        diags = [diagnose("render", folder, None, design, seed=int(rng.integers(2**31)),
                           n_boot=n_boot)[0] for _ in range(seeds)]
         diag = diags[0]
         single = case == "independent"

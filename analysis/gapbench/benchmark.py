@@ -23,14 +23,21 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap import inject
-from analysis.gap.diagnose import diagnose
-from analysis.gap.engine import OutOfCatalogue, candidate, catalogue, out_of_catalogue
-from analysis.gap.engine import effect as _effect
-from analysis.gap.engine import strengths as _strengths
-from analysis.gap.observer import observer_frame, observer_nll, read_session_csvs
-from analysis.gap.scoring import balanced_draw, render_true_shrink
-from analysis.gap.scoring import rate as _rate
+from analysis.gap import (
+    OutOfCatalogue,
+    candidate,
+    catalogue,
+    diagnose,
+    observer_frame,
+    observer_nll,
+    out_of_catalogue,
+    read_session_csvs,
+)
+from analysis.gap import effect as _effect
+from analysis.gap import strengths as _strengths
+from analysis.gapbench import inject
+from analysis.gapbench.scoring import balanced_draw, render_true_shrink
+from analysis.gapbench.scoring import rate as _rate
 
 __all__ = ["TARGETS", "draw_schedule", "format_scores", "run_benchmark", "run_layer_benchmark",
            "run_observer_benchmark", "run_thresholds"]
@@ -199,8 +206,8 @@ def run_layer_benchmark(design, *, trials: int, seed: int, n_boot: int = 300,
                         log=print) -> dict:
     """Which layer carries the gap: each run injects one catalogue effect at moderate strength
     into one layer chosen at random (nothing into the others), diagnoses all three from their
-    files and checks :func:`analysis.gap.layers.which_layer` names that layer."""
-    from analysis.gap.layers import which_layer
+    files and checks :func:`analysis.gap.which_layer` names that layer."""
+    from analysis.gap import which_layer
 
     rng = np.random.default_rng(seed)
     hits = []

@@ -41,14 +41,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.scoring import (
+from analysis.gapbench.scoring import (
     balanced_draw,
     per_case,
     score_line,
     seed_agreement,
     shrink_errors,
 )
-from analysis.gap.scoring import rate as _rate
+from analysis.gapbench.scoring import rate as _rate
 from labfiles import atomic_write_text
 
 __all__ = [
@@ -340,8 +340,7 @@ def with_effect(display: GOGDisplay, effect: str, strength: float) -> GOGDisplay
 # --- the cases ------------------------------------------------------------------------------
 
 def _catalogue():
-    import analysis.gap.display  # noqa: F401  (registers the display candidates)
-    from analysis.gap.engine import catalogue
+    from analysis.gap import catalogue  # loads the display layer's candidates on first use
 
     return {c.name: c for c in catalogue("display")}
 
@@ -399,7 +398,7 @@ def _true_shrink(diag, folder: Path, display: GOGDisplay) -> float:
 def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> dict:
     import warnings
 
-    from analysis.gap.diagnose import diagnose
+    from analysis.gap import diagnose
 
     cat = _catalogue()
     plan = _case_plan(case, rng, cat)
@@ -531,10 +530,11 @@ def format_display_scores(s: dict) -> str:
 
 
 def main(argv=None) -> int:
-    """``python -m analysis.gap.bench_display --trials N --seed S``: run and print the scores."""
+    """``python -m analysis.gapbench.bench_display --trials N --seed S``: run and print the
+    scores."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m analysis.gap.bench_display",
+    ap = argparse.ArgumentParser(prog="python -m analysis.gapbench.bench_display",
                                  description="display cases of the harder blind benchmark")
     ap.add_argument("--trials", type=int, default=21, help="cases (each kind equally often)")
     ap.add_argument("--seed", type=int, default=0)

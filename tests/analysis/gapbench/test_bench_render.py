@@ -7,10 +7,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from analysis.gap import bench_render as br
 from analysis.gap.diagnose import diagnose
 from analysis.gap.engine import catalogue, effect, out_of_catalogue
 from analysis.gap.render import load_render
+from analysis.gapbench import bench_render as br
 
 
 def _plain(level):
@@ -143,7 +143,7 @@ def test_a_remaining_gap_flagged_with_catalogue_effects_only_is_scored_wrong():
 
 
 def test_cli_runs_the_harder_render_cases(monkeypatch, capsys):
-    from analysis.gap.__main__ import main
+    from analysis.gapbench.__main__ import main
 
     calls = {}
 
@@ -151,7 +151,7 @@ def test_cli_runs_the_harder_render_cases(monkeypatch, capsys):
         calls.update(trials=trials, seed=seed)
         return [_rec("none", [], "unexplained")]
     monkeypatch.setattr(br, "run_render_cases", fake_run)
-    assert main(["benchmark", "--layer", "render", "--harder", "--trials", "1", "--seed", "3",
+    assert main(["--layer", "render", "--harder", "--trials", "1", "--seed", "3",
                  "--quiet"]) == 0
     assert calls == {"trials": 1, "seed": 3}
     assert "render (harder): false attributions" in capsys.readouterr().out
@@ -159,7 +159,7 @@ def test_cli_runs_the_harder_render_cases(monkeypatch, capsys):
 
 def test_cli_pools_the_cases_of_several_seeds_into_one_score(monkeypatch, capsys):
     """``--seed 1 2``: each seed's cases run once, scored together (the rate's n is the sum)."""
-    from analysis.gap.__main__ import main
+    from analysis.gapbench.__main__ import main
 
     seeds = []
 
@@ -167,7 +167,7 @@ def test_cli_pools_the_cases_of_several_seeds_into_one_score(monkeypatch, capsys
         seeds.append(seed)
         return [_rec("none", [], "unexplained")]
     monkeypatch.setattr(br, "run_render_cases", fake_run)
-    assert main(["benchmark", "--layer", "render", "--harder", "--trials", "1", "--seed", "1",
+    assert main(["--layer", "render", "--harder", "--trials", "1", "--seed", "1",
                  "2", "--quiet"]) == 0
     out = capsys.readouterr().out
     assert seeds == [1, 2]
@@ -176,9 +176,9 @@ def test_cli_pools_the_cases_of_several_seeds_into_one_score(monkeypatch, capsys
 
 
 def test_cli_refuses_several_seeds_without_harder(capsys):
-    from analysis.gap.__main__ import main
+    from analysis.gapbench.__main__ import main
 
-    assert main(["benchmark", "--layer", "render", "--trials", "1", "--seed", "1", "2"]) == 2
+    assert main(["--layer", "render", "--trials", "1", "--seed", "1", "2"]) == 2
     assert "takes one seed" in capsys.readouterr().err
 
 
@@ -188,7 +188,7 @@ def test_studio_fresnel_acts_on_the_long_tails_haze_too():
     haze is rendered behind the same interface, so its change to the photo grows towards the
     rim (grazing view) by about the Fresnel gain there, not only its Ward core. (Adding the
     two effects' changes, as before, gives the haze's change unchanged by Fresnel: ratio 1.)"""
-    from analysis.gap import inject
+    from analysis.gapbench import inject
 
     rng = np.random.default_rng(0)
     spp, level = 512, 2  # the sharpest level: its haze's change at the rim is clearest

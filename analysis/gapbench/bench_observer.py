@@ -200,7 +200,7 @@ def _true_loss(design, frame: pd.DataFrame, truth: pd.DataFrame, case: HarderCas
     """Held-out loss of the generating process at population level: its population mean per
     trial, its mixtures at their true weights, noise SDs fitted (one per response; the
     observers' own deviations are noise to any population model), with the diagnosis's loss."""
-    from analysis.gap.observer import observer_frame, observer_loss
+    from analysis.gap import observer_frame, observer_loss
 
     data = observer_frame(frame, design)
     key = ["participant", "session", "order"]
@@ -249,8 +249,7 @@ def run_observer_cases(design, *, trials: int, seed: int, n_participants: int = 
     """Run ``trials`` cases (:func:`_schedule`), one record each (for :func:`score_harder`;
     records of several seeds may be pooled). Each case's files are diagnosed with a first
     seed and ``agreement_seeds`` further seeds, all drawn from ``seed``."""
-    from analysis.gap.diagnose import diagnose
-    from analysis.gap.observer import base_from_params
+    from analysis.gap import base_from_params, diagnose
     from experiment import load_observer_params
 
     rng = np.random.default_rng(seed)
@@ -284,8 +283,8 @@ def run_observer_cases(design, *, trials: int, seed: int, n_participants: int = 
 
 def score_harder(records: list[dict]) -> dict:
     """Rates over the records of :func:`run_harder_observer` (NaN where a kind has no case)."""
-    from analysis.gap.scoring import rate as _rate
-    from analysis.gap.scoring import shrink_errors
+    from analysis.gapbench.scoring import rate as _rate
+    from analysis.gapbench.scoring import shrink_errors
 
     def rate(sel, ok):
         return _rate(records, sel, ok)
@@ -314,8 +313,8 @@ def score_harder(records: list[dict]) -> dict:
 
 def format_harder(r: dict) -> str:
     """What was measured, beside the targets, one line each."""
-    from analysis.gap.benchmark import TARGETS
-    from analysis.gap.scoring import score_line
+    from analysis.gapbench.benchmark import TARGETS
+    from analysis.gapbench.scoring import score_line
 
     def line(label, key, target, higher=True):
         v, n = r[key]

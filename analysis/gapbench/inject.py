@@ -1,7 +1,8 @@
 """Benchmark injectors: pseudo-real data with a hidden effect (observer, display, render).
 
 The diagnosis never imports this module, nor the simulators used here (the experiment's
-observers, calibration.SimulatedCRT); tests/analysis/gap/test_gap.py checks the import graph."""
+observers, calibration.SimulatedCRT); tests/analysis/gap/test_gap.py and
+tests/analysis/gapbench/test_independence.py check the import graph."""
 
 from __future__ import annotations
 
@@ -11,9 +12,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.engine import OutOfCatalogue, catalogue, out_of_catalogue, strengths
-from analysis.gap.engine import effect as _effect
-from analysis.gap.engine import register_out_of_catalogue as _register_out
+from analysis.gap import OutOfCatalogue, catalogue, out_of_catalogue, strengths
+from analysis.gap import effect as _effect
+from analysis.gap import register_out_of_catalogue as _register_out
 from studydesign import rec709_luminance
 
 # Also public, derived when read (module __getattr__, see _DERIVED): OBSERVER_EFFECTS,
@@ -105,7 +106,7 @@ _register_out("observer", OutOfCatalogue(
 
 def observer_injector(name: str):
     """The injector of an observer effect: the catalogue candidate's own or an
-    out-of-catalogue effect's (:func:`analysis.gap.engine.effect`). Raises GapError for an
+    out-of-catalogue effect's (:func:`analysis.gap.effect`). Raises GapError for an
     unknown name, listing the known ones."""
     return _effect("observer", name).inject
 
@@ -121,7 +122,7 @@ def simulate_sessions(design, n_participants: int, rng: np.random.Generator,
     ``lab_files``: rename illuminations (:func:`lab_names`) and stimulus ids as a lab's own
     files might, so the diagnosis cannot rely on the design's names.
     """
-    from analysis.gap.observer import to_slider_units
+    from analysis.gap import to_slider_units
     from experiment import make_observer, simulate_dataset
 
     s = design.slider
