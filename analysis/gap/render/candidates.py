@@ -149,7 +149,7 @@ def _fit_long_tail(train, chosen):
 # --- the catalogue: each effect's fit, term, injector, default strength and truth -----------
 # An injector makes the photo's noiseless luminance of one gloss level with the effect:
 # ``inject(studio, level, strength, rng)``. ``studio`` is the benchmark's renderer (Mitsuba
-# scenes of the gloss fit's sphere, analysis.gap.inject): ``level(k)`` -> (rho_d, rho_s,
+# scenes of the gloss fit's sphere, analysis.gapbench.inject): ``level(k)`` -> (rho_d, rho_s,
 # alpha), ``base(k)`` -> the plain diffuse and specular renders, ``background(shift)``,
 # ``render(material, seed, shift)``, ``ward(...)``, ``rgb(v)``, ``sphere_r()``,
 # ``mean_ratio(a, b, where)``, ``plain(k)`` (background + diffuse + specular). The effect is
