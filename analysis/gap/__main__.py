@@ -9,10 +9,10 @@ from __future__ import annotations
 import argparse
 import sys
 
-from analysis.gap.engine import GapError
+from analysis.gap.engine import LAYER_NAMES, GapError
 from studydesign import load_design
 
-LAYERS = ("observer", "display", "render")
+LAYERS = LAYER_NAMES
 #: What ``python -m analysis.gap benchmark`` answers: the benchmarks are a package of their own,
 #: which this one (the diagnosis) never imports.
 MOVED = ("the blind benchmarks moved to the package analysis.gapbench: run `python -m analysis "
