@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from analysis.gap import diagnose, inject, write_report
+from analysis.gap import diagnose, write_report
+from analysis.gapbench import inject
 from studydesign import load_design
 
 WIDTH, HEIGHT = 1280, 2000
