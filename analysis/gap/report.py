@@ -92,8 +92,7 @@ def lead_figure(d: Diagnosis) -> str:
     items = [(f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
               "nats per unit above the noise floor, before \u2192 after")]
     if d.steps:
-        share = _pct(d.explained_share) if math.isfinite(d.explained_share) else "all"
-        items.append((share, "of the gap explained"))
+        items.append((_pct(d.explained_share), "of the gap explained"))
     else:
         items.append(("none", "of the gap explained by the catalogue"))
     return _lead(items)

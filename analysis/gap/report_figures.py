@@ -17,6 +17,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from labfiles import atomic_open
+
 __all__ = ["write_figures"]
 
 #: Width of one residual-map panel, inches (three panels a row).
@@ -26,7 +28,9 @@ _TITLE_IN = 0.3
 
 
 def _save(fig, path, dpi: int) -> None:
-    fig.savefig(path, dpi=dpi, bbox_inches="tight", pad_inches=0.05)
+    """Write ``fig`` as a PNG at ``path`` atomically (a stopped run leaves no torn image)."""
+    with atomic_open(path, "wb") as fh:
+        fig.savefig(fh, format="png", dpi=dpi, bbox_inches="tight", pad_inches=0.05)
     plt.close(fig)
 
 

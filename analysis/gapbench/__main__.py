@@ -7,16 +7,14 @@ from __future__ import annotations
 import argparse
 import sys
 
-from analysis.gap import GapError
+from analysis.gap import LAYERS, GapError
 from studydesign import load_design
-
-LAYERS = ("observer", "display", "render")
 
 
 def _harder(args, design, layers) -> int:
     """The harder benchmark: the observer part (``analysis.gapbench.bench_observer``), the
     display part (``analysis.gapbench.bench_display``: ``run_display_cases``,
-    ``score_display_cases``, ``format_display_scores``) where that module exists, and the
+    ``score_display_cases``, ``format_display_scores``) and the
     render part (``analysis.gapbench.bench_render``). With several ``--seed`` values each layer's
     cases of every seed are scored together (one case more or less moves a rate over 6 cases
     by 0.17; pooled over seeds the rates carry their larger n)."""
@@ -31,12 +29,8 @@ def _harder(args, design, layers) -> int:
             print(bench_observer.format_harder(bench_observer.score_harder(records)),
                   flush=True)
         elif layer == "display":
-            try:
-                from analysis.gapbench import bench_display
-            except ImportError:
-                print("display (harder): not available in this build (no "
-                      "analysis.gapbench.bench_display)")
-                continue
+            from analysis.gapbench import bench_display
+
             records = [r for seed in args.seed for r in bench_display.run_display_cases(
                 design, trials=args.trials, seed=seed, log=log)]
             print(bench_display.format_display_scores(

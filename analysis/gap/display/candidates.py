@@ -1,18 +1,8 @@
 """Display layer, the catalogue: one registered Candidate per display effect.
 
-Each candidate extends the plain simulation by one term of::
-
-    mu = Lmin + (L_cal(drive) - Lmin) * rel * gain + offset
-
-====================  ====================================================================
-candidate             term (parameters fitted on the training readings)
-====================  ====================================================================
-black_offset          offset += c (cd/m^2): extra black level or reflected ambient light
-nonuniformity         gain *= 1 + f (x^2 + y^2) / 2 + g x + h y
-warmup_drift          gain *= 1 - w exp(-t / tau), t = s since the first reading, tau at most
-                      3 records long (a slower drift is nearly a constant gain)
-quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma model
-====================  ====================================================================
+Each candidate extends the plain simulation by one term of the extended mean; the table of
+terms is the layer's overview (:mod:`analysis.gap.display`). Each carries its fit, its term
+(``apply``), its benchmark injector and how its parameters read in reports.
 
 They are registered with :func:`analysis.gap.engine.register` under ``"display"`` in this
 order when the module is imported; :data:`DISPLAY_CANDIDATES` is the resulting catalogue.
@@ -23,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.gap.display.model import _mean
-from analysis.gap.engine import Candidate, catalogue, register
+from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
 
 #: An attribution must remove >= 80 % of the held-out gap: the calibration was itself estimated
 #: from noisy readings, so a small gap remains that no display effect explains.
@@ -135,7 +125,8 @@ def _change(**how):
 register("display", Candidate(
     "black_offset", _fit_black, "extra black level or reflected ambient light",
     apply=_apply_black, inject=_change(ambient_cd_m2=lambda v, s: v + s),
-    default_strength=0.05, units="cd/m^2", truth=lambda s: {"c": float(s)}))
+    default_strength=0.05, units="cd/m^2", truth=lambda s: {"c": float(s)},
+    params={"c": ParamDoc("black offset", "cd/m²")}))
 register("display", Candidate(
     "nonuniformity", _fit_nonuniformity,
     "spatial non-uniformity beyond the calibration's map (falloff, gradients)",
@@ -143,15 +134,21 @@ register("display", Candidate(
     inject=_change(falloff=lambda v, s: v + s, tilt_x=lambda v, s: v + s / 2),
     default_strength=0.06, units="fractional loss at the corners",
     # To first order the extra falloff s and tilt s / 2 are f = -s, g = s / 2.
-    truth=lambda s: {"f": -float(s), "g": float(s) / 2, "h": 0.0}))
+    truth=lambda s: {"f": -float(s), "g": float(s) / 2, "h": 0.0},
+    params={"f": ParamDoc("radial falloff: gain change at the corners", "fraction"),
+            "g": ParamDoc("horizontal gradient: gain change at the right edge", "fraction"),
+            "h": ParamDoc("vertical gradient: gain change at the top edge", "fraction")}))
 register("display", Candidate(
     "warmup_drift", _fit_warmup, "luminance rises while the display warms up",
     apply=_apply_warmup, inject=_change(warmup_drift=lambda v, s: s),
     default_strength=0.03, units="fractional deficit at switch-on",
-    truth=lambda s: {"w": float(s), "tau_s": 600.0}))
+    truth=lambda s: {"w": float(s), "tau_s": 600.0},
+    params={"w": ParamDoc("luminance deficit at switch-on", "fraction"),
+            "tau_s": ParamDoc("warm-up time constant", "s")}))
 register("display", Candidate(
     "quantisation", _fit_quantisation, "coarser DAC than the calibration assumes",
     apply=_apply_quantisation, inject=_change(bits=lambda v, s: round(v - s)),
-    default_strength=2.0, units="DAC bits lost", truth=lambda s: {"bits": 8 - round(s)}))
+    default_strength=2.0, units="DAC bits lost", truth=lambda s: {"bits": 8 - round(s)},
+    params={"bits": ParamDoc("DAC resolution", "bits")}))
 
 DISPLAY_CANDIDATES = catalogue("display")

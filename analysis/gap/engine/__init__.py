@@ -26,12 +26,11 @@ from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.heldout import split_held_out
 from analysis.gap.engine.layer import LayerPlan
 from analysis.gap.engine.pipeline import diagnose_losses
-from analysis.gap.engine.registry import _OUT_REGISTRY as _OUT_REGISTRY  # patch in .registry
-from analysis.gap.engine.registry import _REGISTRY as _REGISTRY  # a test pops an entry
 from analysis.gap.engine.registry import (
     LAYER_NAMES,
     Candidate,
     OutOfCatalogue,
+    ParamDoc,
     candidate,
     catalogue,
     effect,
@@ -43,10 +42,9 @@ from analysis.gap.engine.registry import (
 from analysis.gap.engine.result import CandidateScore, Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import holm
-from analysis.gap.engine.words import _size_words as _size_words  # report.py's size clause
 from analysis.gap.engine.words import summarise
 
 __all__ = ["LAYER_NAMES", "Candidate", "CandidateScore", "Diagnosis", "DiagnosisSettings",
-           "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue", "candidate", "catalogue", "diagnose_losses",
+           "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue", "ParamDoc", "candidate", "catalogue", "diagnose_losses",
            "effect", "holm", "out_of_catalogue", "register", "register_out_of_catalogue",
            "split_held_out", "strengths", "summarise"]

@@ -6,17 +6,41 @@ from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from analysis.gap.engine.errors import GapError
 
-__all__ = ["LAYER_NAMES", "Candidate", "OutOfCatalogue", "candidate", "catalogue", "effect", "out_of_catalogue",
+__all__ = ["LAYER_NAMES", "Candidate", "OutOfCatalogue", "ParamDoc", "candidate", "catalogue", "effect", "out_of_catalogue",
            "register", "register_out_of_catalogue", "strengths"]
 
 #: The layers, in the pipeline's order of diagnosis; each is a package ``analysis.gap.<layer>``
 #: whose import registers its catalogue and which defines ``plan`` (:mod:`.layer`).
 LAYER_NAMES = ("observer", "display", "render")
 _LAYER_MODULES = LAYER_NAMES
+
+@dataclass(frozen=True)
+class ParamDoc:
+    """How one fitted parameter of a candidate reads in reports (the table of a chosen effect's
+    parameters, :func:`analysis.gap.params_table.param_rows`).
+
+    ====== ======================== ===========================================================
+    field  type                     meaning
+    ====== ======================== ===========================================================
+    name   str                      the parameter in words ("black offset")
+    unit   str or ``unit(value)``   its unit or scale ("cd/m²"), or a function of the value
+                                    where the unit follows a chosen form
+    parts  tuple of str             names of a pair's parts ("diffuse scale", "specular
+                                    scale"), each then a row of its own
+    where  str                      ``str.format`` pattern for what a nested key is for
+                                    ("{} response"); "{}": the key itself
+    ====== ======================== ===========================================================
+    """
+
+    name: str
+    unit: str | Callable[[object], str] = ""
+    parts: tuple[str, ...] = ()
+    where: str = "{}"
+
 
 @dataclass(frozen=True)
 class Candidate:
@@ -39,6 +63,9 @@ class Candidate:
     truth          ``truth(strength, **ctx)``   the fitted parameters the injected strength
                                                 should give, ``[(name, params), ...]`` (the
                                                 benchmark's shrinkage score)
+    params         dict of str -> ParamDoc      how each key ``fit`` returns reads in reports
+                                                (name, unit); key ``"*"``: every key is what
+                                                the value is for (e.g. per response)
     ============== ============================ ===============================================
     """
 
@@ -50,6 +77,7 @@ class Candidate:
     default_strength: float = float("nan")
     units: str = ""
     truth: Callable | None = None
+    params: dict = field(default_factory=dict, compare=False, hash=False)
 
 
 _REGISTRY: dict[str, dict[str, Candidate]] = {}

@@ -10,17 +10,10 @@ of both responses (nats), Gaussian noise censored at the slider ends. The noise 
 on the training data for every model, so a uniformly noisier lab is no gap; noise that changes
 with the stimulus is (the ceiling models it).
 
-The *ceiling* (:func:`fit_ceiling`) is a flexible extension of a model, fitted to the real
-data: the model's mean plus a ridge-penalised correction (a quadratic surface in gloss x depth
-with illumination-specific terms and the previous response), per-cell offsets (stimulus gloss
-x depth x illumination) shrunk across participants (empirical Bayes), a log-linear noise
-variance shrunk toward the model's constant one, and lapse and label-rounding shares; each
-penalty is chosen by held-out loss within the training data. The remaining gap is tested with
-the ceiling built on the *chosen* model, so that the ceiling loses next to nothing where the
-chosen model is right and a shortfall is not hidden by the cost of fitting the flexible model
-from scratch. The noise *floor* is the loss the ceiling over the plain simulation has on data
-it generates itself (its own noise, estimated from the data), not an assumed noise of an ideal
-observer.
+The *ceiling* (:func:`fit_ceiling`, ``ceiling.py``, whose docstring gives its terms) is a
+flexible extension of a model fitted to the real data; the remaining gap is tested with the
+ceiling built on the *chosen* model. The noise *floor* is the loss the ceiling over the plain
+simulation has on data it generates itself, not an assumed noise of an ideal observer.
 
 Where things are
 ----------------

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.gap.engine import Candidate, register
+from analysis.gap.engine import Candidate, ParamDoc, register
 from analysis.gap.observer.model import RESP, _fit_sigma, _gauss_share, _nll, predict
 
 __all__ = ["OBSERVER_CANDIDATES"]
@@ -207,26 +207,37 @@ OBSERVER_CANDIDATES = [register("observer", c) for c in (
     Candidate("crosstalk", _fit_crosstalk, "deeper arrays look glossier",
               apply=_apply_crosstalk, inject=_inject_crosstalk, default_strength=0.3,
               units="gloss slider units per depth slider unit",
-              truth=lambda s, **_: [("crosstalk", {"c": float(s)})]),
+              truth=lambda s, **_: [("crosstalk", {"c": float(s)})],
+              params={"c": ParamDoc("crosstalk slope",
+                                    "gloss slider units per depth slider unit")}),
     Candidate("central_tendency", _fit_central, "responses compressed toward the slider middle",
               apply=_apply_central, inject=_inject_central, default_strength=0.3,
               units="share of the distance to the middle",
-              truth=_per_response("central_tendency")),
+              truth=_per_response("central_tendency"),
+              params={"*": ParamDoc("pull toward the slider's middle",
+                                    "share of the distance to the middle", where="{} response")}),
     Candidate("illumination_gain", _fit_illumination, "gloss gain differs by illumination",
               apply=_apply_illumination, inject=_inject_illumination, default_strength=0.3,
               units="gloss gain change per illumination (+ first, - others)",
-              truth=_truth_illumination),
+              truth=_truth_illumination,
+              params={"gain": ParamDoc("gloss gain change",
+                                       "gloss slider units per slider unit of true gloss")}),
     Candidate("label_rounding", _fit_mixture("label_rounding", "weight",
                                              np.linspace(0.0, 0.6, 13)),
               "responses snap to tick labels", apply=_apply_label, inject=_inject_label,
               default_strength=0.4, units="share of responses on a label",
-              truth=lambda s, **_: [("label_rounding", {"weight": float(s)})]),
+              truth=lambda s, **_: [("label_rounding", {"weight": float(s)})],
+              params={"weight": ParamDoc("responses snapped to a tick label",
+                                         "fraction of responses")}),
     Candidate("lapses", _fit_mixture("lapses", "rate", np.linspace(0.0, 0.3, 16)),
               "random responses anywhere on the slider", apply=_apply_lapses,
               inject=_inject_lapses, default_strength=0.15, units="lapse rate",
-              truth=lambda s, **_: [("lapses", {"rate": float(s)})]),
+              truth=lambda s, **_: [("lapses", {"rate": float(s)})],
+              params={"rate": ParamDoc("lapse rate", "fraction of responses")}),
     Candidate("serial_dependence", _fit_serial, "pull toward the previous trial's response",
               apply=_apply_serial, inject=_inject_serial, default_strength=0.3,
               units="share of the distance to the previous response",
-              truth=_per_response("serial_dependence")),
+              truth=_per_response("serial_dependence"),
+              params={"*": ParamDoc("pull toward the previous response",
+                                    "share of the distance to it", where="{} response")}),
 )]

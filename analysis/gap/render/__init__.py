@@ -110,17 +110,6 @@ from analysis.gap.render.data import (
     RenderData,
     load_render,
 )
-from analysis.gap.render.data import _aligned_lobe as _aligned_lobe
-from analysis.gap.render.data import _camera_distance as _camera_distance
-from analysis.gap.render.data import _coat_mirror as _coat_mirror
-from analysis.gap.render.data import _mirror_light as _mirror_light
-from analysis.gap.render.data import _sphere_view as _sphere_view
-from analysis.gap.render.model import _coverage as _coverage
-from analysis.gap.render.model import _fill as _fill
-from analysis.gap.render.model import _glare_blur as _glare_blur
-from analysis.gap.render.model import _predict as _predict
-from analysis.gap.render.model import _wider_lobe as _wider_lobe
-from analysis.gap.render.model import _wings as _wings
 from analysis.gap.render.model import (
     noise_model,
     noise_sd,
@@ -128,8 +117,7 @@ from analysis.gap.render.model import (
     render_unit_ids,
     split_render,
 )
-from analysis.gap.render.where import localise_render, residual_maps
-from analysis.gap.render.where import render_where as render_where
+from analysis.gap.render.where import localise_render, render_where, residual_maps
 
 __all__ = [
     "NPZ_ARRAYS",
@@ -149,6 +137,7 @@ __all__ = [
     "render_loss",
     "render_misfit_pct",
     "render_unit_ids",
+    "render_where",
     "residual_maps",
     "split_render",
 ]

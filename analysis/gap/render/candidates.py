@@ -10,10 +10,12 @@ or the camera), its default strength and the parameters a right fit recovers.
 
 from __future__ import annotations
 
+from numbers import Number
+
 import numpy as np
 from scipy import optimize
 
-from analysis.gap.engine import Candidate, catalogue, register
+from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
 from analysis.gap.render.data import _FRESNEL_CAPS, RenderData
 from analysis.gap.render.model import (
     _basis,
@@ -220,38 +222,75 @@ def _inject_misregistration(studio, level, s, rng):
             + studio.render(studio.ward(0.0, rho_s, alpha), 21 + level, shift=shift))
 
 
+def _tail_width_unit(width) -> str:
+    """What the long tail's wing form is (:data:`_TAIL_WIDTHS`, ``_wings``, ``_wider_lobe``)."""
+    if isinstance(width, str):
+        return "the wider lobe of this less glossy level"
+    if width >= 1:
+        return "px, SD of a Gaussian blur of the lobe"
+    if width > 0:
+        return "power the lobe is raised to (a wider Ward lobe)"
+    return "-px, half width of a GTR1 haze kernel"
+
+
+def _glare_unit(spread) -> str:
+    """What the veiling glare's spread is (:data:`_GLARE_SIGMAS`, ``_glare_blur``)."""
+    if isinstance(spread, Number) and spread < 0:
+        return "-x image width, core of a power-law kernel"
+    return "x image width, SD of a Gaussian kernel"
+
+
+#: Every render candidate refits the gloss fit's diffuse and specular scales per level.
+_SCALE = ParamDoc("scale", "× the gloss fit's component",
+                  parts=("diffuse scale", "specular scale"))
+
+
 # Registered in the order their terms apply (_basis): the material's terms on the specular
 # and diffuse components, then the camera's glare and vignetting, then the shift.
 register("render", Candidate(
     "fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
     "specular reflectance rising towards grazing angles (Schlick)", apply=_apply_fresnel,
     inject=_inject_fresnel, default_strength=6.0, units="Schlick gain (1 - F0) / F0",
-    truth=lambda s: {"c": float(s)}))
+    truth=lambda s: {"c": float(s)},
+    params={"kappa": ParamDoc("cap on the view cosine (0: plain Schlick)", "cosine"),
+            "c": ParamDoc("Fresnel rise", "Schlick gain (1 − F0) / F0"), "scale": _SCALE}))
 register("render", Candidate(
     "long_tail", _fit_long_tail, "highlight lobe with longer tails than Ward's",
     apply=_apply_long_tail, inject=_inject_long_tail, default_strength=0.6,
     units="share of the lobe's energy in the haze",
     # The amount per level; the form (blur or power) has no counterpart in the injector.
-    truth=lambda s: {"c": float(s)}))
+    truth=lambda s: {"c": float(s)},
+    params={"c": ParamDoc("haze share", "share of the lobe's energy in the haze"),
+            "width": ParamDoc("wing form", _tail_width_unit), "scale": _SCALE}))
 register("render", Candidate(
     "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
     "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
     apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
-    units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)}))
+    units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)},
+    params={"entry": ParamDoc("where the diffuse light entered the coat"),
+            "c": ParamDoc("diffuse light through the coat", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
     "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
     "lens glare: a blurred copy of the image added", apply=_apply_glare,
     inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
-    truth=lambda s: {"c": float(s)}))
+    truth=lambda s: {"c": float(s)},
+    params={"sigma_frac": ParamDoc("glare spread", _glare_unit),
+            "c": ParamDoc("light in the glare", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
     "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
     apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
     units="vignetting coefficient",
     # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
-    truth=lambda s: {"c": 2 * float(s) ** 2}))
+    truth=lambda s: {"c": 2 * float(s) ** 2},
+    params={"c": ParamDoc("darkening ∝ ρ²",
+                          "fraction (ρ: distance from the image centre, 1 at the corners)"),
+            "c2": ParamDoc("darkening ∝ ρ⁴", "fraction (ρ as above)"), "scale": _SCALE}))
 register("render", Candidate(
     "misregistration", _fit_misregistration, "photo and render still offset after registration",
     apply=_apply_misregistration, inject=_inject_misregistration, default_strength=0.6,
-    units="px", truth=lambda s: {"shift_norm_px": float(s)}))
+    units="px", truth=lambda s: {"shift_norm_px": float(s)},
+    params={"shift_px": ParamDoc("shift", "px", parts=("render shift down",
+                                                       "render shift right")),
+            "scale": _SCALE}))
 
 RENDER_CANDIDATES = catalogue("render")

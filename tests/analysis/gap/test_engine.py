@@ -196,9 +196,9 @@ def test_a_new_candidate_is_one_object():
         mu = predict(data, [("depth_shift_for_test", {"shift": 0.5})])["mu"]
         assert mu["depth"][0] == pytest.approx(6.5)
     finally:
-        from analysis.gap import engine
+        from analysis.gap.engine import registry
 
-        engine._REGISTRY["observer"].pop("depth_shift_for_test")
+        registry._REGISTRY["observer"].pop("depth_shift_for_test")
 
 
 def test_ceiling_given_chosen_sees_each_folds_chosen_candidates():

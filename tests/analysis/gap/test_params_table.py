@@ -6,7 +6,8 @@ from __future__ import annotations
 import pytest
 
 from analysis.gap import catalogue
-from analysis.gap.params_table import PARAMS, ParamRow, format_sig, param_rows
+from analysis.gap.engine import ParamDoc
+from analysis.gap.params_table import ParamRow, format_sig, param_rows
 
 
 @pytest.mark.parametrize("value,text", [
@@ -76,7 +77,11 @@ def test_an_unlisted_effect_reads_its_keys():
 
 
 @pytest.mark.parametrize("layer", ["observer", "display", "render"])
-def test_every_registered_candidate_has_readable_parameters(layer):
-    """Each candidate of the catalogue is listed, so its table has names and units."""
+def test_every_registered_candidate_describes_its_parameters(layer):
+    """Each candidate of the catalogue says how its parameters read (Candidate.params, written
+    beside its fit), so its table has names and units, not bare keys."""
     for cand in catalogue(layer):
-        assert (layer, cand.name) in PARAMS, (layer, cand.name)
+        assert cand.params, f"{layer}/{cand.name} describes none of its parameters"
+        for key, doc in cand.params.items():
+            assert isinstance(doc, ParamDoc) and doc.name, (layer, key)
+            assert doc.name != key or doc.parts, f"{layer}/{cand.name}: {key!r} not put in words"

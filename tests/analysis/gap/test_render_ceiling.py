@@ -122,7 +122,7 @@ def test_rendered_albedo_texture_leaves_a_gap_above_the_render_ceiling(tmp_path)
 def test_power_law_glare_keeps_its_known_profile():
     """A point of light spread by the glare's power-law form (core w = 2 px) follows
     (1 + (r / w)^2)^(-3/2) from its centre: tails a Gaussian of the same core lacks."""
-    from analysis.gap.render import _glare_blur
+    from analysis.gap.render.model import _glare_blur
 
     point = np.zeros((65, 65))
     point[32, 32] = 1.0
@@ -135,7 +135,7 @@ def test_power_law_glare_keeps_its_known_profile():
 
 
 def test_gtr1_wings_spread_a_lobe_over_the_sphere_only_with_inverse_square_tails():
-    from analysis.gap.render import _wings
+    from analysis.gap.render.model import _wings
 
     yy, xx = np.mgrid[0:SIZE, 0:SIZE].astype(float)
     inside = (np.hypot(yy - 31.5, xx - 31.5) < 28).astype(float)
@@ -246,7 +246,7 @@ def test_camera_distance_read_from_the_fit_gives_perspective_normals(tmp_path):
     the view is orthographic."""
     import json
 
-    from analysis.gap.render import _camera_distance, _sphere_view
+    from analysis.gap.render.data import _camera_distance, _sphere_view
 
     assert _camera_distance(tmp_path) is None
     (tmp_path / "fit.json").write_text(json.dumps(
@@ -285,7 +285,7 @@ def test_mirror_coat_entry_keeps_memory_bounded_on_a_large_sphere():
     thinned."""
     import tracemalloc
 
-    from analysis.gap.render import _coat_mirror, _mirror_light
+    from analysis.gap.render.data import _coat_mirror, _mirror_light
 
     small = _mirror_scene(25)
     f_small = _coat_mirror(_mirror_light(small), small)
@@ -316,7 +316,7 @@ def test_torn_or_wrong_fit_json_is_refused_by_name_and_kept(tmp_path, text, word
     cannot be a camera is a GapError naming the file and the fix, never a traceback or a
     silent orthographic view; the file itself is left as it was."""
     from analysis.gap import GapError
-    from analysis.gap.render import _camera_distance
+    from analysis.gap.render.data import _camera_distance
 
     (tmp_path / "fit.json").write_text(text)
     with pytest.raises(GapError, match=words) as err:

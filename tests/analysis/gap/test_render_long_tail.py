@@ -12,7 +12,7 @@ def _level(name, S, cover):
 
 
 def test_wider_lobe_keeps_this_lobes_energy_and_its_fresnel_factor():
-    from analysis.gap.render import _wider_lobe
+    from analysis.gap.render.model import _wider_lobe
 
     yy, xx = np.mgrid[0:32, 0:32].astype(float)
     cover = (np.hypot(yy - 15.5, xx - 15.5) < 12).astype(float)
@@ -48,7 +48,8 @@ def test_a_borrowed_lobe_is_brought_onto_this_levels_sphere():
     larger in a larger image, the lobe's peak lands at the same place relative to this
     sphere (before: the other photo's pixels, misplaced; with image sizes that differ, a
     shape error)."""
-    from analysis.gap.render import _aligned_lobe, _coverage
+    from analysis.gap.render.data import _aligned_lobe
+    from analysis.gap.render.model import _coverage
 
     def level(shape, cy, cx, r, peak):
         yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)

@@ -15,7 +15,8 @@ import pandas as pd
 import pytest
 
 from analysis.gap.engine import candidate
-from analysis.gap.render import RenderData, _predict
+from analysis.gap.render import RenderData
+from analysis.gap.render.model import _predict
 
 PROFILES = Path(__file__).resolve().parents[2] / "data" / "lensfun_vignetting" / "profiles.csv"
 SIZE = 64
