@@ -86,13 +86,18 @@ def _lead(items: list[tuple[str, str]]) -> str:
 
 def lead_figure(d: Diagnosis) -> str:
     """The figure beside the verdict (HTML): 'no significant gap', or the held-out gap before
-    -> after in nats per unit and the share of it the chosen effects explain."""
+    -> after in nats per unit and the share the chosen effects explain (with a ceiling: of what
+    the ceiling removes, the summary's share)."""
     if no_significant_gap(d):
         return _lead([("no significant gap", "")])
     items = [(f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
               "nats per unit above the noise floor, before \u2192 after")]
     if d.steps:
-        items.append((_pct(d.explained_share), "of the gap explained"))
+        # With a ceiling the share is of what a flexible model of the data removes (as the
+        # summary says), which may be far more than the share of the gap before -> after.
+        of = ("of what a flexible model removes, explained" if d.remaining is not None
+              else "of the gap explained")
+        items.append((_pct(d.explained_share), of))
     else:
         items.append(("none", "of the gap explained by the catalogue"))
     return _lead(items)

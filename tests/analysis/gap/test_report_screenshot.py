@@ -170,7 +170,8 @@ def test_report_in_chromium_shows_one_verdict_and_parameter_tables(display_diagn
     assert lead, "no lead figure beside the verdict"
     lead_text = page_text(lead.group(1))
     assert re.search(r"-?[\d.]+ \u2192 -?[\d.]+ nats per unit", lead_text), lead_text
-    assert "% of the gap explained" in lead_text, lead_text
+    # The share is named as the summary names it: of what the flexible model removes.
+    assert "% of what a flexible model removes, explained" in lead_text, lead_text
     # Each chosen effect's parameters as a table: readable names, units, 3 significant digits.
     tables = re.findall(r'<table class="params">(.*?)</table>', dom, re.DOTALL)
     assert len(tables) == len(diag.steps) >= 1, (len(tables), len(diag.steps))
