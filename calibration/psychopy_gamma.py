@@ -70,8 +70,9 @@ class PsychopyGamma:
     def statement(self) -> str:
         """The report's sentence on the profile, e.g. '... within 44 % at 5 % of the range:
         load gamma_ramp.csv instead'."""
+        digits = 0 if self.max_error_pct >= 10 else 1
         head = (f"PsychoPy's monitor gamma ({self.gamma:.3f}, the pure power a Window applies) "
-                f"reproduces this display within {self.max_error_pct:.0f} % at "
+                f"reproduces this display within {self.max_error_pct:.{digits}f} % at "
                 f"{100 * self.worst_fraction:.0f} % of the range")
         if self.max_error_pct > 1.0:
             return head + ": load gamma_ramp.csv instead"

@@ -1,4 +1,4 @@
-"""A gamma ramp (hardware lookup table) that linearises the display, for the lab's other experiments.
+"""A gamma ramp (hardware lookup table) that linearises the display, for other experiments.
 
 The glossdepth stimuli are inverse-gamma corrected in their pixels and need no table; another
 experiment that draws linear luminance values can load this table into the graphics card
@@ -9,10 +9,10 @@ instead, so that frame-buffer value ``i`` of ``N = 2^bits`` gives the luminance
   length before it transposes an N x 3 one);
 * Psychtoolbox: ``Screen('LoadNormalizedGammaTable', win, table)`` (N x 3).
 
-Entry ``i`` is the chosen model's inverse (:meth:`~calibration.record.Calibration.drive_for_fraction`)
-at the fraction ``i / (N - 1)``: any model the calibration can describe, the threshold of the
-extended power function included, which PsychoPy's gamma equations cannot hold. The calibration
-measures grey (equal drives on the three guns), so the three columns are the same curve.
+Entry ``i`` is the chosen model's inverse
+(:meth:`~calibration.record.Calibration.drive_for_fraction`) at the fraction ``i / (N - 1)``:
+any model the calibration can describe, the threshold of the extended power function included,
+which PsychoPy's gamma equations cannot hold. The calibration measures grey (equal drives on the three guns), so the three columns are the same curve.
 
 ``gamma_ramp.csv``: columns ``index``, ``r``, ``g``, ``b``; one row per entry, values in [0, 1]
 with 7 decimals (1e-7 of the drive range, far below any DAC's step).

@@ -58,7 +58,9 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
                      f"{_misfit_flag(f):<7} {params}")
     lines += [
         (f"chosen: {cal.gamma_model} (the simplest model whose held-out error in noise SDs is "
-         "within one standard error of the best)"),
+         "within one standard error of the best)") if cal.fits else
+        (f"curve: {cal.gamma_model} {cal.gamma_params} (given, not fitted: no readings; see the "
+         "warnings)"),
         f"luminance range: {cal.min_luminance_cd_m2:.3f} - {cal.max_luminance_cd_m2:.3f} cd/m^2",
     ]
     lines += _fit_summary(cal)
