@@ -12,7 +12,8 @@ instead, so that frame-buffer value ``i`` of ``N = 2^bits`` gives the luminance
 Entry ``i`` is the chosen model's inverse
 (:meth:`~calibration.record.Calibration.drive_for_fraction`) at the fraction ``i / (N - 1)``:
 any model the calibration can describe, the threshold of the extended power function included,
-which PsychoPy's gamma equations cannot hold. The calibration measures grey (equal drives on the three guns), so the three columns are the same curve.
+which PsychoPy's gamma equations cannot hold. The calibration measures grey (equal drives on
+the three guns), so the three columns are the same curve.
 
 ``gamma_ramp.csv``: columns ``index``, ``r``, ``g``, ``b``; one row per entry, values in [0, 1]
 with 7 decimals (1e-7 of the drive range, far below any DAC's step).
