@@ -14,6 +14,7 @@ scalar search finds its minimum).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,7 @@ __all__ = ["ERROR_RANGE", "PsychopyGamma", "best_psychopy_gamma", "psychopy_gamm
 
 #: Fractions of the luminance range over which the error is minimised and stated.
 ERROR_RANGE = (0.05, 0.95)
-_GRID = np.linspace(*ERROR_RANGE, 181)
+_GRID = np.linspace(*ERROR_RANGE, 901)
 _GAMMA_BOUNDS = (0.3, 10.0)
 
 
@@ -70,9 +71,11 @@ class PsychopyGamma:
     def statement(self) -> str:
         """The report's sentence on the profile, e.g. '... within 44 % at 5 % of the range:
         load gamma_ramp.csv instead'."""
-        digits = 0 if self.max_error_pct >= 10 else 1
+        # Rounded up, so that "within" is a bound.
+        step = 1.0 if self.max_error_pct >= 10 else 0.1
+        bound = math.ceil(self.max_error_pct / step - 1e-9) * step
         head = (f"PsychoPy's monitor gamma ({self.gamma:.3f}, the pure power a Window applies) "
-                f"reproduces this display within {self.max_error_pct:.{digits}f} % at "
+                f"reproduces this display within {bound:.{0 if step == 1 else 1}f} % at "
                 f"{100 * self.worst_fraction:.0f} % of the range")
         if self.max_error_pct > 1.0:
             return head + ": load gamma_ramp.csv instead"
