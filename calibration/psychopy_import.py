@@ -277,10 +277,12 @@ def import_psychopy_profile(source, out_dir, design, *, calib_name: str | None =
     meta = {"calibration_id": cal_id, "device": "unknown", "monitor_name": profile.name,
             **geometry, "instrument": {"device": "unknown",
                                        "source": str(profile.path.resolve())}}
+    readings = profile_readings(profile)
+    # Checked before the folder is made: a profile without readings must hold a measured grid.
+    curve = _curve_from_grid(profile) if readings is None else None
     with _lock(out_dir):
-        readings = profile_readings(profile)
-        if readings is None:
-            return _import_curve(profile, out_dir, meta, measured, warn + [source_note],
+        if curve is not None:
+            return _import_curve(curve, out_dir, meta, measured, warn + [source_note],
                                  force_profile, progress)
         x, y, notes = readings
         frame = pd.DataFrame({
@@ -297,10 +299,11 @@ def import_psychopy_profile(source, out_dir, design, *, calib_name: str | None =
         return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
 
 
-def _import_curve(profile: PsychopyProfile, out_dir: Path, meta: dict, measured: str,
-                  warn: list, force_profile: bool, progress):
-    """A profile without readings: its grid's curve as the calibration, not refitted."""
-    model, params, eq = _curve_from_grid(profile)
+def _import_curve(curve: tuple, out_dir: Path, meta: dict, measured: str, warn: list,
+                  force_profile: bool, progress):
+    """A profile without readings: its grid's curve (:func:`_curve_from_grid`) as the
+    calibration, not refitted."""
+    model, params, eq = curve
     existing = out_dir / "calibration.json"
     if (out_dir / "readings.csv").exists() or (
             existing.is_file() and load_calibration(existing).calibration_id

@@ -86,6 +86,7 @@ grid_only = monitors.Monitor('gridonly', width=34.0, distance=57.0)
 grid_only.setGammaGrid([[0.3, 80.0, 2.2]] * 4)
 grid_only.setCalibDate(float(sys.argv[3]))
 grid_only.save()
+monitors.Monitor('untouched').save()  # a new profile as PsychoPy makes it: its default grid
 """
 
 
@@ -130,8 +131,9 @@ def psychopy_read(real):
 
 @pytest.fixture(scope="module")
 def lab_profiles(tmp_path_factory):
-    """A lab's Monitor Center folder with two profiles written by PsychoPy: 'labcrt' (a gamma
-    measurement of LAB_CRT, with readings) and 'gridonly' (a gamma grid, no readings)."""
+    """A lab's Monitor Center folder with profiles written by PsychoPy: 'labcrt' (a gamma
+    measurement of LAB_CRT, with readings), 'gridonly' (a gamma grid, no readings) and
+    'untouched' (never calibrated)."""
     folder = tmp_path_factory.mktemp("lab_monitors")
     lums = LAB_CRT.luminance(np.array(_dac_levels()) / 255, rng=np.random.default_rng(3))
     _python(_WRITE_LAB_PROFILES, folder, json.dumps(lums.tolist()), LAB_DATE)
@@ -237,6 +239,23 @@ def test_profile_without_readings_is_kept_as_its_fitted_curve(lab_profiles, tmp_
     table = read_gamma_ramp(out / "gamma_ramp.csv")
     f = np.arange(256) / 255
     assert table[:, 0] == pytest.approx(f ** (1 / 2.2), abs=1e-6)
+
+
+def test_a_profile_that_is_not_there_or_not_calibrated_is_refused(lab_profiles, tmp_path, cli,
+                                                                  monkeypatch):
+    from psychopy.monitors import calibTools
+
+    monkeypatch.setattr(calibTools, "monitorFolder", str(lab_profiles))
+    res = cli(["import-psychopy", "lab-crt", "--out", tmp_path / "a"])
+    assert res.returncode == 1
+    assert "no PsychoPy monitor 'lab-crt'" in res.stderr and "gridonly, labcrt" in res.stderr
+    res = cli(["import-psychopy", "untouched", "--out", tmp_path / "b"])
+    assert res.returncode == 1
+    assert "PsychoPy's default grid" in res.stderr and "calibration run" in res.stderr
+    res = cli(["import-psychopy", "labcrt", "--psychopy-calibration", "nope", "--out",
+               tmp_path / "c"])
+    assert res.returncode == 1 and "--psychopy-calibration" in res.stderr
+    assert not any((tmp_path / d).exists() for d in "abc")
 
 
 def test_own_profile_imports_back_in_cd_m2(real, tmp_path, cli):
