@@ -270,7 +270,13 @@ def test_own_profile_imports_back_in_cd_m2(real, tmp_path, cli):
     assert back.gamma_model == first.gamma_model
 
 
-def test_another_profile_of_the_same_name_is_never_changed(lab_profiles, tmp_path, cli):
+def test_another_profile_of_the_same_name_is_never_changed(lab_profiles, tmp_path, cli,
+                                                          monkeypatch):
+    from psychopy.monitors import calibTools
+
+    # PsychoPy's own monitor folder is the lab's: writing a profile must not touch it.
+    monkeypatch.setattr(calibTools, "monitorFolder", str(lab_profiles))
+    lab_before = {p.name: p.read_bytes() for p in lab_profiles.iterdir()}
     out = tmp_path / "cal"
     (out / "monitors").mkdir(parents=True)
     theirs = (lab_profiles / "labcrt.json").read_bytes()
@@ -287,3 +293,5 @@ def test_another_profile_of_the_same_name_is_never_changed(lab_profiles, tmp_pat
     kept = json.loads((out / "monitors" / "glossdepth-crt.json").read_text())
     assert len(kept) == 2 and load_calibration(out).calibration_id in kept
     assert (out / "monitors" / "other.json").read_bytes() == theirs
+    assert {p.name: p.read_bytes() for p in lab_profiles.iterdir()} == lab_before
+    assert calibTools.monitorFolder == str(lab_profiles)
