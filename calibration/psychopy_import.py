@@ -8,8 +8,8 @@ calibration of it (the current one, the last by name as PsychoPy takes it, unles
   luminance row ``lumsPre[0]`` at ``levelsPre / 255`` becomes ``DIR/readings.csv``, fitted as any
   readings (every model, the same choice), so ``calibration fit --out DIR`` refits it. A profile
   this project wrote stores ``lumsPre`` scaled 0-1 (first level 0, last 1); it is recognised by
-  exactly those two values with a gamma grid whose white exceeds 1, and scaled back to cd/m^2
-  with the grid's min and max.
+  exactly those two values with a gamma grid whose white exceeds 1 and its black, and scaled back
+  to cd/m^2 with the grid's min and max.
 * **without readings** (a grid typed in, or PsychoPy's newer ``calibrateGamma``): the gamma grid's
   luminance row is kept as the fitted curve (eq. 1 ``power``, eq. 2 ``inner_power`` or eq. 4
   ``offset_power``, by the profile's linearise method), not refitted, and the record and report
@@ -161,7 +161,7 @@ def profile_readings(profile: PsychopyProfile) -> tuple[np.ndarray, np.ndarray, 
     x, y = x[ok], y[ok]
     grid = _grid_row(profile)
     if (y.size >= 2 and y[0] == 0.0 and y[-1] == 1.0 and grid is not None
-            and grid[1] > 1.0 > grid[0]):
+            and grid[1] > max(grid[0], 1.0)):
         y = grid[0] + y * (grid[1] - grid[0])
         notes.append(f"{profile.path}: lumsPre scaled 0-1 (as glossdepth writes them); "
                      f"scaled back with the gamma grid's min {grid[0]:.4g} and max "
@@ -207,11 +207,15 @@ def _geometry(profile: PsychopyProfile, design) -> tuple[dict, list[str]]:
     fallback = {"width_cm": DEFAULT_CRT["width_cm"], "distance_cm": dd.viewing_distance_cm,
                 "resolution_px": list(dd.resolution_px)}
     for key, value in values.items():
-        bad = value is None or (key != "resolution_px" and not float(value) > 0)
+        try:
+            bad = (len(value) != 2 or min(int(v) for v in value) <= 0
+                   if key == "resolution_px" else not float(value) > 0)
+        except (TypeError, ValueError):
+            bad = True
         if bad:
             values[key] = fallback[key]
-            warn.append(f"the PsychoPy profile has no {key}; recorded {fallback[key]} (edit it "
-                        "in Monitor Center and import again)")
+            warn.append(f"the PsychoPy profile has no usable {key} ({value!r}); recorded "
+                        f"{fallback[key]} (edit it in Monitor Center and import again)")
     values["resolution_px"] = [int(v) for v in values["resolution_px"]]
     values["refresh_hz"] = dd.nominal_refresh_hz
     warn.append(f"a PsychoPy profile records no refresh rate; recorded the design's nominal "
