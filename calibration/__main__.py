@@ -130,7 +130,8 @@ def _cmd_run(args) -> int:
             design, device=args.device, port=args.port, out_dir=args.out,
             settings=settings, width_cm=args.width_cm, monitor_name=args.monitor_name,
             timeout_s=timeout_s, retries=args.retries, fullscr=not args.windowed,
-            refresh_hz=args.refresh_hz, sim_aim=args.sim_aim, given=given)
+            refresh_hz=args.refresh_hz, sim_aim=args.sim_aim, given=given,
+            force_profile=args.force)
     done, rc = _measure("calibration", args.out, work)
     if rc is not None:
         return rc
@@ -190,7 +191,7 @@ def _cmd_fit(args) -> int:
             if extra:
                 raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
                                        "`python -m calibration fit READINGS.csv --out DIR ...`")
-            _, paths = refit(args.out)
+            _, paths = refit(args.out, force_profile=args.force)
         else:
             design = load_design(args.design) if args.design else load_design()
             _, paths = fit_readings_file(
@@ -200,7 +201,8 @@ def _cmd_fit(args) -> int:
                 calibration_id=args.calibration_id,
                 display=load_display_file(args.display) if args.display else None,
                 measured_utc=args.measured_utc,
-                dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2)
+                dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2,
+                force_profile=args.force)
     except (CalibrationError, LabFileError) as exc:
         print(f"fit failed: {exc}", file=sys.stderr)
         return 1
@@ -213,6 +215,30 @@ def _cmd_fit(args) -> int:
               "once); the readings are untouched. Run the same command again to fit.",
               file=sys.stderr)
         return 130
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    return 0
+
+
+def _cmd_import_psychopy(args) -> int:
+    from calibration.errors import CalibrationError
+    from calibration.psychopy_import import import_psychopy_profile
+    from labfiles import LabFileError
+    from studydesign import load_design
+
+    try:
+        design = load_design(args.design) if args.design else load_design()
+        _, paths = import_psychopy_profile(
+            args.profile, args.out, design, calib_name=args.psychopy_calibration,
+            calibration_id=args.calibration_id, measured_utc=args.measured_utc,
+            force_profile=args.force)
+    except (CalibrationError, LabFileError) as exc:
+        print(f"import failed: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"import failed: {exc}; check that the profile can be read and --out is writable",
+              file=sys.stderr)
+        return 1
     for name, path in paths.items():
         print(f"{name}: {path}")
     return 0
@@ -323,6 +349,7 @@ def _add_run(sub) -> None:
     p.add_argument("--sim-aim", default=None,
                    help="simulation only: write the photometer's aim here for the fake "
                         "instrument instead of asking the experimenter")
+    _force_profile_option(p)
     p.set_defaults(func=_cmd_run)
 
 
@@ -361,7 +388,36 @@ def _add_fit(sub) -> None:
                         "readings at or below it are fitted as censored (default: 2 noise SDs, "
                         "0.2 %% of white without repeated readings)")
     p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
+    _force_profile_option(p)
     p.set_defaults(func=_cmd_fit)
+
+
+def _force_profile_option(p) -> None:
+    p.add_argument("--force", action="store_true",
+                   help="add this calibration to a PsychoPy profile monitors/<name>.json that "
+                        "holds other calibrations (theirs are kept); without it such a profile "
+                        "is refused and left unchanged")
+
+
+def _add_import_psychopy(sub) -> None:
+    p = sub.add_parser(
+        "import-psychopy", help="a PsychoPy Monitor Center profile as a calibration in --out",
+        description="Reads a PsychoPy monitor profile with PsychoPy: its readings (lumsPre at "
+                    "levelsPre) are fitted as any readings; a profile without readings keeps "
+                    "its gamma grid's curve, not refitted. Dated by the profile's calibDate. "
+                    "Writes what `fit` writes (protocol.md section 3).")
+    p.add_argument("profile", help="monitor name in PsychoPy's monitor folder, or NAME.json")
+    p.add_argument("--out", required=True, help="calibration folder written (a new one)")
+    p.add_argument("--psychopy-calibration", default=None,
+                   help="the profile's calibration to import (default: PsychoPy's current one, "
+                        "the last by name)")
+    p.add_argument("--calibration-id", default=None,
+                   help="the new calibration's id (default psychopy-<monitor>-<calibration>)")
+    p.add_argument("--measured-utc", default=None,
+                   help="when it was measured (ISO 8601 UTC), for a profile without calibDate")
+    p.add_argument("--design", default=None, help="study design TOML (default: shipped)")
+    _force_profile_option(p)
+    p.set_defaults(func=_cmd_import_psychopy)
 
 
 def _add_check(sub) -> None:
@@ -400,7 +456,8 @@ def _add_default(sub) -> None:
 
 
 #: One function per subcommand, each adding its parser and handler (``func``); in help order.
-_SUBCOMMANDS = (_add_ports, _add_fake_photometer, _add_run, _add_fit, _add_check, _add_default)
+_SUBCOMMANDS = (_add_ports, _add_fake_photometer, _add_run, _add_fit, _add_import_psychopy,
+                _add_check, _add_default)
 
 
 def _build_parser() -> argparse.ArgumentParser:

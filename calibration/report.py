@@ -1,4 +1,4 @@
-"""Write a calibration's outputs: JSON, PsychoPy monitor profile, figures, a text report."""
+"""Write a calibration's outputs: JSON, gamma ramp, PsychoPy monitor profile, figures, a report."""
 
 from __future__ import annotations
 
@@ -9,7 +9,16 @@ import pandas as pd
 
 from calibration.gamma import GAMMA_MODELS
 from calibration.plots import plot_gamma, plot_uniformity
-from calibration.profile import write_monitor_profile
+from calibration.profile import check_profile_target, write_monitor_profile
+from calibration.psychopy_gamma import best_psychopy_gamma
+from calibration.ramp import (
+    RAMP_BITS,
+    RAMP_FILE,
+    REPORT_FRACTIONS,
+    gamma_ramp,
+    ramp_error_pct,
+    write_gamma_ramp,
+)
 from calibration.record import Calibration, save_calibration
 from labfiles import atomic_write_text
 
@@ -49,10 +58,13 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
                      f"{_misfit_flag(f):<7} {params}")
     lines += [
         (f"chosen: {cal.gamma_model} (the simplest model whose held-out error in noise SDs is "
-         "within one standard error of the best)"),
+         "within one standard error of the best)") if cal.fits else
+        (f"curve: {cal.gamma_model} {cal.gamma_params} (given, not fitted: no readings; see the "
+         "warnings)"),
         f"luminance range: {cal.min_luminance_cd_m2:.3f} - {cal.max_luminance_cd_m2:.3f} cd/m^2",
     ]
     lines += _fit_summary(cal)
+    lines += ["", *other_experiments_lines(cal)]
     if cal.uniformity is not None:
         u = cal.uniformity
         lines += ["", (f"uniformity: non-uniformity {u.nonuniformity_pct:.2f} % "
@@ -68,6 +80,33 @@ def report_text(cal: Calibration, readings: pd.DataFrame, notes=()) -> str:
         lines += ["", "rows of the readings file not used as they are:"]
         lines += [f"  - {n}" for n in notes]
     return "\n".join(lines) + "\n"
+
+
+def _pcts(values) -> str:
+    return " / ".join(f"{round(float(v), 1) + 0.0:+.1f}" for v in values)
+
+
+def other_experiments_lines(cal: Calibration) -> list[str]:
+    """The report's lines on the gamma ramp and the PsychoPy profile: the error each leaves at
+    :data:`calibration.ramp.REPORT_FRACTIONS` of the luminance range (% of the luminance asked
+    for above black)."""
+    ramp = gamma_ramp(cal, bits=RAMP_BITS)
+    fractions = REPORT_FRACTIONS
+    at = " / ".join(f"{100 * f:g}" for f in fractions)
+    exact = ramp_error_pct(cal, ramp, fractions)
+    dac8 = ramp_error_pct(cal, ramp, fractions, dac_bits=8)
+    dac10 = ramp_error_pct(cal, ramp, fractions, dac_bits=10)
+    pp = best_psychopy_gamma(cal)
+    return [
+        ("for the lab's other experiments (glossdepth's stimuli are corrected in their pixels: "
+        "load neither for them); error in % of the luminance asked for above black at "
+        f"{at} % of the range:"),
+        (f"  {RAMP_FILE} ({ramp.size} entries per gun, the chosen model's inverse): "
+        f"{_pcts(exact)} %"),
+        f"    after an 8-bit DAC's rounding: {_pcts(dac8)} %; 10-bit: {_pcts(dac10)} %",
+        f"  {pp.statement()}",
+        f"    PsychoPy's gamma {pp.gamma:.3f}: {_pcts(pp.error_pct)} %",
+    ]
 
 
 def _misfit_flag(fit) -> str:
@@ -111,8 +150,17 @@ def _fit_summary(cal: Calibration) -> list[str]:
 
 
 def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
-                  validation: pd.DataFrame | None = None, notes=()) -> dict:
-    """Write calibration.json, monitors/<name>.json, gamma.png, uniformity.png, report.txt.
+                  validation: pd.DataFrame | None = None, notes=(), *,
+                  force_profile: bool = False) -> dict:
+    """Write calibration.json, gamma_ramp.csv, monitors/<name>.json, gamma.png, uniformity.png,
+    report.txt.
+
+    Parameters
+    ----------
+    force_profile : bool
+        Add the calibration to a profile ``monitors/<name>.json`` that holds other calibrations
+        (:func:`calibration.profile.check_profile_target`); without it such a profile stops the
+        writing before any file is written.
 
     Returns
     -------
@@ -120,8 +168,12 @@ def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
         Name -> path of each file written.
     """
     out_dir = Path(out_dir)
+    check_profile_target(out_dir / "monitors", cal.monitor_name, cal.calibration_id,
+                         force=force_profile)
     paths = {"calibration": save_calibration(cal, out_dir / "calibration.json")}
-    paths["monitor"] = write_monitor_profile(cal, out_dir / "monitors", readings)
+    paths["gamma_ramp"] = write_gamma_ramp(cal, out_dir / RAMP_FILE)
+    paths["monitor"] = write_monitor_profile(cal, out_dir / "monitors", readings,
+                                             force=force_profile)
     paths["gamma_plot"] = plot_gamma(cal, readings, out_dir / "gamma.png", validation)
     uni = plot_uniformity(cal, out_dir / "uniformity.png")
     if uni is not None:

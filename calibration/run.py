@@ -33,6 +33,7 @@ from calibration.procedure import (
     measure_validation,
     read_validation,
 )
+from calibration.profile import check_profile_target
 from calibration.readings import (
     READINGS_COLUMNS,
     REJECTED_COLUMNS,
@@ -109,7 +110,7 @@ def _usable_rows(table, path: Path, progress, why_empty: str):
     return table
 
 
-def refit(out_dir, *, progress=print, lock: bool = True):
+def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = False):
     """Fit again from ``out_dir``'s readings (no window, no photometer) and rewrite the outputs.
 
     The calibration's age stays that of its newest reading (``measured_utc``): a refit never
@@ -120,6 +121,9 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     ----------
     lock : bool
         Hold the folder's lock while fitting (False when the caller holds it).
+    force_profile : bool
+        Add the calibration to a PsychoPy profile ``monitors/<name>.json`` that holds others
+        (:func:`calibration.profile.check_profile_target`).
 
     Raises
     ------
@@ -130,7 +134,7 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     out_dir = Path(out_dir)
     if lock:
         with _lock(out_dir):
-            return refit(out_dir, progress=progress, lock=False)
+            return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
     meta = _read_meta(out_dir)
     cal_id = meta["calibration_id"]
     path = out_dir / "readings.csv"
@@ -158,7 +162,8 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     n_rej = int((rejected["calibration_id"] == cal_id).sum())
     cal = fit_calibration(readings, n_rejected=n_rej, validation=validation,
                           measured_utc=measured, **meta["fit"])
-    paths = write_outputs(cal, readings, out_dir, validation, notes=notes)
+    paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
+                          force_profile=force_profile)
     progress(report_text(cal, readings, notes))
     return cal, paths
 
@@ -202,7 +207,7 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                       position=None, calibration_id: str | None = None,
                       display: dict | None = None, measured_utc: str | None = None,
                       dac_bits: int | None = DAC_BITS, floor_cd_m2: float | None = None,
-                      progress=print):
+                      progress=print, force_profile: bool = False):
     """Fit a calibration from a readings file alone (any tool's; no window, no photometer).
 
     The usable readings are copied into ``out_dir/readings.csv`` (the procedure's columns, the
@@ -235,6 +240,8 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
     floor_cd_m2 : float or None
         The photometer's floor, cd/m^2 (readings at or below it are censored); default 2
         absolute noise SDs. Kept in ``run_meta.json``.
+    force_profile : bool
+        See :func:`refit`.
 
     Raises
     ------
@@ -298,7 +305,7 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                               "position": None if position is None else list(position),
                               "measured_utc": measured, "source_notes": list(table.notes),
                               "fit": fit_meta})
-        return refit(out_dir, progress=progress, lock=False)
+        return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
 
 
 def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:
@@ -335,7 +342,7 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
                     width_cm: float | None = None, monitor_name: str = "glossdepth-crt",
                     timeout_s: float = 30.0, retries: int = 2, fullscr: bool = True,
                     refresh_hz: float | None = None, sim_aim=None, progress=print,
-                    given=None):
+                    given=None, force_profile: bool = False):
     """Measure (resuming), fit, validate, and write the outputs into ``out_dir``.
 
     The folder is locked for the run (a second run into it stops with a message naming this
@@ -363,6 +370,8 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
     given : iterable of str or None
         Settings given explicitly; on a resume they must equal the stored ones
         (:func:`calibration.procedure.load_or_create_settings`). None: all of them.
+    force_profile : bool
+        See :func:`refit`; checked before anything is measured.
 
     Returns
     -------
@@ -376,12 +385,16 @@ def run_calibration(design, *, device: str, port: str, out_dir, settings: Proced
                            settings=settings, width_cm=width_cm, monitor_name=monitor_name,
                            timeout_s=timeout_s, retries=retries, fullscr=fullscr,
                            refresh_hz=refresh_hz, sim_aim=sim_aim, progress=progress,
-                           given=given)
+                           given=given, force_profile=force_profile)
 
 
 def _run_locked(design, *, device, port, out_dir: Path, settings, width_cm, monitor_name,
-                timeout_s, retries, fullscr, refresh_hz, sim_aim, progress, given):
+                timeout_s, retries, fullscr, refresh_hz, sim_aim, progress, given,
+                force_profile):
     settings = load_or_create_settings(out_dir, settings, given=given)
+    # A profile that would be refused is refused before anything is measured.
+    check_profile_target(out_dir / "monitors", monitor_name, settings.calibration_id,
+                         force=force_profile)
     warn = []
     if width_cm is None:
         width_cm = DEFAULT_CRT["width_cm"]
@@ -407,6 +420,7 @@ def _run_locked(design, *, device, port, out_dir: Path, settings, width_cm, moni
         display = PatchDisplay(win, settings, sim_aim=sim_aim)
         measure_schedule(phot, display, settings, out_dir, progress=progress)
         if settings.n_validation:
-            cal, _ = refit(out_dir, progress=lambda *_: None, lock=False)
+            cal, _ = refit(out_dir, progress=lambda *_: None, lock=False,
+                           force_profile=force_profile)
             measure_validation(phot, display, settings, cal, out_dir, progress=progress)
-    return refit(out_dir, progress=progress, lock=False)
+    return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
