@@ -35,6 +35,14 @@ from pathlib import Path
 from typing import Self
 
 from labfiles.atomic import fsync_dir, write_new_file
+from labfiles.errors import LabFileError
+from labfiles.text import (
+    check_comma_separated,
+    csv_separator,
+    decode_text,
+    separator_message,
+    utf8_records,
+)
 
 __all__ = [
     "LabFileError",
@@ -51,10 +59,6 @@ __all__ = [
     "read_records",
     "repair_torn_tail",
 ]
-
-
-class LabFileError(ValueError):
-    """A data file that cannot be used as it is (the message names the file and the fix)."""
 
 
 class TornTailWarning(UserWarning):
@@ -178,6 +182,9 @@ def repair_torn_tail(path, *, check: LineCheck | None = None,
         data = path.read_bytes()
     except FileNotFoundError:
         return None
+    # A reader sees a UTF-16 file's records as UTF-8 (offsets then refer to those bytes); a
+    # writer, which appends UTF-8, refuses it.
+    data = utf8_records(data, path, writing=repair)
     found = find_torn_tail(data, check=check)
     if found is None:
         return None
@@ -210,16 +217,23 @@ def read_records(path, *, check: LineCheck | None = None, repair: bool = True) -
     """The whole records of an append-only file, as lines without their newline.
 
     The torn-tail rule is applied first (:func:`repair_torn_tail`). An absent file has no records.
+    Line ends may be LF or CRLF; a BOM is dropped; a UTF-16 file is read only without ``repair``
+    (:mod:`labfiles.text`).
+
+    Raises
+    ------
+    LabFileError
+        Not UTF-8 text (or UTF-16 with ``repair``), with the fix.
     """
     path = Path(path)
     torn = repair_torn_tail(path, check=check, repair=repair)
     try:
-        data = path.read_bytes()
+        data = utf8_records(path.read_bytes(), path, writing=False)
     except FileNotFoundError:
         return []
     if torn is not None and torn.side_file is None:
         data = data[:torn.offset]
-    return data.decode("utf-8").splitlines()
+    return decode_text(data, path).splitlines()
 
 
 def csv_record(values: Iterable) -> str:
@@ -280,19 +294,27 @@ class RecordFile:
         self.sync_each = sync
         self.fd: int | None = None
         self.torn: TornTail | None = None
+        #: The line end appended records get: the existing file's (LF for a new file).
+        self.newline = "\n"
 
     def __enter__(self) -> Self:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self.torn = repair_torn_tail(self.path, check=self.check)
         new = not self.path.exists() or self.path.stat().st_size == 0
-        if not new and self.header is not None:
-            with open(self.path, encoding="utf-8", newline="") as fh:
-                first = fh.readline().rstrip("\r\n")
-            if first != self.header:
-                raise LabFileError(
-                    f"{self.path} starts with {first[:200]!r}, not this file's header "
-                    f"{self.header!r}; it was written by something else. Move it aside or "
-                    "write to a new folder")
+        if not new:
+            # A file re-saved with CRLF line ends (Excel, RFC 4180) gets its records so too; a
+            # header that differs only by a BOM or by quotes around its names is the same.
+            with open(self.path, encoding="utf-8-sig", errors="replace", newline="") as fh:
+                line = fh.readline()
+            self.newline = "\r\n" if line.endswith("\r\n") else "\n"
+            first = line.rstrip("\r\n")
+        if not new and self.header is not None and _fields(first) != _fields(self.header):
+            if csv_separator(first) != ",":
+                raise LabFileError(separator_message(self.path, csv_separator(first)))
+            raise LabFileError(
+                f"{self.path} starts with {first[:200]!r}, not this file's header "
+                f"{self.header!r}; it was written by something else. Move it aside or "
+                "write to a new folder")
         self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         if new:
             if self.header is not None:
@@ -334,7 +356,7 @@ class RecordFile:
             raise RuntimeError(f"{self.path}: RecordFile used outside its `with` block")
         if "\n" in line or "\r" in line:
             raise ValueError("a record is one line; this one holds a line break")
-        self._write(line + "\n")
+        self._write(line + self.newline)
         if self.sync_each:
             self.sync()
 
@@ -344,15 +366,21 @@ class RecordFile:
             os.fsync(self.fd)
 
 
+def _fields(line: str) -> list[str]:
+    """A CSV line's fields (quotes removed)."""
+    return next(csv.reader([line]), [])
+
+
 def _csv_header_check(path: Path) -> LineCheck | None:
     try:
-        with open(path, encoding="utf-8", newline="") as fh:
-            header = fh.readline()
-    except (FileNotFoundError, UnicodeDecodeError):
+        data = utf8_records(path.read_bytes(), path, writing=False)
+    except (FileNotFoundError, LabFileError):
         return None
-    if not header.endswith("\n"):
+    end = data.find(b"\n")
+    if end < 0:
         return None
-    return csv_fields_check(len(next(csv.reader([header.rstrip("\r\n")]), [])))
+    header = data[:end].decode("utf-8-sig", errors="replace")
+    return csv_fields_check(len(_fields(header.rstrip("\r"))))
 
 
 def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
@@ -369,15 +397,23 @@ def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
         read up to the last whole record and warn.
     **read_csv_kw
         Passed to :func:`pandas.read_csv` (e.g. ``dtype``).
+
+    Raises
+    ------
+    LabFileError
+        Not UTF-8 text (UTF-16 is read without ``repair``), or separated by something other than
+        commas (:mod:`labfiles.text`).
     """
     import pandas as pd
 
     path = Path(path)
     torn = repair_torn_tail(path, check=_csv_header_check(path), repair=repair)
+    data = utf8_records(path.read_bytes(), path, writing=False)
     if torn is not None and torn.side_file is None:
-        data = path.read_bytes()[:torn.offset]
-        return pd.read_csv(io.BytesIO(data), **read_csv_kw)
-    return pd.read_csv(path, **read_csv_kw)
+        data = data[:torn.offset]
+    text = decode_text(data, path)
+    check_comma_separated(text, path)
+    return pd.read_csv(io.StringIO(text), **read_csv_kw)
 
 
 def append_csv_record(path, columns, values) -> None:
