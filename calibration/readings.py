@@ -49,6 +49,7 @@ from labfiles import (
     csv_record,
     read_records,
     read_text,
+    text_encoding,
 )
 
 __all__ = [
@@ -272,7 +273,10 @@ def _read_lines(path: Path, own_file: bool | None) -> tuple[str, list[str], tupl
     header = [h.strip() for h in next(csv.reader([first]), [])]
     if own_file is None:
         own_file = tuple(header) == READINGS_COLUMNS
-    if own_file:
+    with open(path, "rb") as fh:
+        # A file re-saved in UTF-16 is a copy a tool wrote, no longer the procedure's record.
+        resaved = text_encoding(fh.read(4)) in ("utf-16", "utf-32")
+    if own_file and not resaved:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             try:
