@@ -94,8 +94,10 @@ def decode_text(data: bytes, path) -> str:
         return data.decode(encoding)
     except UnicodeDecodeError as exc:
         what = "UTF-8" if encoding.startswith("utf-8") else encoding.upper()
+        line = data.count(b"\n", 0, exc.start) + 1
         raise LabFileError(
-            f"{path} is not {what} text (byte 0x{data[exc.start]:02x} at offset {exc.start}; "
+            f"{path} is not {what} text (byte 0x{data[exc.start]:02x} on line {line}, offset "
+            f"{exc.start}; "
             f"saved in a Windows code page, e.g. Excel's plain 'CSV (Comma delimited)'?): "
             f"{SAVE_AS_UTF8}") from None
 

@@ -77,7 +77,7 @@ def test_readings_with_every_field_quoted_read_as_written(reference, tmp_path):
 @pytest.mark.parametrize("resave, problem", [
     (excel_unicode_text, "separated by tabs"),
     (lambda p: windows_code_page(p, column="device", value="Photo Research PR-650 µ"),
-     "not UTF-8 text (byte 0xb5"),
+     "not UTF-8 text (byte 0xb5 on line 2"),
 ], ids=["excel_unicode_text", "windows_code_page"])
 def test_readings_in_another_form_are_refused_with_the_fix(resave, problem, tmp_path, cli):
     src = resave(Path(shutil.copy(READINGS, tmp_path / "readings.csv")))
