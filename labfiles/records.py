@@ -41,6 +41,7 @@ from labfiles.text import (
     csv_separator,
     decode_text,
     separator_message,
+    text_encoding,
     utf8_records,
 )
 
@@ -299,22 +300,10 @@ class RecordFile:
 
     def __enter__(self) -> Self:
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        # The header before the torn-tail rule: a file in another form is refused untouched.
+        self._check_header()
         self.torn = repair_torn_tail(self.path, check=self.check)
         new = not self.path.exists() or self.path.stat().st_size == 0
-        if not new:
-            # A file re-saved with CRLF line ends (Excel, RFC 4180) gets its records so too; a
-            # header that differs only by a BOM or by quotes around its names is the same.
-            with open(self.path, encoding="utf-8-sig", errors="replace", newline="") as fh:
-                line = fh.readline()
-            self.newline = "\r\n" if line.endswith("\r\n") else "\n"
-            first = line.rstrip("\r\n")
-        if not new and self.header is not None and _fields(first) != _fields(self.header):
-            if csv_separator(first) != ",":
-                raise LabFileError(separator_message(self.path, csv_separator(first)))
-            raise LabFileError(
-                f"{self.path} starts with {first[:200]!r}, not this file's header "
-                f"{self.header!r}; it was written by something else. Move it aside or "
-                "write to a new folder")
         self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         if new:
             if self.header is not None:
@@ -322,6 +311,28 @@ class RecordFile:
             os.fsync(self.fd)
             fsync_dir(self.path.parent)
         return self
+
+    def _check_header(self) -> None:
+        """Refuse an existing file whose (whole) first line is another header; take its line
+        end for the records appended (CRLF after a re-save by Excel, RFC 4180's). A header that
+        differs only by a BOM or by quotes around its names is the same."""
+        try:
+            with open(self.path, "rb") as fh:
+                line = fh.readline()
+        except FileNotFoundError:
+            return
+        if not line.endswith(b"\n") or text_encoding(line) not in ("utf-8", "utf-8-sig"):
+            return  # a torn first line, or UTF-16: the torn-tail rule's (it refuses UTF-16)
+        self.newline = "\r\n" if line.endswith(b"\r\n") else "\n"
+        first = line.decode("utf-8-sig", errors="replace").rstrip("\r\n")
+        if self.header is None or _fields(first) == _fields(self.header):
+            return
+        if csv_separator(first) != ",":
+            raise LabFileError(separator_message(self.path, csv_separator(first)))
+        raise LabFileError(
+            f"{self.path} starts with {first[:200]!r}, not this file's header "
+            f"{self.header!r}; it was written by something else. Move it aside or "
+            "write to a new folder")
 
     def __exit__(self, *exc) -> None:
         self.close()
@@ -407,13 +418,17 @@ def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
     import pandas as pd
 
     path = Path(path)
+    try:
+        head = utf8_records(path.read_bytes(), path, writing=False).split(b"\n", 1)[0]
+    except FileNotFoundError:
+        head = b""
+    # Before the torn-tail rule: a ';' file's rows would all look torn.
+    check_comma_separated(decode_text(head, path), path)
     torn = repair_torn_tail(path, check=_csv_header_check(path), repair=repair)
     data = utf8_records(path.read_bytes(), path, writing=False)
     if torn is not None and torn.side_file is None:
         data = data[:torn.offset]
-    text = decode_text(data, path)
-    check_comma_separated(text, path)
-    return pd.read_csv(io.StringIO(text), **read_csv_kw)
+    return pd.read_csv(io.StringIO(decode_text(data, path)), **read_csv_kw)
 
 
 def append_csv_record(path, columns, values) -> None:
