@@ -188,7 +188,17 @@ def test_a_session_resaved_by_excel_resumes_where_it_stopped(small_design, small
                               text=True, timeout=300, check=False)
 
     assert run("--simulate-quit-at", "3").returncode == 3
-    path = excel_csv_utf8(session_path(f["data"], "Q1", 1))
+    path = session_path(f["data"], "Q1", 1)
+    written = path.read_bytes()
+    # Saved as Notepad's "Unicode": refused before any window opens, the file untouched.
+    notepad_unicode(path)
+    utf16 = path.read_bytes()
+    res = run()
+    assert res.returncode == 2, res.stderr
+    assert "UTF-16 text" in res.stderr and "save it as UTF-8" in res.stderr
+    assert "Traceback" not in res.stderr and path.read_bytes() == utf16
+    path.write_bytes(written)
+    excel_csv_utf8(path)
     assert main(["--design", str(small_design_path), "status", "--participant", "Q1",
                  "--data", str(f["data"])]) == 0
     assert "session 1: 2/6 trials, to resume" in capsys.readouterr().out
