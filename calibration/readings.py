@@ -261,8 +261,8 @@ def _read_lines(path: Path, own_file: bool | None) -> tuple[str, list[str], tupl
     Raises
     ------
     CalibrationError
-        If the file is not UTF-8 or UTF-16 text (the procedure's own file: not UTF-8), naming
-        the fix.
+        If the file is not UTF-8 or UTF-16 text, or ``own_file`` is True (the procedure appends
+        to it) and it is UTF-16; the message names the fix.
     """
     # Line ends, a BOM and UTF-16 as labfiles.text reads them (Excel, MATLAB, Notepad).
     try:
@@ -271,12 +271,13 @@ def _read_lines(path: Path, own_file: bool | None) -> tuple[str, list[str], tupl
         raise CalibrationError(str(exc)) from None
     first = text.split("\n", 1)[0]
     header = [h.strip() for h in next(csv.reader([first]), [])]
-    if own_file is None:
-        own_file = tuple(header) == READINGS_COLUMNS
     with open(path, "rb") as fh:
-        # A file re-saved in UTF-16 is a copy a tool wrote, no longer the procedure's record.
+        # A file re-saved in UTF-16 is a copy a tool wrote: read as such, unless the procedure
+        # is to append to it (own_file=True), which the torn-tail rule refuses with the fix.
         resaved = text_encoding(fh.read(4)) in ("utf-16", "utf-32")
-    if own_file and not resaved:
+    if own_file is None:
+        own_file = tuple(header) == READINGS_COLUMNS and not resaved
+    if own_file:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             try:
@@ -460,9 +461,10 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
         levels are divided by it.
     own_file : bool or None
         True for the procedure's append-only file: the torn-tail rule of :mod:`labfiles` is
-        applied (a torn last row is moved to a side file, with a warning). None: decided by the
-        header (exactly :data:`READINGS_COLUMNS`). Another tool's file is never changed; a last
-        row without a line end is read as it is.
+        applied (a torn last row is moved to a side file, with a warning; a file re-saved as
+        UTF-16 is refused with the fix). None: decided by the header (exactly
+        :data:`READINGS_COLUMNS`, in UTF-8). Another tool's file is never changed; a last row
+        without a line end is read as it is.
 
     Returns
     -------

@@ -35,7 +35,7 @@ def reference(tmp_path_factory):
 
     out = tmp_path_factory.mktemp("ref") / "cal"
     assert main(["fit", str(READINGS), "--out", str(out)]) == 0
-    return load_calibration(out), read_readings(READINGS).frame
+    return load_calibration(out), read_readings(READINGS).frame, out
 
 
 def _display_toml(path: Path, bom: bytes) -> Path:
@@ -54,7 +54,7 @@ def test_readings_and_display_resaved_by_another_tool_give_the_same_calibration(
     """The BOM of Excel's 'CSV UTF-8' hid the first column (calibration_id read as empty),
     Notepad's UTF-16 gave a UnicodeDecodeError, and a display TOML with a BOM 'Invalid
     statement (at line 1, column 1)'."""
-    cal, readings = reference
+    cal, readings, _ = reference
     src = resave(Path(shutil.copy(READINGS, tmp_path / "readings.csv")))
     table = read_readings(src)
     assert table.frame.equals(readings)
@@ -86,3 +86,16 @@ def test_readings_in_another_form_are_refused_with_the_fix(resave, problem, tmp_
     last = res.stderr.strip().splitlines()[-1]
     assert problem in last and ("CSV with commas" in last or "save it as UTF-8" in last), last
     assert "Traceback" not in res.stderr
+
+
+def test_a_calibrations_own_readings_resaved_as_utf16_are_refused_untouched(reference, tmp_path,
+                                                                            cli):
+    """The procedure appends to (and refits from) its readings.csv: in UTF-16 it cannot."""
+    folder = Path(shutil.copytree(reference[2], tmp_path / "cal"))
+    path = folder / "readings.csv"
+    data = notepad_unicode(path).read_bytes()
+    res = cli(["fit", "--out", folder])
+    assert res.returncode != 0
+    last = res.stderr.strip().splitlines()[-1]
+    assert "UTF-16 text" in last and "save it as UTF-8" in last, last
+    assert path.read_bytes() == data and not list(folder.glob("readings.csv.torn-*"))
