@@ -4,6 +4,7 @@ UnicodeDecodeError)."""
 
 from __future__ import annotations
 
+import codecs
 import shutil
 from pathlib import Path
 
@@ -63,3 +64,18 @@ def test_a_gloss_table_resaved_by_another_tool_is_the_same_table(resave, tmp_pat
     path = resave(Path(shutil.copy(default_gloss_table_path(), tmp_path / "gloss.csv")))
     pd.testing.assert_frame_equal(load_gloss_table(path), default_gloss_table(),
                                   check_like=False, check_exact=True, check_flags=False)
+
+
+@pytest.mark.parametrize("bom, codec", [(codecs.BOM_UTF8, "utf-8"),
+                                        (codecs.BOM_UTF16_LE, "utf-16-le")], ids=["utf8", "utf16"])
+def test_a_photo_set_toml_saved_by_notepad_is_the_same_setup(bom, codec, tmp_path):
+    """A photo set's setup.toml edited in Notepad (a BOM, CRLF; or "Unicode")."""
+    from stimuli.glossfit import PhotoSetup, load_setup
+    from stimuli.glossfit.photoset import write_setup
+
+    setup = PhotoSetup(camera_distance_cm=27.5, sphere_radius_cm=2.0, fov_deg=20.0,
+                       resolution_px=(40, 32))
+    path = tmp_path / "setup.toml"
+    write_setup(path, setup)
+    path.write_bytes(bom + path.read_text(encoding="utf-8").replace("\n", "\r\n").encode(codec))
+    assert load_setup(path) == setup
