@@ -50,11 +50,15 @@ def test_fit_of_a_semicolon_csv_names_the_separator(tmp_path, capsys):
 
 
 def test_a_session_folder_resaved_by_other_tools_loads_as_written(tmp_path, design, capsys):
-    """Each participant's files re-saved by another tool (Excel, R, Notepad): the same trials,
-    and `analysis units` gives the same table."""
+    """Each participant's files re-saved by another tool (Excel, R, Notepad): the same trials
+    for the report and fit (load_sessions) and the gap's observer layer, and `analysis units`
+    gives the same table."""
+    from analysis.gap.observer.data import read_session_csvs
+
     paths = write_sessions(tmp_path / "data", design, np.random.default_rng(11),
                            n_participants=3)
     before = load_sessions(tmp_path / "data", design)
+    gap_before = read_session_csvs(tmp_path / "data")
     assert main(["units", str(paths[0])]) == 0
     units = capsys.readouterr().out
     for path, resave in zip(paths, [excel_csv_utf8, crlf, quoted, notepad_unicode] * 3):
@@ -62,6 +66,7 @@ def test_a_session_folder_resaved_by_other_tools_loads_as_written(tmp_path, desi
     after = load_sessions(tmp_path / "data", design)
     pd.testing.assert_frame_equal(after.frame, before.frame)
     assert after.warnings == before.warnings
+    pd.testing.assert_frame_equal(read_session_csvs(tmp_path / "data"), gap_before)
     assert main(["units", str(paths[0])]) == 0
     assert capsys.readouterr().out == units
 
