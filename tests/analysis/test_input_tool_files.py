@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 
 from analysis.__main__ import main
+from analysis.gap import GapError
 from analysis.lmm import LmmFit, fit
 from analysis.load import load_sessions
 from tests.tool_files import (
@@ -22,6 +23,7 @@ from tests.tool_files import (
     excel_semicolons,
     notepad_unicode,
     quoted,
+    windows_code_page,
 )
 
 from .sessions import write_sessions
@@ -85,3 +87,8 @@ def test_display_readings_resaved_by_excel_are_read_as_written(tmp_path):
         shutil.copy(path, tmp_path / "copy.csv")
         after, _ = load_display(resave(tmp_path / "copy.csv"), tmp_path / "cal")
         pd.testing.assert_frame_equal(after, before)
+    # A Windows code page: the layer's error (gap diagnose prints it), not a traceback.
+    shutil.copy(path, tmp_path / "copy.csv")
+    windows_code_page(tmp_path / "copy.csv", column="device", value="PR-650 µ")
+    with pytest.raises(GapError, match=r"not UTF-8 text \(byte 0xb5 on line 2.*save it as UTF-8"):
+        load_display(tmp_path / "copy.csv", tmp_path / "cal")

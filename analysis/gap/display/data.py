@@ -19,7 +19,7 @@ import pandas as pd
 
 from analysis.gap.engine import GapError
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
-from labfiles import read_csv_frame, read_text
+from labfiles import LabFileError, read_csv_frame, read_text
 
 _MIN_READINGS = 8
 #: Validation readings (one per fraction, no repeats) needed to stand in for in-sample ones:
@@ -221,7 +221,10 @@ def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
                      "the repeated readings of the same photometer beside them")
 
 def _header(path: Path) -> list[str]:
-    return read_text(path).split("\n", 1)[0].strip().split(",")
+    try:
+        return read_text(path).split("\n", 1)[0].strip().split(",")
+    except LabFileError as exc:
+        raise GapError(str(exc)) from None
 
 
 def _row_keys_list(frame: pd.DataFrame) -> list:
