@@ -26,10 +26,13 @@ _PASSTHROUGH = {
 
 def _cmd_units(args) -> int:
     from analysis.units import matches_to_physical
-    from labfiles import read_csv_frame
+    from labfiles import LabFileError, read_csv_frame
 
     try:
         frame = matches_to_physical(read_csv_frame(args.csv), load_design(args.design))
+    except LabFileError as exc:  # names the file itself
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except (ValueError, DesignError, FileNotFoundError) as exc:
         print(f"error: {args.csv}: {exc}", file=sys.stderr)
         return 1

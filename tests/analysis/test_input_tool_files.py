@@ -49,6 +49,9 @@ def test_fit_of_a_semicolon_csv_names_the_separator(tmp_path, capsys):
     assert "separated by semicolons" in last and "CSV UTF-8" in last, last
     assert "not a column" not in last
     assert not (tmp_path / "f" / "fit.json").exists()
+    assert main(["units", str(src)]) == 1
+    last = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "separated by semicolons" in last and last.count(str(src)) == 1, last
 
 
 def test_a_session_folder_resaved_by_other_tools_loads_as_written(tmp_path, design, capsys):
