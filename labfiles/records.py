@@ -273,7 +273,9 @@ class RecordFile:
     ----------
     path : str or Path
     header : str, optional
-        The first line of a CSV (no newline). A file whose first line differs is refused.
+        The first line of a CSV (no newline). A file whose first line has other fields is
+        refused, untouched (one re-saved with a BOM, CRLF or quoted names is the same; its
+        records are then appended with its line end).
     check : callable, optional
         Whole-record check for the torn-tail rule.
     sync : bool
@@ -282,7 +284,8 @@ class RecordFile:
     Raises
     ------
     LabFileError
-        If an existing file has another header.
+        If an existing file has another header (a ';'- or tab-separated one is named so), or
+        is UTF-16 (records are appended as UTF-8).
     OSError
         As the system raises it (a full disk is ``ENOSPC``; the message names the file).
     """
