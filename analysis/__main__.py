@@ -12,8 +12,6 @@ import argparse
 import importlib
 import sys
 
-import pandas as pd
-
 from studydesign import DesignError, load_design
 
 # Subcommands owned by subpackages: everything after the name goes to their own main(argv).
@@ -28,9 +26,13 @@ _PASSTHROUGH = {
 
 def _cmd_units(args) -> int:
     from analysis.units import matches_to_physical
+    from labfiles import LabFileError, read_csv_frame
 
     try:
-        frame = matches_to_physical(pd.read_csv(args.csv), load_design(args.design))
+        frame = matches_to_physical(read_csv_frame(args.csv), load_design(args.design))
+    except LabFileError as exc:  # names the file itself
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
     except (ValueError, DesignError, FileNotFoundError) as exc:
         print(f"error: {args.csv}: {exc}", file=sys.stderr)
         return 1

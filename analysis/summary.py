@@ -7,6 +7,7 @@ import pandas as pd
 
 from analysis.formula import LmmError
 from analysis.lmm import LmmFit
+from labfiles import LabFileError, read_csv_frame
 
 __all__ = ["format_summary", "read_model_data"]
 
@@ -90,7 +91,10 @@ def read_model_data(path, design) -> pd.DataFrame:
     if path.is_dir():
         return model_frame(load_sessions(path, design).frame, design)
     if path.is_file() and path.suffix.lower() == ".csv":
-        frame = pd.read_csv(path)
+        try:
+            frame = read_csv_frame(path)
+        except LabFileError as exc:
+            raise LmmError(str(exc)) from None
         for col in frame.columns:
             if frame[col].dtype == object:
                 frame[col] = frame[col].astype(str).where(frame[col].notna(), np.nan)

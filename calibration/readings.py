@@ -48,6 +48,8 @@ from labfiles import (
     csv_fields_check,
     csv_record,
     read_records,
+    read_text,
+    text_encoding,
 )
 
 __all__ = [
@@ -154,7 +156,10 @@ def read_record_csv(path, columns) -> pd.DataFrame:
         If the header differs from ``columns``.
     """
     path = Path(path)
-    lines = read_records(path, check=csv_fields_check(len(columns)))
+    try:
+        lines = read_records(path, check=csv_fields_check(len(columns)))
+    except LabFileError as exc:
+        raise CalibrationError(str(exc)) from None
     if not lines:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in columns})
     header, rows = _parse_csv_lines(lines, path)
@@ -256,24 +261,31 @@ def _read_lines(path: Path, own_file: bool | None) -> tuple[str, list[str], tupl
     Raises
     ------
     CalibrationError
-        If another tool's file is not UTF-8 text.
+        If the file is not UTF-8 or UTF-16 text, or ``own_file`` is True (the procedure appends
+        to it) and it is UTF-16; the message names the fix.
     """
-    with open(path, encoding="utf-8-sig", errors="replace") as fh:
-        first = fh.readline()
+    # Line ends, a BOM and UTF-16 as labfiles.text reads them (Excel, MATLAB, Notepad).
+    try:
+        text = read_text(path)
+    except LabFileError as exc:
+        raise CalibrationError(str(exc)) from None
+    first = text.split("\n", 1)[0]
     header = [h.strip() for h in next(csv.reader([first]), [])]
+    with open(path, "rb") as fh:
+        # A file re-saved in UTF-16 is a copy a tool wrote: read as such, unless the procedure
+        # is to append to it (own_file=True), which the torn-tail rule refuses with the fix.
+        resaved = text_encoding(fh.read(4)) in ("utf-16", "utf-32")
     if own_file is None:
-        own_file = tuple(header) == READINGS_COLUMNS
+        own_file = tuple(header) == READINGS_COLUMNS and not resaved
     if own_file:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
-            lines = read_records(path, check=csv_fields_check(len(header)))
+            try:
+                lines = read_records(path, check=csv_fields_check(len(header)))
+            except LabFileError as exc:
+                raise CalibrationError(str(exc)) from None
         return first, lines, tuple(str(w.message) for w in caught)
-    try:
-        lines = path.read_text(encoding="utf-8-sig").splitlines()
-    except UnicodeDecodeError as exc:
-        raise CalibrationError(f"{path} is not UTF-8 text ({exc}); export it as UTF-8 "
-                               "CSV") from exc
-    return first, lines, ()
+    return first, text.splitlines(), ()
 
 
 def _check_header(path: Path, header: list[str], first: str) -> list[str]:
@@ -449,9 +461,10 @@ def read_readings(path, *, level_scale: float = 1.0, own_file: bool | None = Non
         levels are divided by it.
     own_file : bool or None
         True for the procedure's append-only file: the torn-tail rule of :mod:`labfiles` is
-        applied (a torn last row is moved to a side file, with a warning). None: decided by the
-        header (exactly :data:`READINGS_COLUMNS`). Another tool's file is never changed; a last
-        row without a line end is read as it is.
+        applied (a torn last row is moved to a side file, with a warning; a file re-saved as
+        UTF-16 is refused with the fix). None: decided by the header (exactly
+        :data:`READINGS_COLUMNS`, in UTF-8). Another tool's file is never changed; a last row
+        without a line end is read as it is.
 
     Returns
     -------

@@ -5,6 +5,7 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+import labfiles
 from calibration.errors import CalibrationError
 
 __all__ = ["read_toml"]
@@ -23,6 +24,8 @@ def read_toml(path, what: str, *, missing_fix: str = "") -> dict:
         raise CalibrationError(f"{what} {path} not found" + (f"; {missing_fix}" if missing_fix
                                                              else ""))
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
+        return labfiles.read_toml(path)
+    except labfiles.LabFileError as exc:
+        raise CalibrationError(f"{what} {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise CalibrationError(f"{what} {path} is not valid TOML ({exc})") from exc

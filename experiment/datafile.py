@@ -43,14 +43,19 @@ import pandas as pd
 
 from experiment.participants import check_participant_id
 from labfiles import (
+    LabFileError,
     RecordFile,
     TornTailWarning,
     csv_fields_check,
     csv_record,
+    csv_separator,
+    decode_text,
     find_torn_tail,
     json_record,
     json_record_check,
     read_records,
+    separator_message,
+    utf8_records,
     write_new_file,
 )
 
@@ -147,7 +152,7 @@ def _whole_records(path: Path, check: Callable[[bytes], bool], *, repair: bool) 
         lines = read_records(path, check=check)
         return "".join(line + "\n" for line in lines).encode("utf-8")
     try:
-        data = path.read_bytes()
+        data = utf8_records(path.read_bytes(), path, writing=False)
     except FileNotFoundError:
         return b""
     found = find_torn_tail(data, check=check)
@@ -201,31 +206,65 @@ def read_session(path, *, repair: bool = False) -> pd.DataFrame:
     Raises
     ------
     DataFileError
-        Wrong header, or a row in the middle of the file with a wrong number of fields.
+        Wrong header (another separator than commas is named), a row in the middle of the file
+        with a wrong number of fields, or not UTF-8/UTF-16 text (a UTF-16 file is read, but
+        not with ``repair``): the message names the fix.
+
+    Notes
+    -----
+    Files other tools re-save read as the app's own (:mod:`labfiles.text`): CRLF line ends, a
+    BOM, quoted fields, UTF-16.
     """
     path = Path(path)
-    raw = _whole_records(path, _ROW_CHECK, repair=repair)
-    if not raw:
+    try:
+        text = decode_text(_whole_records(path, _ROW_CHECK, repair=repair), path)
+    except LabFileError as exc:
+        raise DataFileError(str(exc)) from None
+    if not text:
         return pd.DataFrame(columns=list(SESSION_COLUMNS))
-    lines = raw.decode("utf-8", errors="replace").split("\n")
-    if lines[0] != _HEADER:
-        got = next(csv.reader([lines[0]]), [])
-        missing = [c for c in SESSION_COLUMNS if c not in got]
-        extra = [c for c in got if c not in SESSION_COLUMNS]
-        raise DataFileError(
-            f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
-            f"a session CSV has exactly {list(SESSION_COLUMNS)}. It was not written by this "
-            "app: move it aside"
-        )
-    for number, line in enumerate(lines[1:-1], start=2):
-        if not _ROW_CHECK(line.encode("utf-8")):
+    # Parsed as RFC 4180 (CRLF line ends, quoted fields: Excel, R, MATLAB re-save it so).
+    reader = csv.reader(io.StringIO(text, newline=""))
+    header = next(_rows(reader, path), [])
+    if header != list(SESSION_COLUMNS):
+        _refuse_header(path, header)
+    for row in _rows(reader, path):
+        if len(row) != len(SESSION_COLUMNS):
             raise DataFileError(
-                f"{path}: line {number} is not a whole session row ({len(SESSION_COLUMNS)} "
-                "fields); the file was edited or damaged. Keep a copy, then ask the study lead "
-                "(the trials after it were recorded and are kept)"
+                f"{path}: line {reader.line_num} is not a whole session row "
+                f"({len(SESSION_COLUMNS)} fields); the file was edited or damaged. Keep a copy, "
+                "then ask the study lead (the trials after it were recorded and are kept)"
             )
-    return pd.read_csv(io.BytesIO(raw), dtype={"participant": str, "stimulus_id": str,
-                                               "calibration_id": str, "app_version": str})
+    return pd.read_csv(io.StringIO(text), dtype={"participant": str, "stimulus_id": str,
+                                                 "calibration_id": str, "app_version": str})
+
+
+def _rows(reader, path: Path):
+    """The rows of a ``csv.reader``, a parse error as a :class:`DataFileError`."""
+    while True:
+        try:
+            row = next(reader)
+        except StopIteration:
+            return
+        except csv.Error as exc:
+            raise DataFileError(
+                f"{path}: line {reader.line_num} is not CSV ({exc}); the file was edited or "
+                "damaged. Keep a copy, then ask the study lead") from None
+        yield row
+
+
+def _refuse_header(path: Path, header: list[str]) -> None:
+    """Raise the :class:`DataFileError` for a session CSV with another header: its separator
+    when it is not a comma, else the columns missing and unexpected."""
+    sep = csv_separator(",".join(header))
+    if sep != ",":
+        raise DataFileError(separator_message(path, sep))
+    missing = [c for c in SESSION_COLUMNS if c not in header]
+    extra = [c for c in header if c not in SESSION_COLUMNS]
+    raise DataFileError(
+        f"{path}: wrong columns (missing {missing}, unexpected {extra}, or out of order); "
+        f"a session CSV has exactly {list(SESSION_COLUMNS)}. It was not written by this "
+        "app: move it aside"
+    )
 
 
 def read_run_events(path, *, repair: bool = False) -> list[dict]:
@@ -234,7 +273,8 @@ def read_run_events(path, *, repair: bool = False) -> list[dict]:
     path = Path(path)
     raw = _whole_records(path, json_record_check, repair=repair)
     events = []
-    for number, line in enumerate(raw.decode("utf-8", errors="replace").splitlines(), start=1):
+    for number, line in enumerate(raw.decode("utf-8-sig", errors="replace").splitlines(),
+                                  start=1):
         if not line.strip():
             continue
         try:

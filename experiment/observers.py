@@ -46,7 +46,7 @@ from experiment.datafile import (
     simulated_app_version,
 )
 from experiment.plan import make_plan, participant_seed
-from labfiles import atomic_write_text, write_new_file
+from labfiles import LabFileError, atomic_write_text, read_toml, write_new_file
 from studydesign import SliderSpec, StudyDesign, load_design
 
 __all__ = [
@@ -83,14 +83,15 @@ def load_observer_params(path=None) -> dict:
     """
     path = Path(path) if path is not None else default_observers_path()
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
+        raw = read_toml(path)
     except FileNotFoundError as exc:
         raise ValueError(f"observer parameter file {path} does not exist") from exc
     except IsADirectoryError as exc:
         raise ValueError(f"observer parameter file {path} is a folder; give an observers "
                          ".toml file") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except LabFileError as exc:
+        raise ValueError(f"observer parameter file {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"observer parameter file {path} is not valid TOML ({exc}); give an "
                          "observers.toml such as experiment/observers.toml or the output of "
                          "python -m experiment fit-observer") from exc

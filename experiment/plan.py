@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from experiment.participants import check_participant_id
-from labfiles import write_new_file
+from labfiles import LabFileError, read_csv_frame, write_new_file
 from studydesign import StudyDesign
 
 __all__ = ["PLAN_COLUMNS", "PlanError", "load_or_create_plan", "make_plan", "participant_seed", "plan_path"]
@@ -97,12 +97,20 @@ def _validate(plan: pd.DataFrame, design: StudyDesign, participant: str, path: P
     return plan[PLAN_COLUMNS]
 
 
+def _read_plan(path: Path) -> pd.DataFrame:
+    """A plan CSV as written, or re-saved by another tool (CRLF, a BOM, UTF-16, quotes)."""
+    try:
+        return read_csv_frame(path)
+    except LabFileError as exc:
+        raise PlanError(f"plan {exc}") from None
+
+
 def load_or_create_plan(design: StudyDesign, participant: str, data_dir: str | Path) -> pd.DataFrame:
     """Load the participant's plan, or make and write it (atomically, with the umask's
     permissions) if none exists yet."""
     path = plan_path(data_dir, participant)
     if path.exists():
-        return _validate(pd.read_csv(path), design, participant, path)
+        return _validate(_read_plan(path), design, participant, path)
     seed = participant_seed(participant)
     plan = make_plan(design, participant, np.random.default_rng(seed), seed=seed)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -110,5 +118,5 @@ def load_or_create_plan(design: StudyDesign, participant: str, data_dir: str | P
         # Refuses to replace a plan another process wrote meanwhile: a plan is never overwritten.
         write_new_file(path, plan.to_csv(index=False))
     except FileExistsError:
-        return _validate(pd.read_csv(path), design, participant, path)
+        return _validate(_read_plan(path), design, participant, path)
     return plan

@@ -441,7 +441,11 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
                                                               read=False))])
             read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
                                   repair=True)
-            if len(read_session(data, repair=True)) != len(prep.done):
+            try:
+                recorded = read_session(data, repair=True)
+            except DataFileError as exc:  # e.g. re-saved as UTF-16: read, but not appended to
+                raise PreflightError(str(exc)) from None
+            if len(recorded) != len(prep.done):
                 raise PreflightError(f"{data} changed while this run was starting (another run "
                                      "of the session?); start the session again")
         for w in caught:

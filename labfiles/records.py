@@ -35,6 +35,15 @@ from pathlib import Path
 from typing import Self
 
 from labfiles.atomic import fsync_dir, write_new_file
+from labfiles.errors import LabFileError
+from labfiles.text import (
+    check_comma_separated,
+    csv_separator,
+    decode_text,
+    separator_message,
+    text_encoding,
+    utf8_records,
+)
 
 __all__ = [
     "LabFileError",
@@ -51,10 +60,6 @@ __all__ = [
     "read_records",
     "repair_torn_tail",
 ]
-
-
-class LabFileError(ValueError):
-    """A data file that cannot be used as it is (the message names the file and the fix)."""
 
 
 class TornTailWarning(UserWarning):
@@ -178,6 +183,9 @@ def repair_torn_tail(path, *, check: LineCheck | None = None,
         data = path.read_bytes()
     except FileNotFoundError:
         return None
+    # A reader sees a UTF-16 file's records as UTF-8 (offsets then refer to those bytes); a
+    # writer, which appends UTF-8, refuses it.
+    data = utf8_records(data, path, writing=repair)
     found = find_torn_tail(data, check=check)
     if found is None:
         return None
@@ -210,16 +218,23 @@ def read_records(path, *, check: LineCheck | None = None, repair: bool = True) -
     """The whole records of an append-only file, as lines without their newline.
 
     The torn-tail rule is applied first (:func:`repair_torn_tail`). An absent file has no records.
+    Line ends may be LF or CRLF; a BOM is dropped; a UTF-16 file is read only without ``repair``
+    (:mod:`labfiles.text`).
+
+    Raises
+    ------
+    LabFileError
+        Not UTF-8 text (or UTF-16 with ``repair``), with the fix.
     """
     path = Path(path)
     torn = repair_torn_tail(path, check=check, repair=repair)
     try:
-        data = path.read_bytes()
+        data = utf8_records(path.read_bytes(), path, writing=False)
     except FileNotFoundError:
         return []
     if torn is not None and torn.side_file is None:
         data = data[:torn.offset]
-    return data.decode("utf-8").splitlines()
+    return decode_text(data, path).splitlines()
 
 
 def csv_record(values: Iterable) -> str:
@@ -258,7 +273,9 @@ class RecordFile:
     ----------
     path : str or Path
     header : str, optional
-        The first line of a CSV (no newline). A file whose first line differs is refused.
+        The first line of a CSV (no newline). A file whose first line has other fields is
+        refused, untouched (one re-saved with a BOM, CRLF or quoted names is the same; its
+        records are then appended with its line end).
     check : callable, optional
         Whole-record check for the torn-tail rule.
     sync : bool
@@ -267,7 +284,8 @@ class RecordFile:
     Raises
     ------
     LabFileError
-        If an existing file has another header.
+        If an existing file has another header (a ';'- or tab-separated one is named so), or
+        is UTF-16 (records are appended as UTF-8).
     OSError
         As the system raises it (a full disk is ``ENOSPC``; the message names the file).
     """
@@ -280,19 +298,15 @@ class RecordFile:
         self.sync_each = sync
         self.fd: int | None = None
         self.torn: TornTail | None = None
+        #: The line end appended records get: the existing file's (LF for a new file).
+        self.newline = "\n"
 
     def __enter__(self) -> Self:
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        # The header before the torn-tail rule: a file in another form is refused untouched.
+        self._check_header()
         self.torn = repair_torn_tail(self.path, check=self.check)
         new = not self.path.exists() or self.path.stat().st_size == 0
-        if not new and self.header is not None:
-            with open(self.path, encoding="utf-8", newline="") as fh:
-                first = fh.readline().rstrip("\r\n")
-            if first != self.header:
-                raise LabFileError(
-                    f"{self.path} starts with {first[:200]!r}, not this file's header "
-                    f"{self.header!r}; it was written by something else. Move it aside or "
-                    "write to a new folder")
         self.fd = os.open(self.path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o666)
         if new:
             if self.header is not None:
@@ -300,6 +314,28 @@ class RecordFile:
             os.fsync(self.fd)
             fsync_dir(self.path.parent)
         return self
+
+    def _check_header(self) -> None:
+        """Refuse an existing file whose (whole) first line is another header; take its line
+        end for the records appended (CRLF after a re-save by Excel, RFC 4180's). A header that
+        differs only by a BOM or by quotes around its names is the same."""
+        try:
+            with open(self.path, "rb") as fh:
+                line = fh.readline()
+        except FileNotFoundError:
+            return
+        if not line.endswith(b"\n") or text_encoding(line) not in ("utf-8", "utf-8-sig"):
+            return  # a torn first line, or UTF-16: the torn-tail rule's (it refuses UTF-16)
+        self.newline = "\r\n" if line.endswith(b"\r\n") else "\n"
+        first = line.decode("utf-8-sig", errors="replace").rstrip("\r\n")
+        if self.header is None or _fields(first) == _fields(self.header):
+            return
+        if csv_separator(first) != ",":
+            raise LabFileError(separator_message(self.path, csv_separator(first)))
+        raise LabFileError(
+            f"{self.path} starts with {first[:200]!r}, not this file's header "
+            f"{self.header!r}; it was written by something else. Move it aside or "
+            "write to a new folder")
 
     def __exit__(self, *exc) -> None:
         self.close()
@@ -334,7 +370,7 @@ class RecordFile:
             raise RuntimeError(f"{self.path}: RecordFile used outside its `with` block")
         if "\n" in line or "\r" in line:
             raise ValueError("a record is one line; this one holds a line break")
-        self._write(line + "\n")
+        self._write(line + self.newline)
         if self.sync_each:
             self.sync()
 
@@ -344,15 +380,21 @@ class RecordFile:
             os.fsync(self.fd)
 
 
+def _fields(line: str) -> list[str]:
+    """A CSV line's fields (quotes removed)."""
+    return next(csv.reader([line]), [])
+
+
 def _csv_header_check(path: Path) -> LineCheck | None:
     try:
-        with open(path, encoding="utf-8", newline="") as fh:
-            header = fh.readline()
-    except (FileNotFoundError, UnicodeDecodeError):
+        data = utf8_records(path.read_bytes(), path, writing=False)
+    except (FileNotFoundError, LabFileError):
         return None
-    if not header.endswith("\n"):
+    end = data.find(b"\n")
+    if end < 0:
         return None
-    return csv_fields_check(len(next(csv.reader([header.rstrip("\r\n")]), [])))
+    header = data[:end].decode("utf-8-sig", errors="replace")
+    return csv_fields_check(len(_fields(header.rstrip("\r"))))
 
 
 def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
@@ -369,15 +411,27 @@ def read_csv_records(path, *, repair: bool = True, **read_csv_kw):
         read up to the last whole record and warn.
     **read_csv_kw
         Passed to :func:`pandas.read_csv` (e.g. ``dtype``).
+
+    Raises
+    ------
+    LabFileError
+        Not UTF-8 text (UTF-16 is read without ``repair``), or separated by something other than
+        commas (:mod:`labfiles.text`).
     """
     import pandas as pd
 
     path = Path(path)
+    try:
+        head = utf8_records(path.read_bytes(), path, writing=False).split(b"\n", 1)[0]
+    except FileNotFoundError:
+        head = b""
+    # Before the torn-tail rule: a ';' file's rows would all look torn.
+    check_comma_separated(decode_text(head, path), path)
     torn = repair_torn_tail(path, check=_csv_header_check(path), repair=repair)
+    data = utf8_records(path.read_bytes(), path, writing=False)
     if torn is not None and torn.side_file is None:
-        data = path.read_bytes()[:torn.offset]
-        return pd.read_csv(io.BytesIO(data), **read_csv_kw)
-    return pd.read_csv(path, **read_csv_kw)
+        data = data[:torn.offset]
+    return pd.read_csv(io.StringIO(decode_text(data, path)), **read_csv_kw)
 
 
 def append_csv_record(path, columns, values) -> None:

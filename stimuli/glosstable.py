@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from labfiles import atomic_open
+from labfiles import LabFileError, atomic_open, read_csv_frame
 from stimuli.errors import GlossTableError
 from stimuli.ward import check_ward_params
 
@@ -104,7 +104,9 @@ def load_gloss_table(path: str | os.PathLike) -> pd.DataFrame:
             f"gloss table {path} not found; fit one with `python -m stimuli fit-gloss` or leave "
             f"--gloss-table out to use the documented default {default_gloss_table_path()}")
     try:
-        frame = pd.read_csv(path, comment="#", skipinitialspace=True)
+        frame = read_csv_frame(path, comment="#", skipinitialspace=True)
+    except LabFileError as exc:
+        raise GlossTableError(f"gloss table {exc}") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise GlossTableError(f"gloss table {path} is not a readable CSV ({exc})") from exc
     table = validate_gloss_table(frame, source=f"gloss table {path}")

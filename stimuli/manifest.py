@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from labfiles import append_csv_record, read_csv_records
+from labfiles import LabFileError, append_csv_record, read_csv_records
 
 __all__ = [
     "MANIFEST_COLUMNS",
@@ -106,6 +106,8 @@ def load_manifest(path: str | Path) -> pd.DataFrame:
     try:
         frame = read_csv_records(path, repair=False,
                                  dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str})
+    except LabFileError as exc:
+        raise ManifestError(f"stimulus manifest {exc}") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise ManifestError(f"stimulus manifest {path} is not a readable CSV: {exc}") from exc
     missing = [c for c in MANIFEST_COLUMNS if c not in frame.columns]

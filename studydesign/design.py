@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from labfiles import LabFileError, read_toml
+
 __all__ = [
     "MODEL_RESPONSES",
     "AnalysisModel",
@@ -647,7 +649,10 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     if not path.is_file():
         raise DesignError(f"design file {path} not found; pass an existing design.toml")
     try:
-        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+        # A BOM, CRLF line ends or UTF-16 (Notepad, Excel) read as UTF-8 does.
+        raw = read_toml(path)
+    except LabFileError as exc:
+        raise DesignError(f"design file {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise DesignError(f"design file {path} is not valid TOML: {exc}") from exc
 

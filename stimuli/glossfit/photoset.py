@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from labfiles import LabFileError, read_toml
 from stimuli.glossfit.exr import read_exr
 
 __all__ = [
@@ -142,7 +143,9 @@ def load_setup(path: str | Path) -> PhotoSetup:
         raise GlossFitError(f"{path} not found; a photo set needs setup.toml (protocol.md, "
                             f"'Gloss fitting')")
     try:
-        raw = tomllib.loads(path.read_text())
+        raw = read_toml(path)
+    except LabFileError as exc:
+        raise GlossFitError(str(exc)) from None
     except tomllib.TOMLDecodeError as exc:
         raise GlossFitError(f"{path}: not valid TOML ({exc})") from exc
     unknown = set(raw) - _SETUP_KEYS

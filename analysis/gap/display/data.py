@@ -19,6 +19,7 @@ import pandas as pd
 
 from analysis.gap.engine import GapError
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
+from labfiles import LabFileError, read_csv_frame, read_text
 
 _MIN_READINGS = 8
 #: Validation readings (one per fraction, no repeats) needed to stand in for in-sample ones:
@@ -46,8 +47,8 @@ def _read_any(path: Path) -> pd.DataFrame:
     except CalibrationError:
         pass
     try:
-        frame = pd.read_csv(path, dtype={"raw_reply": str, "calibration_id": str},
-                            keep_default_na=False, on_bad_lines="skip")
+        frame = read_csv_frame(path, dtype={"raw_reply": str, "calibration_id": str},
+                               keep_default_na=False, on_bad_lines="skip")
     except (OSError, ValueError) as exc:
         raise GapError(f"{path} is not a readings CSV ({exc})") from exc
     missing = [c for c in READINGS_COLUMNS if c not in frame.columns]
@@ -220,8 +221,10 @@ def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
                      "the repeated readings of the same photometer beside them")
 
 def _header(path: Path) -> list[str]:
-    with open(path, encoding="utf-8") as fh:
-        return fh.readline().strip().split(",")
+    try:
+        return read_text(path).split("\n", 1)[0].strip().split(",")
+    except LabFileError as exc:
+        raise GapError(str(exc)) from None
 
 
 def _row_keys_list(frame: pd.DataFrame) -> list:
