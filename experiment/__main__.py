@@ -319,6 +319,49 @@ def _observer_params_problem(path, kind) -> str | None:
     return None
 
 
+def _cmd_fit_study(args) -> int:
+    """fit-observer --study: the rating observer of another lab's study (one response)."""
+    from pathlib import Path
+
+    from experiment.rating_observer import fit_rating_observers, write_rating_observers
+    from experiment.study import StudyError, load_study, read_study_trials
+
+    out = Path(args.out)
+    if out.exists():
+        print(f"error: {out} exists and is never overwritten; choose another --out or move it "
+              "aside", file=sys.stderr)
+        return 1
+    try:
+        study = load_study(args.study)
+        if len(args.sessions) != 1 or Path(args.sessions[0]).resolve() != study.folder.resolve():
+            raise StudyError(f"with --study the trial files are those study.toml names in its "
+                             f"own folder ({study.folder}); pass that folder as DIR")
+        frame, notes = read_study_trials(study, args.participants)
+        params = fit_rating_observers(frame, study)
+    except (StudyError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_rating_observers(out, params)
+    pop, per = params["rating"], params["participants"]
+    print(f"fitted {len(per)} participants, {params['fit']['n_trials']} trials of "
+          f"{study.name!r} ({study.columns['response']!r} judging {study.estimates!r} on "
+          f"{study.scale[0]:g}-{study.scale[1]:g}, step {study.step:g})")
+    print(f"{'participant':12s} {'gain':>8s} {'offset':>8s} {'noise':>8s} {'lapses':>8s}")
+    for pid, p in per.items():
+        print(f"{pid:12s} {p['gain']:8.3f} {p['offset']:8.3f} {p['noise']:8.3f} "
+              f"{p['lapse_rate']:8.3f}")
+    print(f"population: gain {pop['gain']['mean']:.3f} (sd {pop['gain']['sd']:.3f}), offset "
+          f"{pop['offset']['mean']:.3f} (sd {pop['offset']['sd']:.3f}), noise "
+          f"{pop['noise']:.3f}, lapse rate {pop['lapse_rate']:.3f}")
+    print(f"wrote {out}: diagnose other participants with python -m analysis gap diagnose "
+          f"--layer observer --real {study.folder} --study {study.source} --sim {out} "
+          "--participants ...")
+    return 0
+
+
 def _cmd_fit_observer(args) -> int:
     import warnings
     from pathlib import Path
@@ -331,6 +374,12 @@ def _cmd_fit_observer(args) -> int:
     )
     from experiment.observers import write_observer_params
 
+    if args.study:
+        return _cmd_fit_study(args)
+    if args.participants:
+        print("error: --participants is for --study (a session folder is fitted whole)",
+              file=sys.stderr)
+        return 2
     design = load_design(args.design)
     out = Path(args.out)
     if out.exists():
@@ -434,6 +483,10 @@ def main(argv: list[str] | None = None) -> int:
     f.add_argument("--out", required=True, help="the observers.toml to write (never overwritten)")
     f.add_argument("--kind", choices=["humanlike", "ideal"], default="humanlike",
                    help="the kind the file is meant for (both are fitted; default humanlike)")
+    f.add_argument("--study", help="another lab's study.toml (its folder is SESSIONS): fit the "
+                                   "one-response rating observer (protocol.md, 'Another lab's "
+                                   "study')")
+    f.add_argument("--participants", nargs="+", help="with --study: fit only these participants")
     f.set_defaults(func=_cmd_fit_observer)
 
     args = parser.parse_args(argv)

@@ -25,6 +25,11 @@ def _diagnose(args, design) -> int:
     from analysis.gap.report import write_multi_report, write_report
 
     opts = {"sim_kind": args.sim_kind} if args.sim_kind else {}
+    if args.study or args.participants:
+        if args.layer != "observer":
+            raise GapError("--study and --participants are for --layer observer (another "
+                           "lab's rating study)")
+        opts |= {"study": args.study, "participants": args.participants}
     if args.layer == "all":
         from analysis.gap.layers import parse_layer_paths, which_layer
 
@@ -77,6 +82,11 @@ def main(argv=None) -> int:
     d.add_argument("--sim-kind", choices=("humanlike", "ideal"), default=None,
                    help="observer layer with an observers TOML: which table is the simulation "
                         "(default humanlike)")
+    d.add_argument("--study", help="observer layer: another lab's study.toml (its folder is "
+                                   "--real; --sim from python -m experiment fit-observer "
+                                   "--study); see protocol.md, 'Another lab's study'")
+    d.add_argument("--participants", nargs="+",
+                   help="with --study: diagnose only these participants")
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0,
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")

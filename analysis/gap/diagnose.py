@@ -26,7 +26,7 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
     rng = np.random.default_rng(seed)
     plan = importlib.import_module(f"analysis.gap.{layer}").plan(
         real, sim, design, rng, n_boot=n_boot, **options)
-    diag = diagnose_losses(layer, catalogue(layer), plan.functions, plan.settings, rng=rng,
+    diag = diagnose_losses(layer, list(plan.candidates) or catalogue(layer), plan.functions, plan.settings, rng=rng,
                            seed=seed, train=plan.train, test=plan.test, folds=plan.folds,
                            loss_info=plan.loss_info, split=plan.split, warnings=plan.warnings)
     return diag, plan.localise(diag, rng)
@@ -51,7 +51,8 @@ def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
         Bootstrap resamples.
     **options
         Passed to the layer: observer ``sim_kind`` ('humanlike' or 'ideal', the table of an
-        observers TOML), ``k_folds``.
+        observers TOML), ``k_folds``; ``study`` (another lab's study.toml: one response on
+        a rating scale, :mod:`analysis.gap.observer.rating`) and ``participants``.
 
     Returns
     -------

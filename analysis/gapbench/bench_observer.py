@@ -22,8 +22,12 @@ illumination_depth the depth response is shifted by +s under one illumination, -
                    other
 ================== =========================================================================
 
+A further kind of case, run after the schedule's (one per :data:`PAIR_EVERY` cases), adds a
+pair of catalogue effects (:data:`PAIRS`): responses pulled toward the slider's labels beside
+serial dependence; both must be found.
+
 Scores (:func:`run_harder_observer`): top-1 (the added catalogue effect among the chosen, at
-its moderate strength), exact verdicts (the chosen set is the base's effects plus the added
+its moderate strength), both effects of a pair found, exact verdicts (the chosen set is the base's effects plus the added
 one), false attribution (anything attributed, or a remaining gap flagged, for the null),
 'unexplained' rate (a remaining gap flagged when an out-of-catalogue effect is present, with
 or without co-occurring catalogue effects), wrong 'remaining' flags
@@ -61,6 +65,15 @@ BASE_EFFECTS = ("central_tendency", "crosstalk")
 #: Catalogue effects a case may add to the base, at their moderate strength.
 CATALOGUE_ADDED = {"illumination_gain": 0.3, "label_rounding": 0.4, "lapses": 0.15,
                    "serial_dependence": 0.3}
+#: Pairs of catalogue effects a case may add together: rounding toward the slider's labels (a
+#: pull a share of the way to the nearest label, none landing on it; an outside check's
+#: generator) beside serial dependence, which was found as serial dependence alone (issue 29).
+PAIRS = {"labels_and_serial": {"label_pull": 0.4, "serial_dependence": 0.3}}
+#: The candidate an added effect of a pair is found as, where its name differs.
+CANDIDATE_OF = {"label_pull": "label_rounding"}
+#: One pair case per this many cases of the schedule, run after them (their draws come after
+#: the schedule's, so the other cases of a seed stay as they were).
+PAIR_EVERY = 10
 #: Effects outside the catalogue, at their moderate strength.
 OUT_EFFECTS = {"interaction": 0.06, "depth_noise": 0.6, "stimulus_bias": 0.5,
                "illumination_depth": 0.5}
@@ -77,7 +90,8 @@ class HarderCase:
 
     def expected(self) -> set:
         out = set(BASE_EFFECTS) if self.base else set()
-        return out | {n for n in self.added if n in CATALOGUE_ADDED}
+        return out | {CANDIDATE_OF.get(n, n) for n in self.added
+                      if n in CATALOGUE_ADDED or n in CANDIDATE_OF}
 
     def has_out(self) -> bool:
         return any(n in OUT_EFFECTS for n in self.added)
@@ -160,6 +174,8 @@ def generate_sessions(design, case: HarderCase, n_participants: int,
                 v = m_own + sd[r][k] * rng.standard_normal()
                 if rng.random() < a.get("label_rounding", 0.0):
                     v = np.round(v)
+                if "label_pull" in a:
+                    v = v + a["label_pull"] * (np.round(v) - v)
                 if rng.random() < a.get("lapses", 0.0):
                     v = rng.uniform(lo, hi)
                 resp[r][k] = min(max(v, lo), hi)
@@ -256,7 +272,9 @@ def run_observer_cases(design, *, trials: int, seed: int, n_participants: int = 
     ideal = base_from_params(load_observer_params()["ideal"], "ideal", design.slider,
                              source="the shipped ideal observer")
     records = []
-    for t, case in enumerate(_schedule(rng, trials)):
+    pairs = [HarderCase(kind="pair", added=dict(PAIRS[name]))
+             for name in (list(PAIRS) * trials)[:max(1, trials // PAIR_EVERY)]]
+    for t, case in enumerate(_schedule(rng, trials) + pairs):
         frame, truth = generate_sessions(design, case, n_participants, rng)
         with tempfile.TemporaryDirectory() as tmp:
             write_sessions(frame, Path(tmp) / "real")
@@ -290,8 +308,11 @@ def score_harder(records: list[dict]) -> dict:
         return _rate(records, sel, ok)
 
     def added_cat(r):
-        return [n for n in r["added"] if n in CATALOGUE_ADDED]
+        return [CANDIDATE_OF.get(n, n) for n in r["added"]
+                if n in CATALOGUE_ADDED or n in CANDIDATE_OF]
 
+    pair = rate(lambda r: r["case"] == "pair",
+                lambda r: all(n in r["chosen"] for n in added_cat(r)))
     top1 = rate(lambda r: r["case"] in ("catalogue", "both"),
                 lambda r: all(n in r["chosen"] for n in added_cat(r)))
     exact = rate(lambda r: r["case"] in ("base", "catalogue"),
@@ -304,7 +325,7 @@ def score_harder(records: list[dict]) -> dict:
     agree = rate(lambda r: True, lambda r: r["agree"])
     errs = shrink_errors(records, ("base", "catalogue"),
                          lambda r: set(r["chosen"]) == set(r["expected"]))
-    return {"top1": top1, "exact": exact, "false_attribution": false_attr,
+    return {"top1": top1, "pair": pair, "exact": exact, "false_attribution": false_attr,
             "unexplained_out": unexpl, "unexplained_out_with_catalogue": unexpl_both,
             "wrong_remaining": wrong_rem, "seed_agreement": agree,
             "shrink_error": (float(np.median(errs)) if errs else float("nan"), len(errs)),
@@ -323,6 +344,8 @@ def format_harder(r: dict) -> str:
                           v >= target if higher else v <= target)
     lines = [
         line("top-1, added catalogue effect among the chosen", "top1", TARGETS["top1"]),
+        line("both effects of a pair found (labels pulled toward + serial dependence)", "pair",
+             TARGETS["top1"]),
         line("exact verdicts (base effects + added, nothing remaining)", "exact",
              TARGETS["top1"]),
         line("false attributions (null observer)", "false_attribution",

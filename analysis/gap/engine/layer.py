@@ -37,6 +37,8 @@ class LayerPlan:
     split      how the held-out units were made, in words
     loss_info  what the loss assumes (noise model, base model), recorded in the result
     warnings   notes on the input, shown with the verdict
+    candidates the catalogue for this data, where it is not the layer's registered one
+               (e.g. one response of another lab's study); empty: the registered one
     ========== =========================================================================
     """
 
@@ -49,3 +51,4 @@ class LayerPlan:
     split: str = ""
     loss_info: dict | None = None
     warnings: tuple = field(default_factory=tuple)
+    candidates: tuple = ()

@@ -104,16 +104,29 @@ def _same_path(real, sim) -> None:
 
 
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
-         sim_kind: str | None = None, k_folds: int = 5) -> LayerPlan:
+         sim_kind: str | None = None, k_folds: int = 5, study=None,
+         participants=None) -> LayerPlan:
     """Session CSVs (or a session frame) against the simulated observer (``sim``: an
     observers TOML, simulated session CSVs or a frame; see :func:`load_sim`), cross-fitted
     over ``k_folds`` folds of participants or trials.
+
+    With ``study`` (another lab's study.toml: one response on a rating scale) the rating
+    plan does it instead (:func:`analysis.gap.observer.rating.plan`; ``participants`` keeps
+    only those).
 
     The floor of each fold is the noise of the ceiling over the plain simulation (data-driven,
     drawn from ``rng``); the ceiling of the chosen model is what a flexible extension of it
     still gains.
     """
     _same_path(real, sim)
+    if study is not None:
+        from analysis.gap.observer import rating
+
+        return rating.plan(real, sim, design, rng, n_boot=n_boot, study=study,
+                           participants=participants, k_folds=k_folds)
+    if participants is not None:
+        raise GapError("--participants is for --study (another lab's study); session CSVs "
+                       "are diagnosed whole")
     frame = real if not isinstance(real, (str, Path)) else read_session_csvs(real)
     base = load_sim(sim, design, kind=sim_kind)
     notes = check_sim(frame, base)

@@ -53,6 +53,7 @@ class Ceiling:
     mid: float
     span: float
     parts: tuple = ()
+    label_pull: float = 1.0
 
 
 def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
@@ -360,14 +361,17 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     best = (np.inf, 0.0, 0.0)
     lapses = sorted({0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, float(pred0["lapse"])})
     labels = sorted({0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, float(pred0["label"])})
+    pull = float(pred0.get("label_pull", 1.0))
     for lam in lapses:
         for wl in labels:
-            pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": wl}
+            pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": wl,
+                    "label_pull": pull}
             v = float(_nll(train, pred, sd).sum())
             if v < best[0]:
                 best = (v, lam, wl)
     return Ceiling(fitted=fitted, sigma=sigma, coef=coef, var_coef=var_coef, cells=cells,
-                   ills=ills, lapse=best[1], label=best[2], mid=mid, span=span, parts=parts)
+                   ills=ills, lapse=best[1], label=best[2], mid=mid, span=span, parts=parts,
+                   label_pull=pull)
 
 
 def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
@@ -382,7 +386,7 @@ def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
         sd[r] = (model.sigma[r] * np.broadcast_to(base["sd"][r], mu[r].shape)
                  * np.sqrt(np.exp(vx @ model.var_coef[r])))
     return ({"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": model.lapse,
-             "label": model.label}, sd)
+             "label": model.label, "label_pull": model.label_pull}, sd)
 
 
 def ceiling_loss(model: Ceiling, data: pd.DataFrame) -> np.ndarray:
@@ -403,7 +407,9 @@ def ceiling_floor(model: Ceiling, data: pd.DataFrame, rng: np.random.Generator,
     for _ in range(n_draws):
         for r in RESP:
             v = pred["mu"][r] + sd[r] * rng.standard_normal(len(data))
-            v = np.where(rng.random(len(data)) < model.label, np.round(v), v)
+            rounded = (np.round(v) if model.label_pull >= 1.0
+                       else v + model.label_pull * (np.round(v) - v))
+            v = np.where(rng.random(len(data)) < model.label, rounded, v)
             v = np.where(rng.random(len(data)) < model.lapse, rng.uniform(lo, hi, len(data)), v)
             sim[f"{r}_match"] = np.clip(v, lo, hi)
         total += _nll(sim, pred, sd)

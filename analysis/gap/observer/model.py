@@ -215,6 +215,8 @@ def adapt_base(train: pd.DataFrame, test: pd.DataFrame, base: ObserverBase) -> N
 def predict(data: pd.DataFrame, fitted: list) -> dict:
     """The base model extended by ``fitted`` (``[(candidate name, params), ...]``, applied in
     order): ``{"mu": {response: mean}, "sd": {response: 1}, "lapse": rate, "label": weight}``
+    (and ``"label_pull"``, the share of the way to a label, where a candidate pulls rather
+    than snaps)
     (``sd`` a multiplier of the fitted noise SD)."""
     pred = {"mu": {r: data[f"{r}_base"].to_numpy(float).copy() for r in RESP},
             "sd": {r: 1.0 for r in RESP}, "lapse": 0.0, "label": 0.0}
@@ -240,14 +242,29 @@ def _nll_parts(data: pd.DataFrame, pred: dict, sigma: dict) -> dict:
         dens = np.where(at_lo, ndtr((lo - mu) / sd) / _LABEL_HALF_WIDTH, dens)
         dens = np.where(at_hi, ndtr((mu - hi) / sd) / _LABEL_HALF_WIDTH, dens)
         if w > 0:
-            k = np.clip(np.round(x), lo, hi)
-            on_label = np.abs(x - k) <= _LABEL_HALF_WIDTH
-            p_k = ndtr((k + 0.5 - mu) / sd) - ndtr((k - 0.5 - mu) / sd)
-            dens = (1 - w) * dens + w * on_label * p_k / (2 * _LABEL_HALF_WIDTH)
+            dens = (1 - w) * dens + w * _label_density(x, mu, sd, dens, pred, lo, hi)
         if lam > 0:
             dens = (1 - lam) * dens + lam / (hi - lo)
         out[r] = -np.log(np.maximum(dens, 1e-300))
     return out
+
+
+def _label_density(x, mu, sd, dens, pred, lo, hi) -> np.ndarray:
+    """Density of a response rounded toward the tick labels (integers): snapped onto the
+    label the latent response rounds to (``label_pull`` 1, the default: the label's
+    probability over the label window), or pulled a share ``s`` of the way to it (the latent
+    ``k + (x - k) / (1 - s)``, a response within ``(1 - s) / 2`` of a label; responses at the
+    slider's ends keep their censored density)."""
+    k = np.clip(np.round(x), lo, hi)
+    s = float(pred.get("label_pull", 1.0))
+    if s >= 1.0:
+        on_label = np.abs(x - k) <= _LABEL_HALF_WIDTH
+        p_k = ndtr((k + 0.5 - mu) / sd) - ndtr((k - 0.5 - mu) / sd)
+        return on_label * p_k / (2 * _LABEL_HALF_WIDTH)
+    z = (k + (x - k) / (1 - s) - mu) / sd
+    near = np.abs(x - k) <= 0.5 * (1 - s) + 1e-12
+    pulled = near * np.exp(-0.5 * z * z) / (sd * np.sqrt(2 * np.pi) * (1 - s))
+    return np.where((x <= lo + 1e-9) | (x >= hi - 1e-9), dens, pulled)
 
 
 def _nll(data, pred, sigma) -> np.ndarray:

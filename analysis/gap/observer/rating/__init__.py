@@ -1,0 +1,106 @@
+"""Observer layer, one response on a rating scale: another lab's study (``study.toml``) against
+the rating observer fitted to a pilot of it (``python -m experiment fit-observer DIR --study
+DIR/study.toml``).
+
+The same parts as the two-response layer, for one response: ``data.py`` (the study's files,
+the simulation's file, the held-out scheme), ``model.py`` (the simulation's prediction and
+ordered-probit likelihood on the scale's own steps, the noise floor), ``ceiling.py`` (the
+flexible model), ``where.py`` (stimulus to stimulus, the split-half consistency),
+``candidates.py`` (the catalogue's effects that make sense for one response). :func:`plan`
+is the layer's face to the engine; :func:`analysis.gap.observer.plan` hands over to it when a
+study is given.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
+from analysis.gap.observer.rating.candidates import BY_NAME, rating_candidates
+from analysis.gap.observer.rating.ceiling import rating_ceiling_floor, rating_ceiling_loss
+from analysis.gap.observer.rating.data import (
+    check_rating_sim,
+    load_rating_sim,
+    rating_folds,
+    rating_frame,
+    rating_unit_ids,
+    read_rating_study,
+)
+from analysis.gap.observer.rating.model import (
+    RatingBase,
+    adapt_rating_base,
+    rating_loss,
+)
+from analysis.gap.observer.rating.where import localise_rating, rating_where
+
+__all__ = ["RatingBase", "plan"]
+
+#: A candidate or a remaining gap must gain >= this many nats per held-out trial (as the
+#: two-response layer's OBSERVER_MIN_GAIN).
+RATING_MIN_GAIN = 0.02
+
+
+def _labels_identifiable(study) -> tuple[bool, str]:
+    """Whether rounding to labels beyond the scale's steps can be told from the steps."""
+    if not study.labels:
+        return False, ("rounding beyond the scale's steps is not tested: study.toml names no "
+                       "labels coarser than its steps ([response] labels)")
+    if study.step > 0 and len(study.labels) >= round((study.scale[1] - study.scale[0])
+                                                      / study.step) + 1:
+        return False, "rounding to labels is not tested: every step of the scale is labelled"
+    return True, ""
+
+
+def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
+         participants=None, k_folds: int = 5) -> LayerPlan:
+    """The study's trials at ``real`` (described by ``study``, a study.toml) against the rating
+    observer of ``sim``, cross-fitted over folds of each participant's trials (by repeat).
+
+    ``design`` is not used (the study describes itself); ``participants`` keeps only those.
+
+    Raises
+    ------
+    GapError
+        Unreadable files, a simulation of another scale or factor.
+    """
+    st, trials, notes = read_rating_study(real, study, participants)
+    base, sim_study = load_rating_sim(sim)
+    notes = list(notes) + check_rating_sim(trials, base, sim_study, st)
+    labels_ok, why = _labels_identifiable(st)
+    if why:
+        notes.append(why)
+    data = rating_frame(trials, base, st, labels_ok)
+    if data["participant"].nunique() < 2:
+        raise GapError("the diagnosis needs at least 2 participants (the split-half "
+                       "consistency of a stimulus's deviation); pass more with --participants")
+    folds, text = rating_folds(data, k_folds)
+    floor = {}
+    for tr, te in folds:
+        adapt_rating_base(tr, te, base)
+        floor[id(te)] = rating_ceiling_floor(tr, te, BY_NAME)
+    adapt_rating_base(data, data.iloc[:0].copy(), base)
+
+    def ceiling(tr, te, fitted):
+        return rating_ceiling_loss(tr, te, fitted, BY_NAME)
+
+    def localise(diag, rng):
+        chosen = ([(s["added"], s["params"]) for s in diag.steps]
+                  if diag.verdict != "unexplained" else [])
+        return localise_rating(data, chosen, BY_NAME, rng, n_boot=min(n_boot, 500))
+    functions = LayerFunctions(
+        loss=rating_loss(BY_NAME), floor=lambda te: floor[id(te)], ceiling=ceiling,
+        ceiling_given_chosen=True, unit_ids=rating_unit_ids,
+        where=lambda fits: rating_where(fits, BY_NAME, st.estimates))
+    return LayerPlan(
+        functions, DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN),
+        localise=localise, folds=folds, split=text, warnings=tuple(notes),
+        candidates=tuple(rating_candidates(labels_ok)),
+        loss_info={"base": {"kind": "rating", "source": base.source,
+                            "gain": base.gain, "gain_sd": base.gain_sd,
+                            "offset": base.offset, "offset_sd": base.offset_sd,
+                            "noise": base.noise, "lapse_rate": base.lapse_rate,
+                            "factor_mid": base.factor_mid, "study": str(st.source),
+                            "estimates": st.estimates, "scale": list(st.scale),
+                            "step": st.step},
+                   "floor": "the predictive entropy of the ceiling over the plain simulation "
+                            "(the expected loss of a model right up to its noise)"})
