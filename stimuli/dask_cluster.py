@@ -104,7 +104,8 @@ def add_cluster_arguments(parser, where) -> None:
     g.add_argument("--jobs", type=int, help="worker jobs kept running (design: cluster.jobs)")
     g.add_argument("--account", help="account charged (design: cluster.account)")
     g.add_argument("--job-extra", action="append", default=[], metavar="DIRECTIVE",
-                   help="another job directive, verbatim (repeatable), e.g. '-pe smp 4' on SGE")
+                   help="another job directive, verbatim (repeatable), e.g. --job-extra='-pe smp 4' on "
+                   "SGE (with '=' when it starts with '-')")
     g.add_argument("--dry-run", action="store_true",
                    help="print the job script and submit nothing")
     parser.add_argument("--no-worker-timeout", type=float, default=NO_WORKER_S, metavar="S",
@@ -166,7 +167,7 @@ def _jobqueue_cluster(spec: JobSpec):
               "scheduler_options": {"dashboard_address": None},
               "silence_logs": logging.ERROR}
     if spec.account:
-        kwargs["account" if spec.system == "slurm" else "project"] = spec.account
+        kwargs["project" if spec.system == "sge" else "account"] = spec.account
     if spec.system == "sge":  # SGE takes memory as a resource; cores need the site's PE name
         kwargs["resource_spec"] = f"h_vmem={spec.memory}"
     return cls(**kwargs)

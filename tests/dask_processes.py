@@ -53,7 +53,8 @@ class DaskProcesses:
     def start_scheduler(self, timeout_s: float = 60) -> str:
         sfile = self.folder / "scheduler.json"
         proc = self._start(["scheduler", "--host", "127.0.0.1", "--port", "0",
-                            "--no-dashboard", "--scheduler-file", str(sfile)], "scheduler.log")
+                            "--no-dashboard", "--scheduler-file", str(sfile), "--idle-timeout", "300s"],
+                           "scheduler.log")
         deadline = time.monotonic() + timeout_s
         while not sfile.is_file() or not sfile.read_text().strip():
             assert proc.poll() is None, (self.folder / "scheduler.log").read_text()

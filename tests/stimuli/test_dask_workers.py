@@ -1,0 +1,133 @@
+"""`python -m stimuli render --scheduler` on real `dask scheduler` / `dask worker` processes as a
+lab starts them (loopback, free ports, two threads per worker), a worker killed mid-render, and
+`--cluster slurm|pbs|sge --dry-run`'s job scripts. Renders are 32 px at 4 spp."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import pandas as pd
+import pytest
+
+from stimuli import load_manifest, verify_manifest
+from stimuli.__main__ import main
+from tests.dask_processes import REPO, dask_processes, kill
+
+TINY = ["--size", "32", "--spp", "4", "--no-progress"]
+
+
+def _once_each(out, n):
+    m = load_manifest(out)
+    assert len(m) == n and m["stimulus_id"].is_unique
+    assert verify_manifest(out, kinds=("png", "exr")) == []
+    assert all((out / p).is_file() for p in m["png_path"])
+    assert not list(out.rglob(".*tmp*"))
+
+
+@pytest.mark.slow
+def test_a_two_thread_dask_worker_renders_a_set(tmp_path, capsys):
+    """`dask worker ADDRESS` starts one thread per core (two here): two tasks set Mitsuba up at
+    once in one process ("module 'mitsuba' has no attribute 'variants'" before the lock)."""
+    with dask_processes(tmp_path / "dask") as dask:
+        dask.start_worker(nthreads=2)
+        dask.wait_workers(1)
+        out = tmp_path / "r"
+        rc = main(["render", "--set", "preview", "--out", str(out), "--scheduler", dask.address,
+                   *TINY])
+        err = capsys.readouterr().err
+        assert rc == 0, err + dask.logs()
+    _once_each(out, 8)
+    assert "plan: 8 images to render (0 already done)" in err
+    assert "on the workers seen (1 machine(s), 2 cores)" in err
+    assert "with added machines like these (2 cores each): +1:" in err
+
+
+@pytest.mark.slow
+def test_a_killed_worker_costs_only_its_images_and_the_run_finishes(tmp_path):
+    """SIGKILL a worker (and its nanny) mid-render, as a batch system pre-empts a job: the run
+    says what to start, waits, and finishes on a new worker: exit 0, no traceback, each stimulus
+    once in the manifest, every PNG there."""
+    out = tmp_path / "r"
+    log = out / "renders.csv"
+    with dask_processes(tmp_path / "dask") as dask:
+        first = dask.start_worker(nthreads=2)
+        dask.wait_workers(1)
+        err_path = tmp_path / "render.err"
+        with open(err_path, "w") as err_file:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "stimuli", "render", "--set", "experiment",
+                 "--filter", "illumination=indoor", "--filter", "gloss_level=2,10",
+                 "--out", str(out), "--scheduler", dask.address, "--no-worker-timeout", "1",
+                 *TINY], cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+                stdout=subprocess.PIPE, stderr=err_file, text=True, start_new_session=True)
+        try:
+            deadline = time.monotonic() + 120
+            while not (log.is_file() and len(log.read_text().splitlines()) >= 2):
+                assert proc.poll() is None, err_path.read_text()
+                assert time.monotonic() < deadline, "no group rendered in 120 s\n" + dask.logs()
+                time.sleep(0.02)
+            kill(first)
+            n_at_kill = len(pd.read_csv(log))
+            assert n_at_kill < 18, "the set was done before the kill: the test proves nothing"
+            while "no Dask worker connected" not in err_path.read_text():
+                assert proc.poll() is None, err_path.read_text()
+                assert time.monotonic() < deadline + 60, "no message while no worker was left"
+                time.sleep(0.1)
+            dask.start_worker(nthreads=2)
+            proc.communicate(timeout=180)
+        finally:
+            kill(proc)
+    err = err_path.read_text()
+    assert proc.returncode == 0, err + dask.logs()
+    assert "Traceback" not in err, err
+    assert f"dask worker {dask.address}" in err  # what to start
+    _once_each(out, 18)
+    renders = pd.read_csv(log)
+    assert renders["stimulus_id"].is_unique  # finished EXRs were not rendered again
+
+
+@pytest.mark.parametrize("system, directives", [
+    ("slurm", ["#SBATCH -p lab", "#SBATCH --cpus-per-task=8", "#SBATCH --mem=16G",
+               "#SBATCH -t 12:00:00", "#SBATCH -A vision", "#SBATCH --gres=tmp:1"]),
+    ("pbs", ["#PBS -q lab", "#PBS -l select=1:ncpus=8:mem=", "#PBS -l walltime=12:00:00",
+             "#PBS -A vision", "#PBS --gres=tmp:1"]),
+    ("sge", ["#$ -q lab", "#$ -l h_rt=12:00:00", "#$ -l h_vmem=16GiB", "#$ -P vision",
+             "#$ --gres=tmp:1"]),
+])
+def test_cluster_dry_run_prints_the_job_script(tmp_path, capsys, system, directives):
+    rc = main(["render", "--set", "imagestats", "--out", str(tmp_path / "r"), "--cluster", system,
+               "--cores", "8", "--memory", "16GiB", "--walltime", "12:00:00", "--queue", "lab",
+               "--account", "vision", "--job-extra=--gres=tmp:1", "--dry-run"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    script = captured.out
+    assert script.startswith("#!")
+    for d in directives:
+        assert d in script, (d, script)
+    worker = next(line for line in script.splitlines() if "dask_worker" in line)
+    # the venv's Python, one worker process with the job's cores, retiring before the walltime
+    assert worker.startswith(f"{sys.executable} -m distributed.cli.dask_worker tcp://")
+    assert "--nthreads 8" in worker and "--lifetime 42900s" in worker
+    assert f"export PYTHONPATH={REPO}" in script
+    assert not (tmp_path / "r").exists()  # nothing rendered, nothing submitted
+
+
+def test_cluster_job_size_comes_from_the_design(tmp_path, capsys):
+    from studydesign import default_design_path
+
+    design = tmp_path / "design.toml"
+    text = default_design_path().read_text()
+    design.write_text(text.replace('walltime = "04:00:00"', 'walltime = "1-00:00:00"')
+                      .replace('queue = ""', 'queue = "render"'))
+    rc = main(["--design", str(design), "render", "--set", "preview", "--out",
+               str(tmp_path / "r"), "--cluster", "slurm", "--dry-run"])
+    script = capsys.readouterr().out
+    assert rc == 0
+    assert "#SBATCH -p render" in script and "#SBATCH -t 1-00:00:00" in script
+    assert "#SBATCH --cpus-per-task=4" in script  # [cluster] cores of the shipped design
+    rc = main(["render", "--set", "preview", "--out", str(tmp_path / "r"), "--cluster", "slurm",
+               "--walltime", "4h", "--dry-run"])
+    assert rc == 1 and "--walltime '4h' is not HH:MM:SS" in capsys.readouterr().err
