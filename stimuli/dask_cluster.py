@@ -259,7 +259,12 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
         for future in done:
             item, lost = pending.pop(future)
             try:
-                result = future.result()
+                # bounded: a result held by a worker that dies now is computed again, which
+                # waits for a worker; meanwhile this loop must go on watching for one
+                result = future.result(timeout=poll_s)
+            except TimeoutError:
+                pending[future] = (item, lost)
+                continue
             except KilledWorker as exc:
                 if lost >= MAX_RESUBMITS:
                     raise ClusterError(
