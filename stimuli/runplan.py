@@ -4,7 +4,7 @@ with each added machine.
 Cost model: an image costs ``CORE_S_PER_SAMPLE`` core-seconds per pixel sample (width x height x
 spp) plus ``CORE_S_PER_IMAGE``; a machine's cores all work on it (one worker per machine, Dr.Jit
 threads on every core). The constants come from the full image-statistics set: 58,564 images at
-256 px with the design's spp per gloss level (39.5 on average) took about 44 h on one 2-core
+256 px with the design's spp per gloss level (39.1 on average) took about 44 h on one 2-core
 machine, i.e. 5.4 core-seconds per image (of which about 0.3 s is per-image overhead: reading the
 EXR back, hashing, logging). Machines differ: the progress bar's ETA, from this run's own pace,
 replaces the estimate once images finish.
@@ -21,8 +21,8 @@ __all__ = ["CORE_S_PER_IMAGE", "CORE_S_PER_SAMPLE", "core_seconds", "machines_se
 
 #: Core-seconds per image independent of its size (scene update, EXR write, checksum).
 CORE_S_PER_IMAGE = 0.3
-#: Core-seconds per pixel sample: (5.4 - 0.3) s / (256 * 256 * 39.5).
-CORE_S_PER_SAMPLE = (5.4 - CORE_S_PER_IMAGE) / (256 * 256 * 39.5)
+#: Core-seconds per pixel sample: (5.4 - 0.3) s / (256 * 256 * 39.1).
+CORE_S_PER_SAMPLE = (5.4 - CORE_S_PER_IMAGE) / (256 * 256 * 39.1)
 
 
 def core_seconds(size_px: int, spp: Sequence[int]) -> float:
