@@ -131,3 +131,56 @@ def test_cluster_job_size_comes_from_the_design(tmp_path, capsys):
     rc = main(["render", "--set", "preview", "--out", str(tmp_path / "r"), "--cluster", "slurm",
                "--walltime", "4h", "--dry-run"])
     assert rc == 1 and "--walltime '4h' is not HH:MM:SS" in capsys.readouterr().err
+
+
+def _dies_first(marker: str, times: int) -> int:
+    """Kill the worker process running it, the first ``times`` calls (counted in a file)."""
+    from pathlib import Path
+
+    path = Path(marker)
+    n = int(path.read_text()) if path.exists() else 0
+    path.write_text(str(n + 1))
+    if n < times:
+        os._exit(1)
+    return n
+
+
+@pytest.mark.parametrize("deaths, survives", [(1, True), (9, False)])
+def test_a_task_lost_with_its_workers_is_submitted_again_then_given_up(tmp_path, deaths,
+                                                                       survives):
+    """Dask gives a task up (KilledWorker) after its workers died `allowed-failures` + 1 times
+    (0 here, so at the first); the run submits it again, MAX_RESUBMITS times, then stops with a
+    message naming the likely cause."""
+    import dask
+    from distributed import Client, LocalCluster
+
+    from stimuli.dask_cluster import MAX_RESUBMITS, ClusterError, finished
+
+    marker = str(tmp_path / "calls")
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}), \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                         dashboard_address=None, silence_logs=50) as cluster, \
+            Client(cluster) as client:
+        run = finished(client, lambda k: client.submit(_dies_first, marker, deaths, pure=False),
+                       [0], what_to_start="-")
+        if survives:
+            assert list(run) == [deaths]
+        else:
+            with pytest.raises(ClusterError, match="give workers more memory"):
+                list(run)
+            assert int((tmp_path / "calls").read_text()) == MAX_RESUBMITS + 1
+
+
+def test_the_clients_libllvm_is_used_only_where_the_worker_has_none(tmp_path, monkeypatch):
+    from stimuli.mitsuba_env import use_llvm_hint
+
+    lib = tmp_path / "libLLVM.so.19.1"
+    lib.write_bytes(b"")
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    use_llvm_hint(str(tmp_path / "absent.so"))  # not a file on this machine: left to the search
+    assert "DRJIT_LIBLLVM_PATH" not in os.environ
+    use_llvm_hint(str(lib))
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == str(lib)
+    monkeypatch.setenv("DRJIT_LIBLLVM_PATH", "/the/workers/own.so")
+    use_llvm_hint(str(lib))
+    assert os.environ["DRJIT_LIBLLVM_PATH"] == "/the/workers/own.so"
