@@ -118,7 +118,9 @@ def _cmd_render(args) -> int:
         with open_client(scheduler=args.scheduler, spec=spec, local=local) as (client, advice):
             summary = render_set(**run, client=client,
                                  workers={"what_to_start": advice,
-                                          "no_worker_s": args.no_worker_timeout})
+                                          "no_worker_s": args.no_worker_timeout,
+                                          "expected": {} if spec is None else
+                                          {f"job {i}": spec.cores for i in range(spec.jobs)}})
     print(json.dumps(summary, indent=1, default=str))
     return 0
 

@@ -225,6 +225,48 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
         yield client, "the local cluster lost its workers: stop with Ctrl-C and run again"
 
 
+class _Watch:
+    """Who is connected: says when workers leave or join, and when none is left for long."""
+
+    def __init__(self, client, say, what_to_start: str, no_worker_s: float):
+        self.client, self.say = client, say
+        self.what_to_start, self.no_worker_s = what_to_start, no_worker_s
+        self.workers = set(self._workers())
+        self.alone_since = self.last_said = None
+
+    def _workers(self) -> dict:
+        try:
+            return self.client.nthreads()
+        except (OSError, TimeoutError) as exc:
+            raise ClusterError(_gone(self.client, exc)) from None
+
+    def check(self, n_waiting: int) -> None:
+        now, workers = time.monotonic(), set(self._workers())
+        left, joined = self.workers - workers, workers - self.workers
+        if left:
+            self.say(f"{len(left)} Dask worker(s) left ({', '.join(sorted(left))}); their "
+                     f"unfinished tasks go to the {len(workers)} other(s) or the next to join")
+        if joined:
+            self.say(f"{len(joined)} Dask worker(s) joined ({len(workers)} connected)")
+        self.workers = workers
+        if workers:
+            self.alone_since = self.last_said = None
+            return
+        self.alone_since = self.alone_since or now
+        if now - self.alone_since >= self.no_worker_s and (
+                self.last_said is None or now - self.last_said >= self.no_worker_s):
+            self.say(f"no Dask worker connected for {now - self.alone_since:.0f} s, "
+                     f"{n_waiting} task(s) waiting: {self.what_to_start}; the run goes on by "
+                     "itself once one joins")
+            self.last_said = now
+
+
+def _gone(client, exc) -> str:
+    return (f"lost the Dask scheduler at {client.scheduler.address} ({type(exc).__name__}); "
+            "start it again (`dask scheduler`, and workers) and run the same command: finished "
+            "work is kept")
+
+
 def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
              no_worker_s: float = NO_WORKER_S, poll_s: float = 2.0,
              say: Callable[[str], None] | None = None) -> Iterator:
@@ -232,59 +274,57 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
     result as it finishes, in any order.
 
     A task whose worker died is run again by the scheduler on another worker (Dask's own
-    retries); one that outlived three workers (``KilledWorker``) is submitted again, up to
-    :data:`MAX_RESUBMITS` times. While no worker is connected for ``no_worker_s`` seconds,
-    ``say`` (default: stderr) is told so with ``what_to_start``, once per such period; the run
-    waits for a worker.
+    retries, ``distributed.scheduler.allowed-failures``); one lost with its workers more often
+    (``KilledWorker``) is submitted again, up to :data:`MAX_RESUBMITS` times. Workers that leave
+    or join are named through ``say`` (default: stderr); while none is connected for
+    ``no_worker_s`` seconds, ``say`` gets ``what_to_start``, once per such period; the run waits.
 
     Raises
     ------
     ClusterError
-        If a task was lost with its worker more than :data:`MAX_RESUBMITS` times after Dask's
-        retries. Any error the task itself raised is re-raised as it is.
+        If a task was lost with its workers more than :data:`MAX_RESUBMITS` times after Dask's
+        retries, or the scheduler went away. Any error the task itself raised is re-raised.
     """
+    from concurrent.futures import CancelledError
+
     from distributed import wait
     from distributed.scheduler import KilledWorker
 
     say = say or (lambda m: print(m, file=sys.stderr, flush=True))
-    pending = {}
-    for item in items:
-        pending[submit(item)] = (item, 0)
-    alone_since = last_said = None
-    while pending:
-        try:
-            done = wait(list(pending), timeout=poll_s, return_when="FIRST_COMPLETED").done
-        except TimeoutError:
-            done = set()
-        for future in done:
-            item, lost = pending.pop(future)
+    pending = {submit(item): (item, 0) for item in items}
+    watch = _Watch(client, say, what_to_start, no_worker_s)
+    quiet = logging.getLogger("distributed.client")  # "Couldn't gather keys": said above
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)
+    try:
+        while pending:
             try:
-                # bounded: a result held by a worker that dies now is computed again, which
-                # waits for a worker; meanwhile this loop must go on watching for one
-                result = future.result(timeout=poll_s)
+                done = wait(list(pending), timeout=poll_s, return_when="FIRST_COMPLETED").done
             except TimeoutError:
-                pending[future] = (item, lost)
-                continue
-            except KilledWorker as exc:
-                if lost >= MAX_RESUBMITS:
-                    raise ClusterError(
-                        f"a task was lost with {3 * (lost + 1)} workers that died while running "
-                        f"it ({exc}); a worker may be running out of memory on it: read the "
-                        "worker logs, give workers more memory (--memory), and run the same "
-                        "command again (finished work is kept)") from None
-                pending[submit(item)] = (item, lost + 1)
-                continue
-            future.release()
-            yield result
-        if not pending:
-            break
-        now = time.monotonic()
-        if client.nthreads():
-            alone_since = last_said = None
-            continue
-        alone_since = alone_since or now
-        if now - alone_since >= no_worker_s and (last_said is None
-                                                   or now - last_said >= no_worker_s):
-            say(f"no Dask worker connected for {now - alone_since:.0f} s, {len(pending)} "
-                f"task(s) waiting: {what_to_start}; the run goes on by itself once one joins")
-            last_said = now
+                done = set()
+            for future in done:
+                item, lost = pending.pop(future)
+                try:
+                    # bounded: a result held by a worker that dies now is computed again,
+                    # which waits for a worker; meanwhile this loop must go on watching
+                    result = future.result(timeout=poll_s)
+                except TimeoutError:
+                    pending[future] = (item, lost)
+                    continue
+                except KilledWorker as exc:
+                    if lost >= MAX_RESUBMITS:
+                        raise ClusterError(
+                            f"a task was lost with its workers {lost + 1} times, each after "
+                            f"Dask's own retries ({exc}); a worker may be running out of memory "
+                            "on it: read the worker logs, give workers more memory (--memory), "
+                            "and run the same command again (finished work is kept)") from None
+                    pending[submit(item)] = (item, lost + 1)
+                    continue
+                except CancelledError as exc:
+                    raise ClusterError(_gone(client, exc)) from None
+                future.release()
+                yield result
+            if pending:
+                watch.check(len(pending))
+    finally:
+        quiet.setLevel(level)

@@ -239,8 +239,11 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
     groups = [g.to_dict("records") for _, g in todo.groupby(["light_field", "seed"], sort=False)]
     log = out / "renders.csv"
     if len(todo) and workers.get("plan", True):
+        machines = machines_seen(client)
+        seen = bool(machines) or not workers.get("expected")
         print(plan_text(len(todo), len(done), job.size_px, list(todo["spp"]),
-                        machines_seen(client)), file=sys.stderr, flush=True)
+                        machines if seen else workers["expected"], seen=seen),
+              file=sys.stderr, flush=True)
     bar = _progress(len(todo), "render EXR", progress)
     n_rendered = 0
     try:
@@ -378,7 +381,8 @@ def render_set(
         Recorded in the run summary.
     workers : dict, optional
         With a client: ``what_to_start`` (advice printed while no worker is connected),
-        ``no_worker_s`` (after how many seconds), ``plan`` (print the plan first; default True).
+        ``no_worker_s`` (after how many seconds), ``plan`` (print the plan first; default True),
+        ``expected`` (``{name: cores}`` of batch jobs asked for, planned on while none runs).
 
     Returns
     -------

@@ -52,8 +52,11 @@ def machines_seen(client) -> dict[str, int]:
 
 
 def plan_text(n_todo: int, n_done: int, size_px: int, spp: Sequence[int],
-              machines: dict[str, int]) -> str:
-    """The plan as printed: images, hours on ``machines``, hours per added machine."""
+              machines: dict[str, int], *, seen: bool = True) -> str:
+    """The plan as printed: images, hours on ``machines``, hours per added machine.
+
+    ``seen``: the machines are the workers connected now (False: the batch jobs asked for).
+    """
     total = core_seconds(size_px, spp)
     mean_spp = sum(spp) / len(spp) if len(spp) else 0.0
     lines = [(f"plan: {n_todo} images to render ({n_done} already done), {size_px} px, "
@@ -67,7 +70,8 @@ def plan_text(n_todo: int, n_done: int, size_px: int, spp: Sequence[int],
         return "\n".join(lines)
     cores = sum(machines.values())
     per_machine = cores / len(machines)
-    lines.append(f"  on the workers seen ({len(machines)} machine(s), {cores} cores): "
+    which = "workers seen" if seen else "jobs asked for, once they run"
+    lines.append(f"  on the {which} ({len(machines)} machine(s), {cores} cores): "
                  f"{total / cores / 3600:.2f} h")
     added = ", ".join(f"+{k}: {total / (cores + k * per_machine) / 3600:.2f} h"
                       for k in (1, 2, 4, 8))

@@ -84,6 +84,7 @@ def test_a_killed_worker_costs_only_its_images_and_the_run_finishes(tmp_path):
     assert proc.returncode == 0, err + dask.logs()
     assert "Traceback" not in err, err
     assert f"dask worker {dask.address}" in err  # what to start
+    assert "1 Dask worker(s) left (tcp://127.0.0.1:" in err and "worker(s) joined" in err
     _once_each(out, 18)
     renders = pd.read_csv(log)
     assert renders["stimulus_id"].is_unique  # finished EXRs were not rendered again

@@ -56,6 +56,7 @@ def test_a_killed_worker_costs_only_its_batches_and_the_run_finishes(tmp_path, r
     assert proc.returncode == 0, err + dask.logs()
     assert "Traceback" not in err, err
     assert f"dask worker {dask.address}" in err
+    assert "1 Dask worker(s) left (tcp://127.0.0.1:" in err and "worker(s) joined" in err
     assert "60 images in the manifest, 0 already done, 60 computed" in stdout
     frame = load_stats(out)
     assert frame["stimulus_id"].is_unique
