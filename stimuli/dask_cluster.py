@@ -244,8 +244,10 @@ class _Watch:
         now, workers = time.monotonic(), set(self._workers())
         left, joined = self.workers - workers, workers - self.workers
         if left:
+            where = (f"the {len(workers)} other(s) or the next to join" if workers
+                     else "the next worker to join")
             self.say(f"{len(left)} Dask worker(s) left ({', '.join(sorted(left))}); their "
-                     f"unfinished tasks go to the {len(workers)} other(s) or the next to join")
+                     f"unfinished tasks go to {where}")
         if joined:
             self.say(f"{len(joined)} Dask worker(s) joined ({len(workers)} connected)")
         self.workers = workers

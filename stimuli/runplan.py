@@ -25,6 +25,14 @@ CORE_S_PER_IMAGE = 0.3
 CORE_S_PER_SAMPLE = (5.4 - CORE_S_PER_IMAGE) / (256 * 256 * 39.1)
 
 
+def _duration(seconds: float) -> str:
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{seconds / 60:.0f} min"
+    return f"{seconds / 3600:.1f} h"
+
+
 def core_seconds(size_px: int, spp: Sequence[int]) -> float:
     """Estimated core-seconds to render images of ``size_px`` x ``size_px`` at these spp."""
     return sum(CORE_S_PER_IMAGE + CORE_S_PER_SAMPLE * size_px * size_px * int(s) for s in spp)
@@ -60,20 +68,20 @@ def plan_text(n_todo: int, n_done: int, size_px: int, spp: Sequence[int],
     total = core_seconds(size_px, spp)
     mean_spp = sum(spp) / len(spp) if len(spp) else 0.0
     lines = [(f"plan: {n_todo} images to render ({n_done} already done), {size_px} px, "
-              f"{mean_spp:.1f} spp on average: about {total / 3600:.2f} core-hours "
+              f"{mean_spp:.1f} spp on average: about {total / 3600:.1f} core-hours "
               f"({total / max(n_todo, 1):.1f} core-s per image, the 2-core reference machine's "
               "pace; the progress bar's ETA is this run's own)")]
     if not machines:
         here = _host_cores()[1]
         lines.append(f"  no worker connected yet; on one {here}-core machine: "
-                     f"{total / here / 3600:.2f} h")
+                     f"{_duration(total / here)}")
         return "\n".join(lines)
     cores = sum(machines.values())
     per_machine = cores / len(machines)
     which = "workers seen" if seen else "jobs asked for, once they run"
     lines.append(f"  on the {which} ({len(machines)} machine(s), {cores} cores): "
-                 f"{total / cores / 3600:.2f} h")
-    added = ", ".join(f"+{k}: {total / (cores + k * per_machine) / 3600:.2f} h"
+                 f"{_duration(total / cores)}")
+    added = ", ".join(f"+{k}: {_duration(total / (cores + k * per_machine))}"
                       for k in (1, 2, 4, 8))
     lines.append(f"  with added machines like these ({per_machine:g} cores each): {added}")
     return "\n".join(lines)
