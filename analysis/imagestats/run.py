@@ -219,7 +219,6 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
         If the manifest is missing or malformed, or ``out`` was made with other options or from
         other files.
     """
-    from tqdm import tqdm
 
     t0 = time.perf_counter()
     config = StatsConfig() if config is None else config
@@ -248,27 +247,12 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     batches = [records[i:i + batch_size] for i in range(0, len(records), batch_size)]
     n_computed, n_workers = 0, 0
     if batches:
-        advice: list[str] = []
-        with dask_client(workers=workers, scheduler=scheduler, spec=cluster,
-                         advice=advice) as client, \
-                tqdm(total=len(records), unit="img", desc="image statistics",
-                     disable=not progress) as bar:
-            n_workers = len(client.nthreads())
-
-            def submit(batch):
-                return client.submit(measure_batch, batch, str(root),
-                                     float(design.array.extent_cm), config.to_json(),
-                                     pure=False)
-
-            for batch_records, batch_problems in finished(
-                    client, submit, batches, what_to_start=advice[0], no_worker_s=no_worker_s,
-                    say=lambda m: bar.write(m, file=sys.stderr)):
-                if batch_records:
-                    write_part(out, batch_records)
-                n_computed += len(batch_records)
-                problems += batch_problems
-                bar.update(len(batch_records) + len(batch_problems))
-                n_workers = max(n_workers, len(client.nthreads()))
+        n_computed, n_workers = _measure(batches, out, problems, root=root, design=design,
+                                         config=config, progress=progress,
+                                         client_options={"workers": workers,
+                                                         "scheduler": scheduler,
+                                                         "spec": cluster},
+                                         no_worker_s=no_worker_s)
     stats_columns = list(MANIFEST_COLUMNS)
     if n_computed or (len(done) and has_parts(out)):
         consolidate(out, meta, stats_columns)
@@ -278,6 +262,36 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),
                     n_computed=n_computed, problems=tuple(problems),
                     seconds=time.perf_counter() - t0, workers=n_workers, notes=notes)
+
+
+def _measure(batches: list, out: Path, problems: list, *, root: Path, design: StudyDesign,
+             config: StatsConfig, progress: bool, client_options: dict,
+             no_worker_s: float) -> tuple[int, int]:
+    """Measure ``batches`` on Dask, writing each finished batch as a part and appending its
+    problems to ``problems``. Returns (images measured, most workers seen at once)."""
+    from tqdm import tqdm
+
+    n_computed = 0
+    advice: list[str] = []
+    with dask_client(**client_options, advice=advice) as client, \
+            tqdm(total=sum(len(b) for b in batches), unit="img", desc="image statistics",
+                 disable=not progress) as bar:
+        n_workers = len(client.nthreads())
+
+        def submit(batch):
+            return client.submit(measure_batch, batch, str(root), float(design.array.extent_cm),
+                                 config.to_json(), pure=False)
+
+        for batch_records, batch_problems in finished(
+                client, submit, batches, what_to_start=advice[0], no_worker_s=no_worker_s,
+                say=lambda m: bar.write(m, file=sys.stderr)):
+            if batch_records:
+                write_part(out, batch_records)
+            n_computed += len(batch_records)
+            problems += batch_problems
+            bar.update(len(batch_records) + len(batch_problems))
+            n_workers = max(n_workers, len(client.nthreads()))
+    return n_computed, n_workers
 
 
 def _write_problems(path: Path, problems: list[tuple[str, str]]) -> None:
