@@ -27,6 +27,7 @@ import re
 import shlex
 import sys
 import time
+from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -40,6 +41,8 @@ __all__ = [
     "job_script",
     "job_spec_from",
     "open_client",
+    "per_thread",
+    "per_worker",
     "worker_command",
 ]
 
@@ -231,7 +234,8 @@ class _Watch:
     def __init__(self, client, say, what_to_start: str, no_worker_s: float):
         self.client, self.say = client, say
         self.what_to_start, self.no_worker_s = what_to_start, no_worker_s
-        self.workers = set(self._workers())
+        self.nthreads = self._workers()
+        self.workers = set(self.nthreads)
         self.alone_since = self.last_said = None
 
     def _workers(self) -> dict:
@@ -241,7 +245,8 @@ class _Watch:
             raise ClusterError(_gone(self.client, exc)) from None
 
     def check(self, n_waiting: int) -> None:
-        now, workers = time.monotonic(), set(self._workers())
+        self.nthreads = self._workers()
+        now, workers = time.monotonic(), set(self.nthreads)
         left, joined = self.workers - workers, workers - self.workers
         if left:
             where = (f"the {len(workers)} other(s) or the next to join" if workers
@@ -269,11 +274,27 @@ def _gone(client, exc) -> str:
             "work is kept")
 
 
+def per_thread(nthreads: dict) -> int:
+    """Tasks in flight: two per worker thread (each thread has its next task at hand)."""
+    return 2 * sum(nthreads.values())
+
+
+def per_worker(nthreads: dict) -> int:
+    """Tasks in flight: two per worker, whatever its threads (tasks that run one at a time in a
+    process: renders)."""
+    return 2 * len(nthreads)
+
+
 def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
              no_worker_s: float = NO_WORKER_S, poll_s: float = 2.0,
-             say: Callable[[str], None] | None = None) -> Iterator:
+             say: Callable[[str], None] | None = None,
+             in_flight: Callable[[dict], int] = per_thread) -> Iterator:
     """Run ``submit(item)`` (a function returning a Dask future) for every item; yield each
     result as it finishes, in any order.
+
+    Only ``in_flight(client.nthreads())`` tasks (at least 2) are on the cluster at a time, the
+    rest are submitted as those finish: a worker never holds more work than it can start soon,
+    so a worker that joins late gets its share and one that dies loses little.
 
     A task whose worker died is run again by the scheduler on another worker (Dask's own
     retries, ``distributed.scheduler.allowed-failures``); one lost with its workers more often
@@ -293,8 +314,17 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
     from distributed.scheduler import KilledWorker
 
     say = say or (lambda m: print(m, file=sys.stderr, flush=True))
-    pending = {submit(item): (item, 0) for item in items}
+    waiting = deque(items)
+    pending: dict = {}
     watch = _Watch(client, say, what_to_start, no_worker_s)
+
+    def top_up() -> None:
+        cap = max(2, in_flight(watch.nthreads))
+        while waiting and len(pending) < cap:
+            item = waiting.popleft()
+            pending[submit(item)] = (item, 0)
+
+    top_up()
     quiet = logging.getLogger("distributed.client")  # "Couldn't gather keys": said above
     level = quiet.level
     quiet.setLevel(logging.ERROR)
@@ -326,7 +356,7 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
                     raise ClusterError(_gone(client, exc)) from None
                 future.release()
                 yield result
-            if pending:
-                watch.check(len(pending))
+            watch.check(len(pending) + len(waiting))
+            top_up()
     finally:
         quiet.setLevel(level)

@@ -254,7 +254,7 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
                     n_rendered += 1
                     bar.update(1)
         else:
-            from stimuli.dask_cluster import finished
+            from stimuli.dask_cluster import finished, per_worker
 
             def submit(rows):
                 return client.submit(render_group, job, rows, str(out), pure=False)
@@ -262,7 +262,8 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
             for records in finished(client, submit, groups,
                                     what_to_start=workers.get("what_to_start", ""),
                                     no_worker_s=workers.get("no_worker_s", 120.0),
-                                    say=lambda m: bar.write(m, file=sys.stderr)):
+                                    say=lambda m: bar.write(m, file=sys.stderr),
+                                    in_flight=per_worker):
                 for rec in records:
                     _append_csv(log, RENDER_LOG_COLUMNS, rec)
                     n_rendered += 1

@@ -200,3 +200,26 @@ def test_the_plan_of_the_full_set_matches_the_measured_44_hours(design):
     assert 40 <= hours <= 48
     plus_one = float(text.split("+1: ")[1].split(" h")[0])
     assert plus_one == pytest.approx(hours / 2, abs=0.06)  # a second machine halves the time
+
+
+@pytest.mark.parametrize("rule, cap", [("per_worker", 2), ("per_thread", 6)])
+def test_only_a_few_tasks_per_worker_are_on_the_cluster_at_once(rule, cap):
+    """A worker with many threads that renders one group at a time must not hold every group
+    (a late worker would get none, a lost one would lose them all)."""
+    from distributed import Client, LocalCluster
+
+    from stimuli import dask_cluster
+
+    seen = {"submitted": 0, "done": 0, "most": 0}
+
+    with LocalCluster(n_workers=1, threads_per_worker=3, processes=False,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        def submit(i):
+            seen["submitted"] += 1
+            seen["most"] = max(seen["most"], seen["submitted"] - seen["done"])
+            return client.submit(time.sleep, 0.01, key=f"sleep-{i}")
+
+        for _ in dask_cluster.finished(client, submit, range(20), what_to_start="-",
+                                       in_flight=getattr(dask_cluster, rule)):
+            seen["done"] += 1
+    assert seen["done"] == 20 and seen["most"] == cap
