@@ -62,7 +62,9 @@ class ClusterError(ValueError):
 
 @dataclass(frozen=True)
 class JobSpec:
-    """One batch job = one Dask worker (one process whose threads use the job's cores).
+    """One batch job = one Dask worker process whose threads use the job's cores (renders), or
+    one process per core (``processes``; image statistics, whose NumPy/PyTorch work holds the GIL
+    in parts).
 
     Attributes
     ----------
@@ -82,6 +84,8 @@ class JobSpec:
         Account or project charged; empty: the user's default.
     extra : tuple of str
         More job directives, verbatim (e.g. ``"--gres=gpu:1"``, ``"-pe smp 4"``).
+    processes : int
+        Dask worker processes per job (the job's cores are shared among them).
     """
 
     system: str
@@ -92,6 +96,7 @@ class JobSpec:
     jobs: int = 1
     account: str = ""
     extra: tuple[str, ...] = ()
+    processes: int = 1
 
 
 def add_cluster_arguments(parser, where) -> None:
@@ -163,7 +168,7 @@ def _jobqueue_cluster(spec: JobSpec):
     lifetime = _seconds(spec.walltime) - 300
     extra_args = (["--lifetime", f"{lifetime}s", "--lifetime-stagger", "60s"]
                   if lifetime >= 600 else [])
-    kwargs = {"cores": spec.cores, "processes": 1, "memory": spec.memory,
+    kwargs = {"cores": spec.cores, "processes": spec.processes, "memory": spec.memory,
               "walltime": spec.walltime, "queue": spec.queue or None, "python": sys.executable,
               "job_script_prologue": _prologue(), "worker_extra_args": extra_args,
               "job_extra_directives": list(spec.extra), "job_name": "glossdepth-worker",

@@ -77,9 +77,13 @@ def _compute(argv: list[str]) -> int:
         design = load_design(args.design)
         spec = None
         if args.cluster:
+            from dataclasses import replace
+
             from stimuli.dask_cluster import job_script, job_spec_from
 
+            # one single-threaded worker process per core, as the local cluster
             spec = job_spec_from(args, design)
+            spec = replace(spec, processes=spec.cores)
             if args.dry_run:
                 print(job_script(spec))
                 return 0

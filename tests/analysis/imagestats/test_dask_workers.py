@@ -69,5 +69,7 @@ def test_cluster_dry_run_prints_the_job_script(tmp_path, capsys):
     script = capsys.readouterr().out
     assert rc == 0
     assert "#SBATCH --cpus-per-task=2" in script and "#SBATCH -t 00:30:00" in script
-    assert f"{sys.executable} -m distributed.cli.dask_worker tcp://" in script
+    worker = next(line for line in script.splitlines() if "dask_worker" in line)
+    assert worker.startswith(f"{sys.executable} -m distributed.cli.dask_worker tcp://")
+    assert "--nworkers 2" in worker and "--nthreads 1" in worker  # a process per core
     assert not (tmp_path / "s.parquet").exists()
