@@ -51,6 +51,16 @@ def _cmd_render(args) -> int:
     from stimuli.render import camera_geometry
 
     design, table = _select(args)
+    spec = None
+    if args.cluster:
+        from stimuli.dask_cluster import job_script, job_spec_from
+
+        spec = job_spec_from(args, design)
+        if args.dry_run:
+            print(job_script(spec))
+            return 0
+    elif args.dry_run:
+        raise ValueError("--dry-run prints a batch job script: add --cluster slurm|pbs|sge")
     gloss, gloss_name = _load_gloss(args.gloss_table)
     cal = _load_calibration(design, args.calibration)
     # fails here, with the fix, before any worker starts
@@ -76,35 +86,41 @@ def _cmd_render(args) -> int:
                   f"`python -m stimuli plan-spp --size {size}` for counts measured at this size",
                   file=sys.stderr)
     cores = os.cpu_count() or 1
-    client = cluster = None
     workers = args.workers if args.workers is not None else 1
-    threads = max(1, cores // max(workers, 1)) if not args.scheduler else 0
+    if args.scheduler:
+        threads = 0  # each worker: the cores its process may use
+    elif spec is not None:
+        threads = spec.cores
+    else:
+        threads = max(1, cores // max(workers, 1))
     job = RenderJob(camera=camera, size_px=size, spp=spp, variant=variant,
                     design_path=str(design.source), threads=threads,
-                    spp_by_gloss_level=by_level)
+                    spp_by_gloss_level=by_level,
+                    llvm_path=os.environ.get("DRJIT_LIBLLVM_PATH", ""))
     print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {spp_text}, "
           f"variant {variant}, image width {camera.image_width_cm:.3f} cm at "
           f"{camera.distance_cm:g} cm, gloss table {gloss_name}, calibration "
           f"{cal.calibration_id} -> {args.out}", file=sys.stderr)
-    try:
-        if args.scheduler:
-            from dask.distributed import Client
+    run = {"table": table, "out_dir": args.out, "job": job, "gloss_table": gloss,
+           "calibration": cal, "tonemap_spec": design.tonemap,
+           "progress": not args.no_progress, "gloss_table_name": gloss_name}
+    if not args.scheduler and spec is None and workers <= 0:
+        summary = render_set(**run)
+    else:
+        from stimuli.dask_cluster import open_client
 
-            client = Client(args.scheduler)
-        elif workers > 0:
-            from dask.distributed import Client, LocalCluster
+        def local():
+            from dask.distributed import LocalCluster
 
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0")
-            client = Client(cluster)
-        summary = render_set(table, args.out, job=job, gloss_table=gloss, calibration=cal,
-                             tonemap_spec=design.tonemap, client=client,
-                             progress=not args.no_progress, gloss_table_name=gloss_name)
-    finally:
-        if client is not None:
-            client.close()
-        if cluster is not None:
-            cluster.close()
+            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                dashboard_address=":0")
+
+        with open_client(scheduler=args.scheduler, spec=spec, local=local) as (client, advice):
+            summary = render_set(**run, client=client,
+                                 workers={"what_to_start": advice,
+                                          "no_worker_s": args.no_worker_timeout,
+                                          "expected": {} if spec is None else
+                                          {f"job {i}": spec.cores for i in range(spec.jobs)}})
     print(json.dumps(summary, indent=1, default=str))
     return 0
 
@@ -217,8 +233,13 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--workers", type=int, help="Dask LocalCluster worker processes (default 1, "
                    "whose Dr.Jit threads use all cores: faster than several processes on one "
                    "machine); 0 renders in this process")
-    g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786); "
-                   "its workers must see --out at the same path (shared file system)")
+    g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786; "
+                   "start it with `dask scheduler`, workers with `dask worker ADDRESS` on any "
+                   "machines, joining and leaving at will); its workers must see --out at the "
+                   "same path (shared file system)")
+    from stimuli.dask_cluster import add_cluster_arguments
+
+    add_cluster_arguments(p, g)
     p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant; "
                    "'auto' = llvm_ad_mono, or cuda_ad_mono on a GPU: exact for the grey stimuli)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")

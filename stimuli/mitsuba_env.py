@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import re
+import threading
 from pathlib import Path
 
 from stimuli.errors import MitsubaSetupError
@@ -34,6 +35,7 @@ __all__ = [
     "is_monochrome",
     "libllvm_major",
     "setup_mitsuba",
+    "use_llvm_hint",
 ]
 
 #: CPU variants tried in order when none is named: monochrome (exact for the achromatic stimuli),
@@ -51,6 +53,10 @@ _FIX = ("install LLVM >= 17 (Debian/Ubuntu: `sudo apt-get install libllvm19`, wh
         "and point Dr.Jit at it: `export DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM.so.19.1`")
 
 _state: dict = {}
+#: One set-up at a time per process: a Dask worker runs tasks on several threads, and two threads
+#: importing Mitsuba or selecting its variant at once saw a half-initialised module
+#: ("module 'mitsuba' has no attribute 'variants'").
+_setup_lock = threading.RLock()
 
 
 def libllvm_major(path: str | Path) -> int | None:
@@ -181,10 +187,24 @@ def _smoke_test() -> None:
             f"{np.nanmax(img)}; expected finite, > 0); {_fix_for(variant)}")
 
 
+def use_llvm_hint(path: str | None) -> None:
+    """Take the libLLVM path a client shipped, where this machine's own choice is missing.
+
+    A worker on another machine must not depend on the client's environment: a
+    ``DRJIT_LIBLLVM_PATH`` of the worker's own wins (checked, with the fix, by
+    :func:`setup_mitsuba`); else ``path`` (the client's library) if it is a file here; else
+    :func:`setup_mitsuba` searches this machine's library folders. Call before the first
+    :func:`setup_mitsuba` of the process.
+    """
+    if not os.environ.get("DRJIT_LIBLLVM_PATH") and path and Path(path).is_file():
+        os.environ["DRJIT_LIBLLVM_PATH"] = str(path)
+
+
 def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str:
     """Select a Mitsuba LLVM variant, register the Ward BSDF, and smoke-test a tiny render.
 
-    Idempotent within a process (a Dask worker calls it once per process).
+    Idempotent within a process (a Dask worker calls it once per process) and safe to call from
+    several threads at once (one set-up at a time; the others wait and reuse it).
 
     Parameters
     ----------
@@ -206,6 +226,11 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
         the renderer supports or missing from this build, CUDA is asked for without a GPU, or the
         smoke-test render fails; the message names the fix.
     """
+    with _setup_lock:
+        return _setup_locked(variant, smoke_test)
+
+
+def _setup_locked(variant: str | None, smoke_test: bool) -> str:
     if variant == "auto":
         variant = default_variant(achromatic=True)
     if variant is not None and variant not in SUPPORTED_VARIANTS:

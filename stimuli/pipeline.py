@@ -11,7 +11,11 @@ Pass 1 renders EXRs. Stimuli are grouped by (light field, array) so a worker bui
 and renders all gloss levels of the group by updating the Ward parameters in place, each at its
 gloss level's samples per pixel (``RenderJob.spp_by_gloss_level``, from the design's displayed-error
 target). A worker is one process per machine whose Dr.Jit threads use all its cores
-(``RenderJob.threads``); more machines, not more processes, give more throughput. Pass 2 waits
+(``RenderJob.threads``); more machines, not more processes, give more throughput. A worker with
+several Dask threads (``dask worker``'s default: one per core) renders one group at a time, with
+Dr.Jit's threads on the cores its process may use; its other threads wait. Workers may join and
+leave during a run (:func:`stimuli.dask_cluster.finished`): one that dies costs only its groups in
+flight, which other workers render again. Pass 2 waits
 for every EXR of a light field (its tone-mapping condition), computes the condition's L_max, and
 writes PNGs and manifest rows. Every file is written to a hidden temporary name and renamed, so an
 interrupted run (Ctrl-C, kill, disk full) leaves no half-written file under a real name; re-running
@@ -23,6 +27,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 import zlib
 from dataclasses import asdict, dataclass
@@ -71,6 +76,9 @@ class RenderJob:
         Dr.Jit threads per worker process (0: Dr.Jit's default, all cores).
     spp_by_gloss_level : tuple of int
         Samples per pixel per physical gloss level label (1..n), multijitter counts; empty: ``spp``.
+    llvm_path : str
+        The client's libLLVM: a worker whose own ``DRJIT_LIBLLVM_PATH`` is unset uses it where it
+        is a file (:func:`stimuli.mitsuba_env.use_llvm_hint`), else finds its own.
     """
 
     camera: CameraGeometry
@@ -80,6 +88,7 @@ class RenderJob:
     design_path: str
     threads: int = 0
     spp_by_gloss_level: tuple[int, ...] = ()
+    llvm_path: str = ""
 
     def spp_for(self, gloss_level: int) -> int:
         """Samples per pixel of a stimulus of this gloss level label."""
@@ -90,22 +99,41 @@ class RenderJob:
 
 # --- worker side ---------------------------------------------------------------------------------
 _worker: dict = {}
+#: One group at a time per process: the scene, the renderer and Dr.Jit's thread pool are shared
+#: by the worker's threads.
+_render_lock = threading.Lock()
+
+
+def _usable_cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))  # a batch job's share, not the whole node
+    except AttributeError:
+        return os.cpu_count() or 1
 
 
 def render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
     """Render one group of stimuli that share a light field and an array (runs on a worker).
 
     Builds the scene once and re-renders it per Ward material. Returns one render-log record per
-    EXR written (:data:`RENDER_LOG_COLUMNS`).
+    EXR written (:data:`RENDER_LOG_COLUMNS`). Safe to call from several threads of one process:
+    they render one after another.
     """
-    from stimuli.mitsuba_env import setup_mitsuba
+    with _render_lock:
+        return _render_group(job, rows, out_dir)
+
+
+def _render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
+    from stimuli.mitsuba_env import setup_mitsuba, use_llvm_hint
     from studydesign import load_design
 
+    use_llvm_hint(job.llvm_path)
     variant = setup_mitsuba(job.variant)
-    if job.threads:
+    threads = job.threads or _usable_cores()
+    if _worker.get("threads") != threads:
         import drjit as dr
 
-        dr.set_thread_count(job.threads)
+        dr.set_thread_count(threads)
+        _worker["threads"] = threads
     key = (job.camera, job.size_px, job.spp)
     if _worker.get("key") != key:
         _worker["renderer"] = StimulusRenderer(job.camera, size_px=job.size_px, spp=job.spp)
@@ -198,15 +226,24 @@ def _progress(total: int, desc: str, enabled: bool):
                 file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
 
 
-def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client,
-                 progress: bool) -> tuple[int, int]:
+def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress: bool,
+                 workers: dict) -> tuple[int, int]:
     """Pass 1: render every EXR of ``plan`` not already logged in ``renders.csv`` with these
     settings (and matching its checksum); log each as it is written. Returns (rendered, skipped).
+    ``workers``: :func:`stimuli.dask_cluster.finished`'s options (what to start, no_worker_s).
     """
+    from stimuli.runplan import machines_seen, plan_text
+
     done = _done_exrs(out, plan, job)
     todo = plan[~plan["stimulus_id"].isin(done)]
     groups = [g.to_dict("records") for _, g in todo.groupby(["light_field", "seed"], sort=False)]
     log = out / "renders.csv"
+    if len(todo) and workers.get("plan", True):
+        machines = machines_seen(client)
+        seen = bool(machines) or not workers.get("expected")
+        print(plan_text(len(todo), len(done), job.size_px, list(todo["spp"]),
+                        machines if seen else workers["expected"], seen=seen),
+              file=sys.stderr, flush=True)
     bar = _progress(len(todo), "render EXR", progress)
     n_rendered = 0
     try:
@@ -217,17 +254,24 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client,
                     n_rendered += 1
                     bar.update(1)
         else:
-            from dask.distributed import as_completed
+            from stimuli.dask_cluster import finished, per_worker
 
-            futures = [client.submit(render_group, job, rows, str(out), pure=False)
-                       for rows in groups]
-            for fut in as_completed(futures):
-                for rec in fut.result():
+            def submit(rows):
+                return client.submit(render_group, job, rows, str(out), pure=False)
+
+            for records in finished(client, submit, groups,
+                                    what_to_start=workers.get("what_to_start", ""),
+                                    no_worker_s=workers.get("no_worker_s", 120.0),
+                                    say=lambda m: bar.write(m, file=sys.stderr),
+                                    in_flight=per_worker):
+                for rec in records:
                     _append_csv(log, RENDER_LOG_COLUMNS, rec)
                     n_rendered += 1
                     bar.update(1)
     finally:
         bar.close()
+    if client is not None:
+        _remove_stale_temporaries(out)  # a worker killed mid-write left its temporary file
     return n_rendered, len(done)
 
 
@@ -312,6 +356,7 @@ def render_set(
     client=None,
     progress: bool = True,
     gloss_table_name: str = "",
+    workers: dict | None = None,
 ) -> dict:
     """Render ``table`` (rows of a stimulus set) into ``out_dir`` (see the module docstring).
 
@@ -335,6 +380,10 @@ def render_set(
         Show a progress bar with ETA on stderr.
     gloss_table_name : str
         Recorded in the run summary.
+    workers : dict, optional
+        With a client: ``what_to_start`` (advice printed while no worker is connected),
+        ``no_worker_s`` (after how many seconds), ``plan`` (print the plan first; default True),
+        ``expected`` (``{name: cores}`` of batch jobs asked for, planned on while none runs).
 
     Returns
     -------
@@ -350,7 +399,7 @@ def render_set(
         probe_path(env)  # fail early, naming the file, before any worker starts
     t0 = time.perf_counter()
 
-    n_rendered, n_done = _render_pass(out, plan, job, client, progress)
+    n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {})
     t_render = time.perf_counter() - t0
     n_png, n_png_skipped, manifest_path = _tonemap_pass(out, plan, job, calibration,
                                                        tonemap_spec, progress)

@@ -7,6 +7,7 @@ slider scale, analysis bins) lives in ``design.toml`` and reaches code only thro
 
 from __future__ import annotations
 
+import re
 import tomllib
 from dataclasses import asdict, dataclass
 from importlib import resources
@@ -458,6 +459,45 @@ class GapSpec:
 
 
 @dataclass(frozen=True)
+class ClusterSpec:
+    """Batch jobs of ``--cluster slurm|pbs|sge`` (renders, image statistics): one Dask worker
+    per job; the command line's ``--cores`` etc. override each.
+
+    Attributes
+    ----------
+    cores : int
+        Cores per job, >= 1.
+    memory : str
+        Memory per job (``"8GiB"``).
+    walltime : str
+        Run time per job, ``HH:MM:SS`` (a job that ends is replaced).
+    queue : str
+        Queue or SLURM partition; empty: the system's default.
+    jobs : int
+        Jobs kept running at once, >= 1.
+    account : str
+        Account or project charged; empty: the user's default.
+
+    A design without ``[cluster]`` takes these defaults.
+    """
+
+    cores: int = 4
+    memory: str = "8GiB"
+    walltime: str = "04:00:00"
+    queue: str = ""
+    jobs: int = 4
+    account: str = ""
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.cores, int) and self.cores >= 1,
+                 f"cluster.cores must be an integer >= 1, got {self.cores!r}")
+        _require(isinstance(self.jobs, int) and self.jobs >= 1,
+                 f"cluster.jobs must be an integer >= 1, got {self.jobs!r}")
+        _require(re.fullmatch(r"(\d+-)?\d{1,3}:\d{2}:\d{2}", str(self.walltime)) is not None,
+                 f"cluster.walltime must be HH:MM:SS, got {self.walltime!r}")
+
+
+@dataclass(frozen=True)
 class StudyDesign:
     """The whole study design. Build it with :func:`load_design`."""
 
@@ -474,6 +514,7 @@ class StudyDesign:
     render: RenderSpec
     gap: GapSpec
     source: str = ""
+    cluster: ClusterSpec = ClusterSpec()
 
     def __post_init__(self) -> None:
         _require(
@@ -697,6 +738,8 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     render = _build(RenderSpec, rd, "render", path,
                     spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
     gap = _build(GapSpec, {**asdict(GapSpec()), **raw.get("gap", {})}, "gap", path)
+    cluster = _build(ClusterSpec, {**asdict(ClusterSpec()), **raw.get("cluster", {})},
+                     "cluster", path)
     return StudyDesign(
         gloss=gloss,
         depth=depth,
@@ -711,4 +754,5 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         render=render,
         gap=gap,
         source=str(path),
+        cluster=cluster,
     )

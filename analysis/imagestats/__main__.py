@@ -1,7 +1,8 @@
 """``python -m analysis imagestats``: image statistics of a render folder, and their relation to
 perceived gloss.
 
-    python -m analysis imagestats RENDER_DIR --out stats.parquet [--workers N | --scheduler ADDR]
+    python -m analysis imagestats RENDER_DIR --out stats.parquet [--workers N | --scheduler ADDR
+        | --cluster slurm|pbs|sge [--cores C --memory M --walltime HH:MM:SS --queue Q --jobs J]]
     python -m analysis imagestats relate stats.parquet --sessions DATA_DIR --out REPORT_DIR
 """
 
@@ -30,7 +31,11 @@ def _compute_parser() -> argparse.ArgumentParser:
     where.add_argument("--workers", type=int, default=2,
                        help="worker processes of a local Dask cluster (default 2)")
     where.add_argument("--scheduler", metavar="ADDRESS",
-                       help="use an existing Dask cluster (tcp://host:8786)")
+                       help="use an existing Dask cluster (tcp://host:8786: `dask scheduler`, "
+                       "then `dask worker ADDRESS` on any machines, joining and leaving at will)")
+    from stimuli.dask_cluster import add_cluster_arguments
+
+    add_cluster_arguments(p, where)
     p.add_argument("--batch-size", type=int, default=64, metavar="B",
                    help="images per Dask task and per saved part (default 64)")
     p.add_argument("--no-ps", action="store_true",
@@ -69,10 +74,26 @@ def _compute(argv: list[str]) -> int:
 
     args = _compute_parser().parse_args(argv)
     try:
+        design = load_design(args.design)
+        spec = None
+        if args.cluster:
+            from dataclasses import replace
+
+            from stimuli.dask_cluster import job_script, job_spec_from
+
+            # one single-threaded worker process per core, as the local cluster
+            spec = job_spec_from(args, design)
+            spec = replace(spec, processes=spec.cores)
+            if args.dry_run:
+                print(job_script(spec))
+                return 0
+        elif args.dry_run:
+            raise ValueError("--dry-run prints a batch job script: add --cluster slurm|pbs|sge")
         config = StatsConfig(highlight_factor=args.highlight_factor, ps=not args.no_ps)
-        run = compute_stats(args.render_dir, args.out, design=load_design(args.design),
+        run = compute_stats(args.render_dir, args.out, design=design,
                             config=config, workers=args.workers, scheduler=args.scheduler,
-                            batch_size=args.batch_size, progress=not args.quiet)
+                            batch_size=args.batch_size, progress=not args.quiet,
+                            cluster=spec, no_worker_s=args.no_worker_timeout)
     except (ImageStatsError, DesignError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

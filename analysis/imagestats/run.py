@@ -1,8 +1,11 @@
 """Compute the statistics of every image of a render folder on Dask, resumably.
 
 `compute_stats` reads the folder's manifest, checks it against the files, skips images already in
-the output, sends the rest in batches to Dask (a ``LocalCluster`` by default, or an existing
-cluster's scheduler) and writes each finished batch at once (see `analysis.imagestats.store`).
+the output, sends the rest in batches to Dask (a ``LocalCluster`` by default, an existing
+cluster's scheduler, or worker jobs on a batch system: `stimuli.dask_cluster`) and writes each
+finished batch at once (see `analysis.imagestats.store`). Workers may join and leave during a run:
+one that dies costs only its batches in flight, which other workers (or the next to join)
+measure again; while none is connected the run says what to start and waits.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ import contextlib
 import logging
 import os
 import signal
+import sys
 import threading
 import time
 import warnings
@@ -33,6 +37,7 @@ from analysis.imagestats.store import (
 )
 from labfiles import atomic_open
 from stimuli import MANIFEST_COLUMNS, ManifestError, load_manifest
+from stimuli.dask_cluster import NO_WORKER_S, ClusterError, JobSpec, finished, open_client
 from studydesign import StudyDesign
 
 __all__ = ["StatsRun", "compute_stats", "dask_client", "problems_path"]
@@ -83,35 +88,35 @@ def problems_path(out: Path) -> Path:
 
 
 @contextlib.contextmanager
-def dask_client(*, workers: int = 2, scheduler: str | None = None):
-    """A Dask client: on an existing scheduler, or on a new ``LocalCluster`` closed on exit.
+def dask_client(*, workers: int = 2, scheduler: str | None = None, spec: JobSpec | None = None,
+                advice: list | None = None):
+    """A Dask client: on an existing scheduler, on worker jobs of a batch system (``spec``), or
+    on a new ``LocalCluster``; closed on exit. ``advice``, if given, receives what to start
+    while no worker is connected.
 
     The local cluster runs ``workers`` processes of one thread each (PyTorch and NumPy hold the
     GIL for parts of the work, so processes scale where threads would not).
     """
-    from distributed import Client, LocalCluster
-
-    if scheduler:
-        try:
-            client = Client(scheduler, timeout="20s")
-        except (OSError, TimeoutError) as exc:
-            raise ImageStatsError(
-                f"cannot reach the Dask scheduler at {scheduler} ({exc}); start one "
-                "(`dask scheduler`, then `dask worker ADDRESS`) or leave out --scheduler"
-            ) from exc
-        with client:
-            yield client
-        return
-    if workers < 1:
+    if not scheduler and spec is None and workers < 1:
         raise ImageStatsError(f"--workers {workers}: use at least 1")
-    with _workers_ignore_ctrl_c():
-        # Worker logs at CRITICAL only: a task's error reaches this process through its
-        # future; what the workers log at ERROR is their shutdown racing the scheduler's
-        # (heartbeat tracebacks after Ctrl-C or a busy machine's slow close).
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=logging.CRITICAL)
-    with cluster, Client(cluster) as client:
-        yield client
+
+    def local():
+        from distributed import LocalCluster
+
+        with _workers_ignore_ctrl_c():
+            # Worker logs at CRITICAL only: a task's error reaches this process through its
+            # future; what the workers log at ERROR is their shutdown racing the scheduler's
+            # (heartbeat tracebacks after Ctrl-C or a busy machine's slow close).
+            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                dashboard_address=None, silence_logs=logging.CRITICAL)
+
+    try:
+        with open_client(scheduler=scheduler, spec=spec, local=local) as (client, what):
+            if advice is not None:
+                advice.append(what)
+            yield client
+    except ClusterError as exc:  # no scheduler there, a lost task: the CLI's one-line error
+        raise ImageStatsError(str(exc)) from exc
 
 
 @contextlib.contextmanager
@@ -174,7 +179,8 @@ def _check_done(done: pd.DataFrame, manifest: pd.DataFrame, out: Path) -> None:
 def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesign,
                   config: StatsConfig | None = None, workers: int = 2,
                   scheduler: str | None = None, batch_size: int = 64,
-                  progress: bool = True) -> StatsRun:
+                  progress: bool = True, cluster: JobSpec | None = None,
+                  no_worker_s: float = NO_WORKER_S) -> StatsRun:
     """Statistics of every image a render folder's manifest lists, into one Parquet table.
 
     Parameters
@@ -193,6 +199,10 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     scheduler : str, optional
         Address of an existing Dask scheduler (``tcp://host:8786``); its workers must see
         ``render_dir`` and ``out`` at the same paths.
+    cluster : stimuli.dask_cluster.JobSpec, optional
+        Run the workers as batch jobs (``--cluster slurm|pbs|sge``) instead.
+    no_worker_s : float
+        Seconds without any worker before the run says what to start (it keeps waiting).
     batch_size : int
         Images per Dask task and per part file (a kill loses at most the batches in flight).
     progress : bool
@@ -209,7 +219,6 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
         If the manifest is missing or malformed, or ``out`` was made with other options or from
         other files.
     """
-    from tqdm import tqdm
 
     t0 = time.perf_counter()
     config = StatsConfig() if config is None else config
@@ -238,23 +247,12 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     batches = [records[i:i + batch_size] for i in range(0, len(records), batch_size)]
     n_computed, n_workers = 0, 0
     if batches:
-        from distributed import as_completed
-
-        with dask_client(workers=workers, scheduler=scheduler) as client, \
-                tqdm(total=len(records), unit="img", desc="image statistics",
-                     disable=not progress) as bar:
-            n_workers = len(client.scheduler_info(n_workers=-1)["workers"])
-            futures = [client.submit(measure_batch, batch, str(root),
-                                     float(design.array.extent_cm), config.to_json(),
-                                     pure=False) for batch in batches]
-            for future in as_completed(futures):
-                batch_records, batch_problems = future.result()
-                if batch_records:
-                    write_part(out, batch_records)
-                n_computed += len(batch_records)
-                problems += batch_problems
-                bar.update(len(batch_records) + len(batch_problems))
-                future.release()
+        n_computed, n_workers = _measure(batches, out, problems, root=root, design=design,
+                                         config=config, progress=progress,
+                                         client_options={"workers": workers,
+                                                         "scheduler": scheduler,
+                                                         "spec": cluster},
+                                         no_worker_s=no_worker_s)
     stats_columns = list(MANIFEST_COLUMNS)
     if n_computed or (len(done) and has_parts(out)):
         consolidate(out, meta, stats_columns)
@@ -264,6 +262,36 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),
                     n_computed=n_computed, problems=tuple(problems),
                     seconds=time.perf_counter() - t0, workers=n_workers, notes=notes)
+
+
+def _measure(batches: list, out: Path, problems: list, *, root: Path, design: StudyDesign,
+             config: StatsConfig, progress: bool, client_options: dict,
+             no_worker_s: float) -> tuple[int, int]:
+    """Measure ``batches`` on Dask, writing each finished batch as a part and appending its
+    problems to ``problems``. Returns (images measured, most workers seen at once)."""
+    from tqdm import tqdm
+
+    n_computed = 0
+    advice: list[str] = []
+    with dask_client(**client_options, advice=advice) as client, \
+            tqdm(total=sum(len(b) for b in batches), unit="img", desc="image statistics",
+                 disable=not progress) as bar:
+        n_workers = len(client.nthreads())
+
+        def submit(batch):
+            return client.submit(measure_batch, batch, str(root), float(design.array.extent_cm),
+                                 config.to_json(), pure=False)
+
+        for batch_records, batch_problems in finished(
+                client, submit, batches, what_to_start=advice[0], no_worker_s=no_worker_s,
+                say=lambda m: bar.write(m, file=sys.stderr)):
+            if batch_records:
+                write_part(out, batch_records)
+            n_computed += len(batch_records)
+            problems += batch_problems
+            bar.update(len(batch_records) + len(batch_problems))
+            n_workers = max(n_workers, len(client.nthreads()))
+    return n_computed, n_workers
 
 
 def _write_problems(path: Path, problems: list[tuple[str, str]]) -> None:
