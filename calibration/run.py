@@ -45,6 +45,7 @@ from calibration.readings import (
 from calibration.record import DEFAULT_CRT
 from calibration.report import report_text, write_outputs
 from labfiles import FolderLock, atomic_write_text, csv_record, write_new_file
+from labfiles.clock import future_problem
 
 __all__ = [
     "DISPLAY_KEYS",
@@ -278,7 +279,12 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                 f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
                 "calibration's age is unknown; pass --measured-utc with the time the readings "
                 "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
-        parse_utc(measured, "--measured-utc")
+        problem = future_problem(parse_utc(measured, "--measured-utc"),
+                                 "--measured-utc" if newest is None
+                                 else f"{readings_path}: newest timestamp_utc")
+        if problem:
+            raise CalibrationError(problem + (" with --measured-utc" if newest is None else
+                                              " in the file's timestamp_utc column"))
         devices = sorted(set(frame["device"]) - {""})
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)

@@ -41,11 +41,13 @@ from experiment.checks import (
     check_data_folder,
     check_keyboard_libraries,
     check_monitor_profile,
+    check_no_lost_trials,
     check_participant,
     check_screen,
     check_screenshot,
     check_session_number,
     check_stimuli,
+    future_record_notes,
 )
 from experiment.datafile import (
     SESSION_COLUMNS,
@@ -269,9 +271,17 @@ def prepare_session(req: SessionRequest) -> Prepared:
     notes: list = []
     torn: list = []
     done = _read_recorded(read_session, path, notes, torn)
-    _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
-                   notes, torn)
+    slider_file = sliders_path(req.data_dir, req.participant, session)
+    sliders = _read_recorded(read_slider_histories, slider_file, notes, torn)
     _check_done(done, rows, path)
+    events_path = runs_path(req.data_dir, req.participant, session)
+    recorded = _read_recorded(read_run_events, events_path, [], [])
+    logs = {Path(req.data_dir) / "logs" / f"{path.stem}_run{k}.json":  # each run's own log
+            [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
+             {"run": k, "trials_this_run": log.get("trials_this_run")}]
+            for k, log in _run_logs(req.data_dir, path.stem)}
+    check_no_lost_trials(len(done), path, {slider_file: sliders, events_path: recorded, **logs})
+    notes += future_record_notes(done, recorded, path, events_path)
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
         n = len(_read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
