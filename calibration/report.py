@@ -111,8 +111,12 @@ def _fit_summary(cal: Calibration) -> list[str]:
 
 
 def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
-                  validation: pd.DataFrame | None = None, notes=()) -> dict:
+                  validation: pd.DataFrame | None = None, notes=(), *,
+                  keep_calibration: bool = False) -> dict:
     """Write calibration.json, monitors/<name>.json, gamma.png, uniformity.png, report.txt.
+
+    ``keep_calibration``: calibration.json holds ``cal`` already and is not written again (its
+    bytes, and so the SHA-256 a session recorded, stay as they are).
 
     Returns
     -------
@@ -120,7 +124,8 @@ def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
         Name -> path of each file written.
     """
     out_dir = Path(out_dir)
-    paths = {"calibration": save_calibration(cal, out_dir / "calibration.json")}
+    paths = {"calibration": out_dir / "calibration.json" if keep_calibration else
+             save_calibration(cal, out_dir / "calibration.json")}
     paths["monitor"] = write_monitor_profile(cal, out_dir / "monitors", readings)
     paths["gamma_plot"] = plot_gamma(cal, readings, out_dir / "gamma.png", validation)
     uni = plot_uniformity(cal, out_dir / "uniformity.png")

@@ -42,7 +42,7 @@ from calibration.readings import (
     read_readings,
     read_record_csv,
 )
-from calibration.record import DEFAULT_CRT
+from calibration.record import DEFAULT_CRT, load_calibration
 from calibration.report import report_text, write_outputs
 from labfiles import FolderLock, atomic_write_text, csv_record, write_new_file
 from labfiles.clock import future_problem
@@ -111,16 +111,25 @@ def _usable_rows(table, path: Path, progress, why_empty: str):
 
 
 def refit(out_dir, *, progress=print, lock: bool = True):
-    """Fit again from ``out_dir``'s readings (no window, no photometer) and rewrite the outputs.
+    """Fit again from ``out_dir``'s readings (no window, no photometer) and write the outputs.
 
-    The calibration's age stays that of its newest reading (``measured_utc``): a refit never
-    makes an old calibration look new. Each row of ``readings.csv`` that cannot be used is
-    reported (``progress`` and ``report.txt``).
+    A calibration is never replaced: where ``out_dir/calibration.json`` exists and the refit
+    gives the same calibration, the file is kept byte for byte (a session that recorded its
+    SHA-256 stays resumable); where the refit differs (readings edited, other fit code), it is a
+    new calibration, written with a folder of its own beside the old one
+    (:func:`_refit_beside`). The calibration's age stays that of its newest reading
+    (``measured_utc``): a refit never makes an old calibration look new. Each row of
+    ``readings.csv`` that cannot be used is reported (``progress`` and ``report.txt``).
 
     Parameters
     ----------
     lock : bool
         Hold the folder's lock while fitting (False when the caller holds it).
+
+    Returns
+    -------
+    (Calibration, dict of paths)
+        ``paths["calibration"]`` is the calibration written (or kept).
 
     Raises
     ------
@@ -132,6 +141,63 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     if lock:
         with _lock(out_dir):
             return refit(out_dir, progress=progress, lock=False)
+    cal, readings, validation, notes = _fit_folder(out_dir, progress)
+    old = out_dir / "calibration.json"
+    keep = old.exists()
+    if keep:
+        kept = load_calibration(old)
+        if not _same_fit(kept, cal):
+            return _refit_beside(out_dir, cal, progress)
+        cal = kept  # not written again: the same bytes, the same SHA-256
+    paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
+                          keep_calibration=keep)
+    progress(report_text(cal, readings, notes))
+    return cal, paths
+
+
+def _same_fit(a, b) -> bool:
+    """Two calibrations equal but for the time of the fit (``created_utc``)."""
+    da, db = json.loads(a.to_json()), json.loads(b.to_json())
+    da.pop("created_utc"), db.pop("created_utc")
+    return da == db
+
+
+def _refit_beside(out_dir: Path, cal, progress):
+    """A refit that differs from ``out_dir``'s calibration: a new calibration folder beside it.
+
+    ``<folder>-refit-<UTC time>`` gets copies of the readings, validation, rejected readings and
+    settings, a ``run_meta.json`` whose fit writes the new id ``<id>-refit-<UTC time>`` (the
+    readings keep theirs), and the outputs of :func:`refit`. The old folder is not touched.
+    """
+    import shutil
+    from datetime import UTC, datetime
+
+    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    new_dir = out_dir.parent / f"{out_dir.name}-refit-{stamp}"
+    new_dir.mkdir()  # FileExistsError (two refits within a second): rerun
+    for name in ("readings.csv", "validation.csv", "rejected.csv", "procedure.json"):
+        if (out_dir / name).is_file():
+            shutil.copy2(out_dir / name, new_dir / name)
+    meta = _read_meta(out_dir)
+    new_id = f"{cal.calibration_id}-refit-{stamp}"
+    meta["fit"] = dict(meta["fit"], calibration_id=new_id)
+    meta["refit_of"] = str((out_dir / "calibration.json").resolve())
+    _write_meta(new_dir, meta)
+    new_cal, paths = refit(new_dir, progress=progress, lock=False)
+    progress(f"{out_dir / 'calibration.json'} is kept as it was (a session that recorded it "
+             f"stays resumable); the refit differs from it, so it is a new calibration {new_id} "
+             f"in {new_dir}: give --calibration {paths['calibration']} to new sessions and "
+             "renders")
+    return new_cal, paths
+
+
+def _fit_folder(out_dir: Path, progress):
+    """The calibration fitted from a calibration folder's readings (nothing written).
+
+    Returns
+    -------
+    (Calibration, readings DataFrame, validation DataFrame, notes tuple)
+    """
     meta = _read_meta(out_dir)
     cal_id = meta["calibration_id"]
     path = out_dir / "readings.csv"
@@ -159,9 +225,7 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     n_rej = int((rejected["calibration_id"] == cal_id).sum())
     cal = fit_calibration(readings, n_rejected=n_rej, validation=validation,
                           measured_utc=measured, **meta["fit"])
-    paths = write_outputs(cal, readings, out_dir, validation, notes=notes)
-    progress(report_text(cal, readings, notes))
-    return cal, paths
+    return cal, readings, validation, notes
 
 
 def _lock(out_dir: Path) -> FolderLock:
@@ -297,14 +361,32 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
         fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
                                         "READINGS.csv`), not measured by the procedure")]
+        meta = {"calibration_id": cal_id, "source": str(readings_path.resolve()),
+                "level_scale": level_scale,
+                "position": None if position is None else list(position),
+                "measured_utc": measured, "source_notes": list(table.notes), "fit": fit_meta}
+        _refuse_other_fit(out_dir, meta)
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_imported_readings(out_dir / "readings.csv", frame, readings_path)
-        _write_meta(out_dir, {"calibration_id": cal_id, "source": str(readings_path.resolve()),
-                              "level_scale": level_scale,
-                              "position": None if position is None else list(position),
-                              "measured_utc": measured, "source_notes": list(table.notes),
-                              "fit": fit_meta})
+        _write_meta(out_dir, meta)
         return refit(out_dir, progress=progress, lock=False)
+
+
+def _refuse_other_fit(out_dir: Path, meta: dict) -> None:
+    """A folder holding a calibration takes only the same fit again (a rerun of the command):
+    other readings or options would replace the calibration a session may have recorded."""
+    if not (out_dir / "calibration.json").exists():
+        return
+    try:
+        same = _read_meta(out_dir) == json.loads(json.dumps(meta))
+    except CalibrationError:
+        same = False
+    if not same:
+        raise CalibrationError(
+            f"{out_dir} holds a calibration (calibration.json) fitted from other readings or "
+            "options, and a calibration is never replaced: fit into a new --out, or refit that "
+            f"folder with `python -m calibration fit --out {out_dir}` (a refit that differs is "
+            "written beside it)")
 
 
 def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:
@@ -413,6 +495,6 @@ def _run_locked(design, *, device, port, out_dir: Path, settings, width_cm, moni
         display = PatchDisplay(win, settings, sim_aim=sim_aim)
         measure_schedule(phot, display, settings, out_dir, progress=progress)
         if settings.n_validation:
-            cal, _ = refit(out_dir, progress=lambda *_: None, lock=False)
+            cal = _fit_folder(out_dir, lambda *_: None)[0]  # written once, after validation
             measure_validation(phot, display, settings, cal, out_dir, progress=progress)
     return refit(out_dir, progress=progress, lock=False)

@@ -22,6 +22,7 @@ even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -320,7 +321,11 @@ def prepare_session(req: SessionRequest) -> Prepared:
                                      "in the session log)")
             notes.append(msg)
         observer = _make_observer(req) if req.simulate is not None else None
-        check_screenshot(req.screenshot)
+        shot = check_screenshot(req.screenshot)
+        if shot is not None and shot.exists():  # never replaced; the same command still resumes
+            notes.append(f"--screenshot {shot} exists (an earlier run's?) and is kept: no "
+                         "screenshot is taken; give a new file name for one")
+            req = dataclasses.replace(req, screenshot=None)
         from experiment.display import DisplayError, plan_layout
 
         profile = check_monitor_profile(req.calibration, cal)

@@ -130,9 +130,15 @@ def _cmd_export_print(args) -> int:
     from stimuli.geometry import draw_array, mesh_edges_ok, print_mesh, stimulus_seed, write_mesh
 
     design = load_design(args.design)
+    if not args.base_cm > 0:
+        raise ValueError(f"--base-cm {args.base_cm:g}: the base slab holding the bumps must be "
+                         "thicker than 0, e.g. --base-cm 0.3 (the default)")
     if args.depth_level not in design.depth.labels:
         raise ValueError(f"--depth-level {args.depth_level} is not a depth level; "
                          f"choose one of {list(design.depth.labels)}")
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out} exists and would be replaced by the mesh; choose another "
+                         "file name, or add --force to replace it")
     seed = args.seed if args.seed is not None else stimulus_seed(args.depth_level, args.array_index)
     geometry = draw_array(design, float(design.depth.cm(args.depth_level)), seed)
     mesh = print_mesh(geometry, spacing_cm=args.spacing_cm, base_cm=args.base_cm)
@@ -242,7 +248,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base-cm", type=float, default=0.3, help="base slab thickness, cm")
     p.add_argument("--units", choices=["mm", "cm"], default="mm",
                    help="length unit in the file (default mm: slicers read STL as mm)")
-    p.add_argument("out", type=Path, help="output .stl or .ply")
+    p.add_argument("out", type=Path, help="output .stl or .ply (never replaced without --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.set_defaults(func=_cmd_export_print)
 
     p = sub.add_parser("plan-spp", help="measure the spp each gloss level needs for the design's "

@@ -1,21 +1,29 @@
-"""A participant never sees a stimulus twice (issue 33, finding 3; with findings 2 and 8).
+"""A participant never sees a stimulus twice (issue 33, finding 3; with findings 2, 4 and 8).
 
 One real session (the app under Xvfb, a simulated observer answering through XTEST, the small
-design) is paused after three trials; then, as an operator might: the session CSV moved aside
-(as the "DAMAGED ... move it aside" advice said), rows cut from its middle, a relative --data
-from another directory, ``p01`` typed for ``P01``, a run history written by a PC whose clock ran
-a year ahead. The refusals happen before any window opens, so they run in this process.
+design, a calibration fitted by ``calibration fit``) is paused after three trials; then, as an
+operator might: the session CSV moved aside (as the "DAMAGED ... move it aside" advice said),
+rows cut from its middle, a relative --data from another directory, ``p01`` typed for ``P01``,
+a run history written by a PC whose clock ran a year ahead, the calibration refitted after a
+reading was edited (finding 4: the session recorded its SHA-256). The refusals happen before any
+window opens, so they run in this process; the session resumes and completes at the end.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import shutil
 from datetime import UTC, datetime, timedelta
 
+import numpy as np
+import pandas as pd
 import pytest
 
+from calibration import SimulatedCRT
+from calibration.__main__ import main as calibration_main
 from experiment.__main__ import main
+from tests.calibration.test_check import _readings
 
 from .conftest import run_app
 
@@ -30,8 +38,16 @@ def _args(design_path, f, participant="P01", data=None):
 @pytest.mark.slow
 def test_a_session_never_starts_over_while_a_record_of_it_exists(
         small_design_path, session_files, tmp_path, monkeypatch, capsys):
-    f = session_files
+    f = dict(session_files)
     data = f["data"]
+    readings = tmp_path / "readings.csv"
+    yesterday = (datetime.now(UTC) - timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%SZ")
+    (_readings(SimulatedCRT(), np.random.default_rng(1), cal_id="test")
+     .assign(timestamp_utc=yesterday).to_csv(readings, index=False))
+    cal_dir = tmp_path / "cal-fitted"
+    assert calibration_main(["fit", str(readings), "--out", str(cal_dir)]) == 0
+    f["calibration"] = cal_dir / "calibration.json"
+    sha = hashlib.sha256(f["calibration"].read_bytes()).hexdigest()
     res = run_app(*_args(small_design_path, f), "--simulate-quit-at", "4")
     assert res.returncode == 3, res.stderr
     csv = data / "sessions" / "P01_s1.csv"
@@ -78,6 +94,19 @@ def test_a_session_never_starts_over_while_a_record_of_it_exists(
     assert main(["status", "--participant", "p01", "--data", str(data)]) == 2
     assert "--participant P01" in capsys.readouterr().err
     assert sorted(p.name for p in (data / "plans").iterdir()) == ["P01_plan.csv"]
+
+    # (4) A reading edited, the folder refitted: the refit is a new calibration beside the old
+    # one, whose bytes (and so the SHA-256 the session recorded) are kept.
+    edited = pd.read_csv(cal_dir / "readings.csv")
+    edited.loc[0, "luminance_cd_m2"] *= 1.5
+    edited.to_csv(cal_dir / "readings.csv", index=False)
+    assert calibration_main(["fit", "--out", str(cal_dir)]) == 0
+    assert "is kept as it was" in capsys.readouterr().out
+    assert hashlib.sha256(f["calibration"].read_bytes()).hexdigest() == sha
+    beside = [p for p in tmp_path.iterdir() if p.name.startswith("cal-fitted-refit-")]
+    assert len(beside) == 1 and (beside[0] / "calibration.json").is_file()
+    assert json.loads((beside[0] / "calibration.json").read_text())["calibration_id"] == (
+        "test-refit-" + beside[0].name.rsplit("-", 1)[1])
 
     # (2) A run history stamped a year ahead (a lab PC's clock): the resume warns.
     runs = data / "logs" / "P01_s1_runs.jsonl"
