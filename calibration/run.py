@@ -32,6 +32,7 @@ from calibration.procedure import (
     measure_schedule,
     measure_validation,
     read_validation,
+    reserved_id_problem,
 )
 from calibration.readings import (
     READINGS_COLUMNS,
@@ -331,6 +332,8 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         if not cal_id.replace("-", "").replace("_", "").isalnum():
             raise CalibrationError(f"calibration id {cal_id!r} may hold letters, digits, '-' "
                                    "and '_' only; pass --calibration-id")
+        if reserved_id_problem(cal_id):
+            raise CalibrationError(reserved_id_problem(cal_id))
         frame = frame.assign(calibration_id=cal_id)
         newest, _ = newest_timestamp(frame)
         if newest is not None and measured_utc is not None:

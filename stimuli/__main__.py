@@ -31,10 +31,25 @@ def _cmd_list(args) -> int:
     return 0
 
 
+#: The age past which the session app refuses a calibration by default (its
+#: ``--max-calibration-age-days``), days: stimuli corrected with an older one are named.
+SESSION_MAX_CALIBRATION_AGE_DAYS = 30.0
+
+
 def _load_calibration(design, path):
     from calibration import default_calibration, load_calibration
 
-    return load_calibration(path) if path else default_calibration(design)
+    if not path:
+        return default_calibration(design)
+    cal = load_calibration(path)
+    age = cal.age_days()
+    if age > SESSION_MAX_CALIBRATION_AGE_DAYS:
+        print(f"warning: calibration {cal.calibration_id} ({path}) is {age:.1f} days old, older "
+              f"than the {SESSION_MAX_CALIBRATION_AGE_DAYS:g} days a session accepts: the "
+              "stimuli's gamma correction may no longer fit the CRT; recalibrate (`python -m "
+              "calibration run`, or `calibration check` to test it) and render with the new "
+              "calibration", file=sys.stderr)
+    return cal
 
 
 def _load_gloss(path):
