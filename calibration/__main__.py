@@ -263,7 +263,12 @@ def _cmd_default(args) -> int:
         print(f"error: {out} exists ({held}) and would be replaced by the default, unmeasured "
               "curve; choose another --out, or add --force to replace it", file=sys.stderr)
         return 1
-    print(save_calibration(default_calibration(design), out))
+    try:
+        print(save_calibration(default_calibration(design), out))
+    except OSError as exc:
+        print(f"error: cannot write {out} ({exc.strerror}); choose a writable --out",
+              file=sys.stderr)
+        return 1
     return 0
 
 

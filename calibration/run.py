@@ -146,7 +146,11 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     old = out_dir / "calibration.json"
     keep = old.exists()
     if keep:
-        kept = load_calibration(old)
+        try:
+            kept = load_calibration(old)
+        except CalibrationError as exc:  # damaged: kept for whoever looks, the refit beside
+            progress(f"warning: {exc}")
+            return _refit_beside(out_dir, cal, progress)
         if not _same_fit(kept, cal):
             return _refit_beside(out_dir, cal, progress)
         cal = kept  # not written again: the same bytes, the same SHA-256
@@ -173,9 +177,16 @@ def _refit_beside(out_dir: Path, cal, progress):
     import shutil
     from datetime import UTC, datetime
 
-    stamp = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    new_dir = out_dir.parent / f"{out_dir.name}-refit-{stamp}"
-    new_dir.mkdir()  # FileExistsError (two refits within a second): rerun
+    base = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
+    for stamp in [base, *(f"{base}-{n}" for n in range(2, 100))]:  # refits within a second
+        new_dir = out_dir.parent / f"{out_dir.name}-refit-{stamp}"
+        try:
+            new_dir.mkdir()
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise CalibrationError(f"too many refits of {out_dir} in one second; run it again")
     for name in ("readings.csv", "validation.csv", "rejected.csv", "procedure.json"):
         if (out_dir / name).is_file():
             shutil.copy2(out_dir / name, new_dir / name)

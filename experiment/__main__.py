@@ -39,6 +39,9 @@ def data_folder(value: str | None) -> Path:
         and the same command typed in another directory would start the session over in
         another folder.
     """
+    if value is not None and not value.strip():
+        raise UsageError("--data is empty; type the data folder's absolute path, e.g. --data "
+                         "/srv/glossdepth/data")
     if value:
         given = Path(value).expanduser()
         if not given.is_absolute():
@@ -232,7 +235,11 @@ def _cmd_status(args) -> int:
         simulated_rows,
         sliders_path,
     )
-    from experiment.participants import check_new_participant, check_participant_id
+    from experiment.participants import (
+        case_twins,
+        check_new_participant,
+        check_participant_id,
+    )
     from experiment.plan import plan_path
     from labfiles import TornTailWarning
 
@@ -247,6 +254,9 @@ def _cmd_status(args) -> int:
         return 2
     plan = plan_path(data, args.participant)
     print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
+    for other, where in case_twins(args.participant, data).items():
+        print(f"  NOTE: {other!r} ({where}) differs only in case: one person recorded twice? "
+              "Ask the study lead")
     n = design.sessions.trials_per_session
     damaged = 0
     for session in range(1, design.sessions.n_sessions + 1):

@@ -7,6 +7,7 @@ from pathlib import Path
 
 __all__ = [
     "PARTICIPANT_PATTERN",
+    "case_twins",
     "check_new_participant",
     "check_participant_id",
     "recorded_participants",
@@ -51,6 +52,13 @@ def recorded_participants(data_dir) -> dict[str, Path]:
     return found
 
 
+def case_twins(participant: str, data_dir) -> dict[str, Path]:
+    """Recorded participants whose id differs from ``participant`` only in case: id -> a file."""
+    key = check_participant_id(participant).casefold()
+    return {other: path for other, path in recorded_participants(data_dir).items()
+            if other != participant and other.casefold() == key}
+
+
 def check_new_participant(participant: str, data_dir) -> None:
     """Refuse a new id that differs from a recorded participant's only in case.
 
@@ -62,11 +70,11 @@ def check_new_participant(participant: str, data_dir) -> None:
     ValueError
         Naming the recorded id, its file, and the option to type.
     """
-    key = check_participant_id(participant).casefold()
-    for other, path in recorded_participants(data_dir).items():
-        if other != participant and other.casefold() == key:
-            raise ValueError(
-                f"participant id {participant!r} differs only in case from {other!r}, who has "
-                f"files in {Path(data_dir).absolute()} ({path}); to continue that participant "
-                f"type --participant {other}; a new participant needs an id that differs in "
-                "more than case")
+    if participant in recorded_participants(data_dir):
+        return  # recorded already (twins made before this check are noted, not refused)
+    for other, path in case_twins(participant, data_dir).items():
+        raise ValueError(
+            f"participant id {participant!r} differs only in case from {other!r}, who has "
+            f"files in {Path(data_dir).absolute()} ({path}); to continue that participant "
+            f"type --participant {other}; a new participant needs an id that differs in more "
+            "than case")

@@ -65,6 +65,7 @@ from experiment.datafile import (
     sliders_path,
     write_run_log,
 )
+from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
@@ -269,7 +270,10 @@ def prepare_session(req: SessionRequest) -> Prepared:
         raise PreflightError(str(exc)) from exc
     rows = plan[plan["session"] == session].sort_values("trial").reset_index(drop=True)
     path = session_path(req.data_dir, req.participant, session)
-    notes: list = []
+    notes: list = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: "
+                   "if they are one person, session 2 shows stimuli seen before; ask the study "
+                   "lead before going on" for other, where in case_twins(
+                       req.participant, req.data_dir).items()]
     torn: list = []
     done = _read_recorded(read_session, path, notes, torn)
     slider_file = sliders_path(req.data_dir, req.participant, session)

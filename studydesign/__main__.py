@@ -89,11 +89,20 @@ def main(argv: list[str] | None = None) -> int:
             from labfiles import atomic_write_text
 
             out = Path(args.out)
+            if out.is_dir():
+                print(f"error: --out {out} is a folder; name the CSV file to write, e.g. "
+                      f"--out {out / 'stimuli.csv'}", file=sys.stderr)
+                return 1
             if out.exists() and not args.force:
                 print(f"error: {out} exists and would be replaced by the stimulus table; "
                       "choose another --out, or add --force to replace it", file=sys.stderr)
                 return 1
-            atomic_write_text(out, table.to_csv(index=False))
+            try:
+                atomic_write_text(out, table.to_csv(index=False))
+            except OSError as exc:
+                print(f"error: cannot write {out} ({exc.strerror}); choose a writable --out",
+                      file=sys.stderr)
+                return 1
     elif args.command == "json":
         print(json.dumps(design.to_dict(), indent=2))
     return 0
