@@ -134,12 +134,12 @@ class ProcedureSettings:
             (self.n_validation == 0 or self.n_validation >= 3, "n_validation must be 0 or >= 3"),
             (self.calibration_id.replace("-", "").replace("_", "").isalnum(),
              "calibration_id may hold letters, digits, '-' and '_' only"),
-            (reserved_id_problem(self.calibration_id) is None,
-             reserved_id_problem(self.calibration_id)),
         ]
         for ok, msg in checks:
             if not ok:
                 raise CalibrationError(f"procedure settings: {msg} (got {self})")
+        if reserved_id_problem(self.calibration_id):
+            raise CalibrationError(reserved_id_problem(self.calibration_id))
 
     def positions(self) -> list[tuple[float, float]]:
         """Patch centres (x_norm, y_norm), the centre first, then row by row from the top."""
