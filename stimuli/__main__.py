@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -137,6 +138,9 @@ def _cmd_verify(args) -> int:
 def _cmd_contact_sheet(args) -> int:
     from stimuli.contactsheet import contact_sheet
 
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out} exists and would be replaced by the contact sheet; "
+                         "choose another file name, or add --force to replace it")
     print(contact_sheet(args.folder, args.out, tile_px=args.tile_px))
     return 0
 
@@ -145,9 +149,9 @@ def _cmd_export_print(args) -> int:
     from stimuli.geometry import draw_array, mesh_edges_ok, print_mesh, stimulus_seed, write_mesh
 
     design = load_design(args.design)
-    if not args.base_cm > 0:
-        raise ValueError(f"--base-cm {args.base_cm:g}: the base slab holding the bumps must be "
-                         "thicker than 0, e.g. --base-cm 0.3 (the default)")
+    if not (math.isfinite(args.base_cm) and args.base_cm > 0):
+        raise ValueError(f"--base-cm {args.base_cm:g}: the base slab holding the bumps needs a "
+                         "finite thickness above 0 cm, e.g. --base-cm 0.3 (the default)")
     if args.depth_level not in design.depth.labels:
         raise ValueError(f"--depth-level {args.depth_level} is not a depth level; "
                          f"choose one of {list(design.depth.labels)}")
@@ -253,6 +257,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("folder", type=Path)
     p.add_argument("out", type=Path)
     p.add_argument("--tile-px", type=int, default=160)
+    p.add_argument("--force", action="store_true", help="replace an existing OUT")
     p.set_defaults(func=_cmd_contact_sheet)
 
     p = sub.add_parser("export-print", help="write a watertight STL/PLY of an array for 3-D printing")
