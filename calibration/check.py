@@ -51,10 +51,12 @@ from calibration.readings import (
     REJECTED_COLUMNS,
     append_row,
     newest_timestamp,
+    parse_utc,
     read_readings,
 )
 from calibration.record import Calibration, load_calibration, utc_now_iso
 from labfiles import FolderLock, atomic_write_text, write_new_file
+from labfiles.clock import future_problem
 
 __all__ = [
     "CHECK_DEFAULTS",
@@ -179,6 +181,10 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
     path = Path(path)
     done = read_readings(path, own_file=True).frame
     done = done[done["calibration_id"] == check_id]
+    newest, _ = newest_timestamp(done)
+    problem = newest and future_problem(parse_utc(newest), f"{path}: newest timestamp_utc")
+    if problem:  # the resumed warm-up's times would count backwards
+        raise CalibrationError(f"{problem}; or start the check in a new --out")
     t_done = _times_s(done) if len(done) else np.array([])
     stable_after, change = warmup_stability(t_done, done["luminance_cd_m2"], rule)
     result = {"rule": rule.to_dict()}
