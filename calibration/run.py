@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from calibration.beside import refit_beside, same_fit
 from calibration.errors import CalibrationError
 from calibration.fit import (
     centre_readings,
@@ -118,8 +119,8 @@ def refit(out_dir, *, progress=print, lock: bool = True):
     gives the same calibration, the file is kept byte for byte (a session that recorded its
     SHA-256 stays resumable); where the refit differs (readings edited, other fit code), it is a
     new calibration, written with a folder of its own beside the old one
-    (:func:`_refit_beside`). The calibration's age stays that of its newest reading
-    (``measured_utc``): a refit never makes an old calibration look new. Each row of
+    (:func:`calibration.beside.refit_beside`). The calibration's age stays that of its newest
+    reading (``measured_utc``): a refit never makes an old calibration look new. Each row of
     ``readings.csv`` that cannot be used is reported (``progress`` and ``report.txt``).
 
     Parameters
@@ -150,57 +151,14 @@ def refit(out_dir, *, progress=print, lock: bool = True):
             kept = load_calibration(old)
         except CalibrationError as exc:  # damaged: kept for whoever looks, the refit beside
             progress(f"warning: {exc}")
-            return _refit_beside(out_dir, cal, progress)
-        if not _same_fit(kept, cal):
-            return _refit_beside(out_dir, cal, progress)
+            return refit_beside(out_dir, cal, progress)
+        if not same_fit(kept, cal):
+            return refit_beside(out_dir, cal, progress)
         cal = kept  # not written again: the same bytes, the same SHA-256
     paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
                           keep_calibration=keep)
     progress(report_text(cal, readings, notes))
     return cal, paths
-
-
-def _same_fit(a, b) -> bool:
-    """Two calibrations equal but for the time of the fit (``created_utc``)."""
-    da, db = json.loads(a.to_json()), json.loads(b.to_json())
-    da.pop("created_utc"), db.pop("created_utc")
-    return da == db
-
-
-def _refit_beside(out_dir: Path, cal, progress):
-    """A refit that differs from ``out_dir``'s calibration: a new calibration folder beside it.
-
-    ``<folder>-refit-<UTC time>`` gets copies of the readings, validation, rejected readings and
-    settings, a ``run_meta.json`` whose fit writes the new id ``<id>-refit-<UTC time>`` (the
-    readings keep theirs), and the outputs of :func:`refit`. The old folder is not touched.
-    """
-    import shutil
-    from datetime import UTC, datetime
-
-    base = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
-    for stamp in [base, *(f"{base}-{n}" for n in range(2, 100))]:  # refits within a second
-        new_dir = out_dir.parent / f"{out_dir.name}-refit-{stamp}"
-        try:
-            new_dir.mkdir()
-            break
-        except FileExistsError:
-            continue
-    else:
-        raise CalibrationError(f"too many refits of {out_dir} in one second; run it again")
-    for name in ("readings.csv", "validation.csv", "rejected.csv", "procedure.json"):
-        if (out_dir / name).is_file():
-            shutil.copy2(out_dir / name, new_dir / name)
-    meta = _read_meta(out_dir)
-    new_id = f"{cal.calibration_id}-refit-{stamp}"
-    meta["fit"] = dict(meta["fit"], calibration_id=new_id)
-    meta["refit_of"] = str((out_dir / "calibration.json").resolve())
-    _write_meta(new_dir, meta)
-    new_cal, paths = refit(new_dir, progress=progress, lock=False)
-    progress(f"{out_dir / 'calibration.json'} is kept as it was (a session that recorded it "
-             f"stays resumable); the refit differs from it, so it is a new calibration {new_id} "
-             f"in {new_dir}: give --calibration {paths['calibration']} to new sessions and "
-             "renders")
-    return new_cal, paths
 
 
 def _fit_folder(out_dir: Path, progress):

@@ -295,7 +295,8 @@ def _cmd_status(args) -> int:
 def _session_gaps(rows, path, records: dict) -> str | None:
     """What is missing from a session CSV: rows cut from the middle (trials not 1..n in
     order), or fewer rows than its slider histories and run history record; else None."""
-    from experiment.checks import PreflightError, check_no_lost_trials
+    from experiment.checks import PreflightError
+    from experiment.history import check_no_lost_trials
 
     trials = [int(t) for t in rows["trial"]] if len(rows) else []
     if trials != list(range(1, len(trials) + 1)):

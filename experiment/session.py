@@ -42,13 +42,11 @@ from experiment.checks import (
     check_data_folder,
     check_keyboard_libraries,
     check_monitor_profile,
-    check_no_lost_trials,
     check_participant,
     check_screen,
     check_screenshot,
     check_session_number,
     check_stimuli,
-    future_record_notes,
 )
 from experiment.datafile import (
     SESSION_COLUMNS,
@@ -65,6 +63,7 @@ from experiment.datafile import (
     sliders_path,
     write_run_log,
 )
+from experiment.history import check_no_lost_trials, future_record_notes
 from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.trial import TrialResult, run_trial
