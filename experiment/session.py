@@ -257,6 +257,26 @@ def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
     return records
 
 
+def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
+                   records: dict) -> list[str]:
+    """A session CSV holding fewer trials than the session's other records (slider histories
+    in ``records``, the run history, the run logs) is refused (:func:`check_no_lost_trials`);
+    returns warnings: participants differing only in case, times after this PC's clock."""
+    path = session_path(req.data_dir, req.participant, session)
+    events_path = runs_path(req.data_dir, req.participant, session)
+    events = _read_recorded(read_run_events, events_path, [], [])
+    logs = {Path(req.data_dir) / "logs" / f"{path.stem}_run{k}.json":  # each run's own log
+            [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
+             {"run": k, "trials_this_run": log.get("trials_this_run")}]
+            for k, log in _run_logs(req.data_dir, path.stem)}
+    check_no_lost_trials(len(done), path, {**records, events_path: events, **logs})
+    twins = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: if "
+             "they are one person, session 2 shows stimuli seen before; ask the study lead "
+             "before going on" for other, where in case_twins(req.participant,
+                                                               req.data_dir).items()]
+    return twins + future_record_notes(done, events, path, events_path)
+
+
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
@@ -269,23 +289,13 @@ def prepare_session(req: SessionRequest) -> Prepared:
         raise PreflightError(str(exc)) from exc
     rows = plan[plan["session"] == session].sort_values("trial").reset_index(drop=True)
     path = session_path(req.data_dir, req.participant, session)
-    notes: list = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: "
-                   "if they are one person, session 2 shows stimuli seen before; ask the study "
-                   "lead before going on" for other, where in case_twins(
-                       req.participant, req.data_dir).items()]
+    notes: list = []
     torn: list = []
     done = _read_recorded(read_session, path, notes, torn)
     slider_file = sliders_path(req.data_dir, req.participant, session)
     sliders = _read_recorded(read_slider_histories, slider_file, notes, torn)
     _check_done(done, rows, path)
-    events_path = runs_path(req.data_dir, req.participant, session)
-    recorded = _read_recorded(read_run_events, events_path, [], [])
-    logs = {Path(req.data_dir) / "logs" / f"{path.stem}_run{k}.json":  # each run's own log
-            [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
-             {"run": k, "trials_this_run": log.get("trials_this_run")}]
-            for k, log in _run_logs(req.data_dir, path.stem)}
-    check_no_lost_trials(len(done), path, {slider_file: sliders, events_path: recorded, **logs})
-    notes += future_record_notes(done, recorded, path, events_path)
+    notes += _check_history(req, session, done, {slider_file: sliders})
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
         n = len(_read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
