@@ -122,6 +122,14 @@ def _read_one(path: Path, design: StudyDesign, stimuli: pd.DataFrame) -> pd.Data
                 f"{frame[col].iloc[row]}, outside the slider's [{lo}, {hi}]; matches are raw "
                 "slider values"
             )
+    bad = ~(np.isfinite(frame["rt_s"]) & (frame["rt_s"] > 0))
+    if bad.any():
+        row = int(np.flatnonzero(bad.to_numpy())[0])
+        raise SessionDataError(
+            f"{path}: trial {int(frame['trial'].iloc[row])} has rt_s = {frame['rt_s'].iloc[row]}"
+            ", not a response time (a positive number of seconds): the file was edited; put "
+            "the recorded file back (the run's log in logs/ holds each trial's rt_s)"
+        )
     dup = frame["trial"].duplicated(keep=False)
     if dup.any():
         raise SessionDataError(

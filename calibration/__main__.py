@@ -270,11 +270,31 @@ def _cmd_check(args) -> int:
 
 
 def _cmd_default(args) -> int:
-    from calibration.record import default_calibration, save_calibration
+    from pathlib import Path
+
+    from calibration.record import default_calibration, load_calibration, save_calibration
     from studydesign import load_design
 
     design = load_design(args.design) if args.design else load_design()
-    print(save_calibration(default_calibration(design), args.out))
+    out = Path(args.out)
+    if out.is_dir():
+        print(f"error: --out {out} is a folder; name the file to write, e.g. --out "
+              f"{out / 'default-calibration.json'}", file=sys.stderr)
+        return 1
+    if out.exists() and not args.force:
+        try:
+            held = f"calibration {load_calibration(out).calibration_id!r}"
+        except ValueError:
+            held = "a file"
+        print(f"error: {out} exists ({held}) and would be replaced by the default, unmeasured "
+              "curve; choose another --out, or add --force to replace it", file=sys.stderr)
+        return 1
+    try:
+        print(save_calibration(default_calibration(design), out))
+    except OSError as exc:
+        print(f"error: cannot write {out} ({exc.strerror}); choose a writable --out",
+              file=sys.stderr)
+        return 1
     return 0
 
 
@@ -450,7 +470,9 @@ def _add_check(sub) -> None:
 
 def _add_default(sub) -> None:
     p = sub.add_parser("default", help="write the default (unmeasured) calibration JSON")
-    p.add_argument("--out", required=True)
+    p.add_argument("--out", required=True, help="the JSON file to write (never replaced "
+                                                "without --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing --out")
     p.add_argument("--design", default=None)
     p.set_defaults(func=_cmd_default)
 

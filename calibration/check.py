@@ -51,10 +51,12 @@ from calibration.readings import (
     REJECTED_COLUMNS,
     append_row,
     newest_timestamp,
+    parse_utc,
     read_readings,
 )
 from calibration.record import Calibration, load_calibration, utc_now_iso
 from labfiles import FolderLock, atomic_write_text, write_new_file
+from labfiles.clock import future_problem
 
 __all__ = [
     "CHECK_DEFAULTS",
@@ -179,6 +181,10 @@ def measure_warmup(photometer, display: PatchDisplay, rule: WarmupRule, path, *,
     path = Path(path)
     done = read_readings(path, own_file=True).frame
     done = done[done["calibration_id"] == check_id]
+    newest, _ = newest_timestamp(done)
+    problem = newest and future_problem(parse_utc(newest), f"{path}: newest timestamp_utc")
+    if problem:  # the resumed warm-up's times would count backwards
+        raise CalibrationError(f"{problem}; or start the check in a new --out")
     t_done = _times_s(done) if len(done) else np.array([])
     stable_after, change = warmup_stability(t_done, done["luminance_cd_m2"], rule)
     result = {"rule": rule.to_dict()}
@@ -348,6 +354,39 @@ def _same_checked_calibration(out_dir: Path, cal: Calibration, cal_path: Path) -
                                      "checked_calibration": str(cal_path.resolve())}) + "\n")
 
 
+def _refuse_calibration_folder(out_dir: Path, cal: Calibration, cal_path: Path,
+                               settings: ProcedureSettings) -> None:
+    """A check measures its own patches: its folder is never a calibration's folder (whose
+    readings it would "resume" and score against their own fit), nor its id the checked one's.
+
+    Raises
+    ------
+    CalibrationError
+        ``out_dir`` is the checked calibration's folder, holds a calibration (or a calibration
+        run's readings without ``checked.json``), or the check's id is the checked one's.
+    """
+    def what_to_type():
+        return (f"give the check a folder of its own, e.g. --out "
+                f"{cal_path.parent.parent / (cal_path.parent.name + '-check')}")
+
+    same = out_dir.exists() and out_dir.resolve() == cal_path.parent.resolve()
+    if same or (out_dir / "calibration.json").exists():
+        raise CalibrationError(
+            f"--out {out_dir} is a calibration's folder: a check there would score the "
+            f"calibration's own readings against their own fit instead of measuring; "
+            f"{what_to_type()}")
+    if (out_dir / "run_meta.json").exists() or ((out_dir / "procedure.json").exists()
+                                                and not (out_dir / "checked.json").exists()):
+        raise CalibrationError(
+            f"--out {out_dir} holds a calibration run's readings (run_meta.json or "
+            f"procedure.json without checked.json), not a check's; {what_to_type()}")
+    if settings.calibration_id == cal.calibration_id:
+        raise CalibrationError(
+            f"the check's id {settings.calibration_id!r} is the checked calibration's: its "
+            "readings would be taken for the calibration's own; leave --calibration-id out "
+            "(default <checked id>-check-<UTC time>) or give another id")
+
+
 def run_check(calibration_path, *, device: str, port: str, out_dir,
               settings: ProcedureSettings, rule: WarmupRule, tolerance_pct: float = 3.0,
               tolerance_cd_m2: float = 0.05, timeout_s: float = 30.0, retries: int = 2,
@@ -383,9 +422,11 @@ def run_check(calibration_path, *, device: str, port: str, out_dir,
     if cal_path.is_dir():
         cal_path = cal_path / "calibration.json"
     out_dir = Path(out_dir)
+    _refuse_calibration_folder(out_dir, cal, cal_path, settings)
     with FolderLock(out_dir, what="check folder"):
         _same_checked_calibration(out_dir, cal, cal_path)
         settings = load_or_create_settings(out_dir, settings, given=given, command="check")
+        _refuse_calibration_folder(out_dir, cal, cal_path, settings)
         with open_photometer(device, port, timeout_s=timeout_s, retries=retries) as phot, \
                 calibration_window(fullscr=fullscr, size_px=cal.resolution_px) as win:
             display = PatchDisplay(win, settings, sim_aim=sim_aim)

@@ -138,6 +138,8 @@ class ProcedureSettings:
         for ok, msg in checks:
             if not ok:
                 raise CalibrationError(f"procedure settings: {msg} (got {self})")
+        if reserved_id_problem(self.calibration_id):
+            raise CalibrationError(reserved_id_problem(self.calibration_id))
 
     def positions(self) -> list[tuple[float, float]]:
         """Patch centres (x_norm, y_norm), the centre first, then row by row from the top."""
@@ -151,6 +153,20 @@ class ProcedureSettings:
     def levels(self, n: int) -> np.ndarray:
         """``n`` drive values evenly spaced on the 8-bit grid, 0 and 1 included."""
         return np.unique(np.round(np.linspace(0, 1, n) * 255)) / 255
+
+
+#: Calibration ids that mean something else: session rows answered by a simulated observer
+#: carry ``simulated`` (the analysis sets them apart), the unmeasured default curve ``default``.
+RESERVED_IDS = ("simulated", "default")
+
+
+def reserved_id_problem(calibration_id: str) -> str | None:
+    """Why a measured calibration may not be called ``calibration_id``, or None."""
+    if str(calibration_id).casefold() not in RESERVED_IDS:
+        return None
+    return (f"calibration id {calibration_id!r} is reserved ({', '.join(RESERVED_IDS)}: "
+            "simulated sessions' rows and the unmeasured default curve); pass another "
+            "--calibration-id, e.g. crt-2026-11")
 
 
 def make_schedule(settings: ProcedureSettings) -> pd.DataFrame:

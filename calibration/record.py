@@ -25,6 +25,7 @@ from calibration.gamma import (
 from calibration.readings import parse_utc
 from calibration.uniformity import UniformityMap
 from labfiles import atomic_write_text
+from labfiles.clock import future_problem
 
 __all__ = [
     "DEFAULT_CRT",
@@ -146,9 +147,16 @@ class Calibration:
                 f"max_luminance_cd_m2 ({self.max_luminance_cd_m2}) must exceed "
                 f"min_luminance_cd_m2 ({self.min_luminance_cd_m2}); the fit is unusable"
             )
-        parse_utc(self.created_utc, "created_utc")
-        if self.measured_utc is not None:
-            parse_utc(self.measured_utc, "measured_utc")
+        for name in ("created_utc", "measured_utc"):
+            text = getattr(self, name)
+            if text is None:
+                continue
+            problem = future_problem(parse_utc(text, name),
+                                     f"calibration {self.calibration_id!r}: {name}")
+            if problem:
+                raise CalibrationError(
+                    f"{problem} (refit the readings with their true time into a new folder: "
+                    "`python -m calibration fit READINGS.csv --measured-utc TIME --out NEW`)")
 
     # --- the display model -------------------------------------------------------------------
     def luminance_for_drive(self, drive) -> np.ndarray:

@@ -151,7 +151,7 @@ def _fit_summary(cal: Calibration) -> list[str]:
 
 def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
                   validation: pd.DataFrame | None = None, notes=(), *,
-                  force_profile: bool = False) -> dict:
+                  force_profile: bool = False, keep_calibration: bool = False) -> dict:
     """Write calibration.json, gamma_ramp.csv, monitors/<name>.json, gamma.png, uniformity.png,
     report.txt.
 
@@ -161,6 +161,9 @@ def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
         Add the calibration to a profile ``monitors/<name>.json`` that holds other calibrations
         (:func:`calibration.profile.check_profile_target`); without it such a profile stops the
         writing before any file is written.
+    keep_calibration : bool
+        calibration.json holds ``cal`` already and is not written again (its bytes, and so the
+        SHA-256 a session recorded, stay as they are).
 
     Returns
     -------
@@ -170,7 +173,8 @@ def write_outputs(cal: Calibration, readings: pd.DataFrame, out_dir,
     out_dir = Path(out_dir)
     check_profile_target(out_dir / "monitors", cal.monitor_name, cal.calibration_id,
                          force=force_profile)
-    paths = {"calibration": save_calibration(cal, out_dir / "calibration.json")}
+    paths = {"calibration": out_dir / "calibration.json" if keep_calibration else
+             save_calibration(cal, out_dir / "calibration.json")}
     paths["gamma_ramp"] = write_gamma_ramp(cal, out_dir / RAMP_FILE)
     paths["monitor"] = write_monitor_profile(cal, out_dir / "monitors", readings,
                                              force=force_profile)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from calibration.beside import refit_beside, same_fit
 from calibration.errors import CalibrationError
 from calibration.fit import (
     centre_readings,
@@ -32,6 +33,7 @@ from calibration.procedure import (
     measure_schedule,
     measure_validation,
     read_validation,
+    reserved_id_problem,
 )
 from calibration.profile import check_profile_target
 from calibration.readings import (
@@ -43,9 +45,10 @@ from calibration.readings import (
     read_readings,
     read_record_csv,
 )
-from calibration.record import DEFAULT_CRT
+from calibration.record import DEFAULT_CRT, load_calibration
 from calibration.report import report_text, write_outputs
 from labfiles import FolderLock, atomic_write_text, csv_record, write_new_file
+from labfiles.clock import future_problem
 
 __all__ = [
     "DISPLAY_KEYS",
@@ -111,11 +114,15 @@ def _usable_rows(table, path: Path, progress, why_empty: str):
 
 
 def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = False):
-    """Fit again from ``out_dir``'s readings (no window, no photometer) and rewrite the outputs.
+    """Fit again from ``out_dir``'s readings (no window, no photometer) and write the outputs.
 
-    The calibration's age stays that of its newest reading (``measured_utc``): a refit never
-    makes an old calibration look new. Each row of ``readings.csv`` that cannot be used is
-    reported (``progress`` and ``report.txt``).
+    A calibration is never replaced: where ``out_dir/calibration.json`` exists and the refit
+    gives the same calibration, the file is kept byte for byte (a session that recorded its
+    SHA-256 stays resumable); where the refit differs (readings edited, other fit code), it is a
+    new calibration, written with a folder of its own beside the old one
+    (:func:`calibration.beside.refit_beside`). The calibration's age stays that of its newest
+    reading (``measured_utc``): a refit never makes an old calibration look new. Each row of
+    ``readings.csv`` that cannot be used is reported (``progress`` and ``report.txt``).
 
     Parameters
     ----------
@@ -124,6 +131,11 @@ def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = F
     force_profile : bool
         Add the calibration to a PsychoPy profile ``monitors/<name>.json`` that holds others
         (:func:`calibration.profile.check_profile_target`).
+
+    Returns
+    -------
+    (Calibration, dict of paths)
+        ``paths["calibration"]`` is the calibration written (or kept).
 
     Raises
     ------
@@ -135,6 +147,31 @@ def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = F
     if lock:
         with _lock(out_dir):
             return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
+    cal, readings, validation, notes = _fit_folder(out_dir, progress)
+    old = out_dir / "calibration.json"
+    keep = old.exists()
+    if keep:
+        try:
+            kept = load_calibration(old)
+        except CalibrationError as exc:  # damaged: kept for whoever looks, the refit beside
+            progress(f"warning: {exc}")
+            return refit_beside(out_dir, cal, progress)
+        if not same_fit(kept, cal):
+            return refit_beside(out_dir, cal, progress)
+        cal = kept  # not written again: the same bytes, the same SHA-256
+    paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
+                          force_profile=force_profile, keep_calibration=keep)
+    progress(report_text(cal, readings, notes))
+    return cal, paths
+
+
+def _fit_folder(out_dir: Path, progress):
+    """The calibration fitted from a calibration folder's readings (nothing written).
+
+    Returns
+    -------
+    (Calibration, readings DataFrame, validation DataFrame, notes tuple)
+    """
     meta = _read_meta(out_dir)
     cal_id = meta["calibration_id"]
     path = out_dir / "readings.csv"
@@ -162,10 +199,7 @@ def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = F
     n_rej = int((rejected["calibration_id"] == cal_id).sum())
     cal = fit_calibration(readings, n_rejected=n_rej, validation=validation,
                           measured_utc=measured, **meta["fit"])
-    paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
-                          force_profile=force_profile)
-    progress(report_text(cal, readings, notes))
-    return cal, paths
+    return cal, readings, validation, notes
 
 
 def _lock(out_dir: Path) -> FolderLock:
@@ -273,6 +307,8 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         if not cal_id.replace("-", "").replace("_", "").isalnum():
             raise CalibrationError(f"calibration id {cal_id!r} may hold letters, digits, '-' "
                                    "and '_' only; pass --calibration-id")
+        if reserved_id_problem(cal_id):
+            raise CalibrationError(reserved_id_problem(cal_id))
         frame = frame.assign(calibration_id=cal_id)
         newest, _ = newest_timestamp(frame)
         if newest is not None and measured_utc is not None:
@@ -285,7 +321,12 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
                 f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
                 "calibration's age is unknown; pass --measured-utc with the time the readings "
                 "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
-        parse_utc(measured, "--measured-utc")
+        problem = future_problem(parse_utc(measured, "--measured-utc"),
+                                 "--measured-utc" if newest is None
+                                 else f"{readings_path}: newest timestamp_utc")
+        if problem:
+            raise CalibrationError(problem + (" with --measured-utc" if newest is None else
+                                              " in the file's timestamp_utc column"))
         devices = sorted(set(frame["device"]) - {""})
         device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
         warn, fit_meta = _display_meta(display, design, cal_id, device)
@@ -298,14 +339,32 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
         fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
                                         "READINGS.csv`), not measured by the procedure")]
+        meta = {"calibration_id": cal_id, "source": str(readings_path.resolve()),
+                "level_scale": level_scale,
+                "position": None if position is None else list(position),
+                "measured_utc": measured, "source_notes": list(table.notes), "fit": fit_meta}
+        _refuse_other_fit(out_dir, meta)
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_imported_readings(out_dir / "readings.csv", frame, readings_path)
-        _write_meta(out_dir, {"calibration_id": cal_id, "source": str(readings_path.resolve()),
-                              "level_scale": level_scale,
-                              "position": None if position is None else list(position),
-                              "measured_utc": measured, "source_notes": list(table.notes),
-                              "fit": fit_meta})
+        _write_meta(out_dir, meta)
         return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)
+
+
+def _refuse_other_fit(out_dir: Path, meta: dict) -> None:
+    """A folder holding a calibration takes only the same fit again (a rerun of the command):
+    other readings or options would replace the calibration a session may have recorded."""
+    if not (out_dir / "calibration.json").exists():
+        return
+    try:
+        same = _read_meta(out_dir) == json.loads(json.dumps(meta))
+    except CalibrationError:
+        same = False
+    if not same:
+        raise CalibrationError(
+            f"{out_dir} holds a calibration (calibration.json) fitted from other readings or "
+            "options, and a calibration is never replaced: fit into a new --out, or refit that "
+            f"folder with `python -m calibration fit --out {out_dir}` (a refit that differs is "
+            "written beside it)")
 
 
 def _display_meta(display: dict, design, cal_id: str, device: str) -> tuple[list, dict]:
@@ -420,7 +479,6 @@ def _run_locked(design, *, device, port, out_dir: Path, settings, width_cm, moni
         display = PatchDisplay(win, settings, sim_aim=sim_aim)
         measure_schedule(phot, display, settings, out_dir, progress=progress)
         if settings.n_validation:
-            cal, _ = refit(out_dir, progress=lambda *_: None, lock=False,
-                           force_profile=force_profile)
+            cal = _fit_folder(out_dir, lambda *_: None)[0]  # written once, after validation
             measure_validation(phot, display, settings, cal, out_dir, progress=progress)
     return refit(out_dir, progress=progress, lock=False, force_profile=force_profile)

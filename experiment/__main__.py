@@ -35,11 +35,22 @@ def data_folder(value: str | None) -> Path:
     Raises
     ------
     UsageError
-        Neither is given, or ``$GLOSSDEPTH_DATA`` is a relative path (a lab-wide setting that
-        would follow the working directory).
+        Neither is given, or either is a relative path: it would follow the working directory,
+        and the same command typed in another directory would start the session over in
+        another folder.
     """
+    if value is not None and not value.strip():
+        raise UsageError("--data is empty; type the data folder's absolute path, e.g. --data "
+                         "/srv/glossdepth/data")
     if value:
-        return Path(value).expanduser().absolute()
+        given = Path(value).expanduser()
+        if not given.is_absolute():
+            raise UsageError(
+                f"--data {value} is a relative path, so the data folder would change with the "
+                f"working directory (here {given.absolute()}; from another directory the "
+                f"session would start over elsewhere); type the absolute path: --data "
+                f"{given.absolute()}")
+        return given
     value = os.environ.get(DATA_ENV)
     if not value:
         raise UsageError(
@@ -224,7 +235,11 @@ def _cmd_status(args) -> int:
         simulated_rows,
         sliders_path,
     )
-    from experiment.participants import check_participant_id
+    from experiment.participants import (
+        case_twins,
+        check_new_participant,
+        check_participant_id,
+    )
     from experiment.plan import plan_path
     from labfiles import TornTailWarning
 
@@ -232,11 +247,16 @@ def _cmd_status(args) -> int:
     data = data_folder(args.data)
     try:
         check_participant_id(args.participant)
+        if not plan_path(data, args.participant).exists():
+            check_new_participant(args.participant, data)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     plan = plan_path(data, args.participant)
     print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
+    for other, where in case_twins(args.participant, data).items():
+        print(f"  NOTE: {other!r} ({where}) differs only in case: one person recorded twice? "
+              "Ask the study lead")
     n = design.sessions.trials_per_session
     damaged = 0
     for session in range(1, design.sessions.n_sessions + 1):
@@ -246,9 +266,14 @@ def _cmd_status(args) -> int:
             try:
                 rows = read_session(path)
                 runs = read_run_events(runs_path(data, args.participant, session))
-                read_slider_histories(sliders_path(data, args.participant, session))
+                sliders = read_slider_histories(sliders_path(data, args.participant, session))
+                problem = _session_gaps(rows, path, {
+                    runs_path(data, args.participant, session): runs,
+                    sliders_path(data, args.participant, session): sliders})
             except DataFileError as exc:
-                print(f"  session {session}: DAMAGED: {exc}")
+                problem = str(exc)
+            if problem:
+                print(f"  session {session}: DAMAGED: {problem}")
                 damaged += 1
                 continue
         done = len(rows)
@@ -265,6 +290,26 @@ def _cmd_status(args) -> int:
             if issubclass(w.category, TornTailWarning):
                 print(f"    WARNING: {w.message}")
     return 1 if damaged else 0
+
+
+def _session_gaps(rows, path, records: dict) -> str | None:
+    """What is missing from a session CSV: rows cut from the middle (trials not 1..n in
+    order), or fewer rows than its slider histories and run history record; else None."""
+    from experiment.checks import PreflightError
+    from experiment.history import check_no_lost_trials
+
+    trials = [int(t) for t in rows["trial"]] if len(rows) else []
+    if trials != list(range(1, len(trials) + 1)):
+        gaps = sorted(set(range(1, max(trials) + 1)) - set(trials))
+        what = (f"trials {gaps[:10]} are missing between the recorded ones (rows cut from the "
+                "middle?)" if gaps else "the recorded trials are not 1..n in order")
+        return (f"{path}: {what}; put the original file back (keep this copy) before the "
+                "session continues")
+    try:
+        check_no_lost_trials(len(trials), path, records)
+    except PreflightError as exc:
+        return str(exc)
+    return None
 
 
 def _cmd_simulate(args) -> int:

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiment.participants import check_participant_id
+from experiment.participants import check_new_participant, check_participant_id
 from labfiles import LabFileError, read_csv_frame, write_new_file
 from studydesign import StudyDesign
 
@@ -111,6 +111,10 @@ def load_or_create_plan(design: StudyDesign, participant: str, data_dir: str | P
     path = plan_path(data_dir, participant)
     if path.exists():
         return _validate(_read_plan(path), design, participant, path)
+    try:
+        check_new_participant(participant, data_dir)
+    except ValueError as exc:
+        raise PlanError(str(exc)) from None
     seed = participant_seed(participant)
     plan = make_plan(design, participant, np.random.default_rng(seed), seed=seed)
     path.parent.mkdir(parents=True, exist_ok=True)

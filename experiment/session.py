@@ -22,6 +22,7 @@ even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import os
@@ -62,6 +63,8 @@ from experiment.datafile import (
     sliders_path,
     write_run_log,
 )
+from experiment.history import check_no_lost_trials, future_record_notes
+from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
@@ -254,6 +257,26 @@ def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
     return records
 
 
+def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
+                   records: dict) -> list[str]:
+    """A session CSV holding fewer trials than the session's other records (slider histories
+    in ``records``, the run history, the run logs) is refused (:func:`check_no_lost_trials`);
+    returns warnings: participants differing only in case, times after this PC's clock."""
+    path = session_path(req.data_dir, req.participant, session)
+    events_path = runs_path(req.data_dir, req.participant, session)
+    events = _read_recorded(read_run_events, events_path, [], [])
+    logs = {Path(req.data_dir) / "logs" / f"{path.stem}_run{k}.json":  # each run's own log
+            [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
+             {"run": k, "trials_this_run": log.get("trials_this_run")}]
+            for k, log in _run_logs(req.data_dir, path.stem)}
+    check_no_lost_trials(len(done), path, {**records, events_path: events, **logs})
+    twins = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: if "
+             "they are one person, session 2 shows stimuli seen before; ask the study lead "
+             "before going on" for other, where in case_twins(req.participant,
+                                                               req.data_dir).items()]
+    return twins + future_record_notes(done, events, path, events_path)
+
+
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
@@ -269,9 +292,10 @@ def prepare_session(req: SessionRequest) -> Prepared:
     notes: list = []
     torn: list = []
     done = _read_recorded(read_session, path, notes, torn)
-    _read_recorded(read_slider_histories, sliders_path(req.data_dir, req.participant, session),
-                   notes, torn)
+    slider_file = sliders_path(req.data_dir, req.participant, session)
+    sliders = _read_recorded(read_slider_histories, slider_file, notes, torn)
     _check_done(done, rows, path)
+    notes += _check_history(req, session, done, {slider_file: sliders})
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
         n = len(_read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
@@ -310,7 +334,11 @@ def prepare_session(req: SessionRequest) -> Prepared:
                                      "in the session log)")
             notes.append(msg)
         observer = _make_observer(req) if req.simulate is not None else None
-        check_screenshot(req.screenshot)
+        shot = check_screenshot(req.screenshot)
+        if shot is not None and shot.exists():  # never replaced; the same command still resumes
+            notes.append(f"--screenshot {shot} exists (an earlier run's?) and is kept: no "
+                         "screenshot is taken; give a new file name for one")
+            req = dataclasses.replace(req, screenshot=None)
         from experiment.display import DisplayError, plan_layout
 
         profile = check_monitor_profile(req.calibration, cal)

@@ -21,6 +21,7 @@ from labfiles.atomic import (
     atomic_write_bytes,
     atomic_write_text,
     fsync_dir,
+    keep_owner_access,
     new_file_mode,
     temporary_path,
     write_new_file,
@@ -90,3 +91,5 @@ __all__ = [
     "utf8_records",
     "write_new_file",
 ]
+
+keep_owner_access()  # a umask denying the owner access: warned and relaxed, once

@@ -29,6 +29,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_text",
     "fsync_dir",
+    "keep_owner_access",
     "new_file_mode",
     "temporary_path",
     "write_new_file",
@@ -54,6 +55,32 @@ def new_file_mode() -> int:
     mask = os.umask(0o022)
     os.umask(mask)
     return 0o666 & ~mask
+
+
+def keep_owner_access() -> int | None:
+    """Clear the owner's bits from a umask that denies the owner reading or writing new files.
+
+    With ``umask 0477`` (or 0277) every record would be written unreadable (or unwritable) by
+    the account that wrote it: a session could not resume, a calibration folder not be refitted.
+    Such a umask is changed for this process (only the owner's bits), with a warning naming the
+    fix. Called once when :mod:`labfiles` is imported.
+
+    Returns
+    -------
+    int or None
+        The umask found, when it was changed; else None.
+    """
+    mask = os.umask(0o022)
+    os.umask(mask)
+    if not mask & 0o600:
+        return None
+    os.umask(mask & ~0o700)
+    import warnings
+
+    warnings.warn(f"the umask {mask:04o} denies you reading or writing the files you write; this "
+                  f"program uses {mask & ~0o700:04o} instead. Set `umask 022` (or 002 for files "
+                  "the lab's group shares) in the account's shell profile", stacklevel=2)
+    return mask
 
 
 def temporary_path(path: str | os.PathLike) -> Path:

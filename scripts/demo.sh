@@ -8,6 +8,7 @@ XVFB=${XVFB:-xvfb-run -a -s "-screen 0 1280x1024x24"}
 OUT=${OUT:-out}
 RUN="$OUT/demo-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUN"
+RUN=$(cd "$RUN" && pwd)  # absolute: the session app refuses a relative --data
 ln -sfn "$(basename "$RUN")" "$OUT/latest"
 t0=$(date +%s)
 step() { echo; echo "== $* ($(( $(date +%s) - t0 )) s)"; }

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -31,10 +32,25 @@ def _cmd_list(args) -> int:
     return 0
 
 
+#: The age past which the session app refuses a calibration by default (its
+#: ``--max-calibration-age-days``), days: stimuli corrected with an older one are named.
+SESSION_MAX_CALIBRATION_AGE_DAYS = 30.0
+
+
 def _load_calibration(design, path):
     from calibration import default_calibration, load_calibration
 
-    return load_calibration(path) if path else default_calibration(design)
+    if not path:
+        return default_calibration(design)
+    cal = load_calibration(path)
+    age = cal.age_days()
+    if age > SESSION_MAX_CALIBRATION_AGE_DAYS:
+        print(f"warning: calibration {cal.calibration_id} ({path}) is {age:.1f} days old, older "
+              f"than the {SESSION_MAX_CALIBRATION_AGE_DAYS:g} days a session accepts: the "
+              "stimuli's gamma correction may no longer fit the CRT; recalibrate (`python -m "
+              "calibration run`, or `calibration check` to test it) and render with the new "
+              "calibration", file=sys.stderr)
+    return cal
 
 
 def _load_gloss(path):
@@ -138,6 +154,9 @@ def _cmd_verify(args) -> int:
 def _cmd_contact_sheet(args) -> int:
     from stimuli.contactsheet import contact_sheet
 
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out} exists and would be replaced by the contact sheet; "
+                         "choose another file name, or add --force to replace it")
     print(contact_sheet(args.folder, args.out, tile_px=args.tile_px))
     return 0
 
@@ -146,9 +165,15 @@ def _cmd_export_print(args) -> int:
     from stimuli.geometry import draw_array, mesh_edges_ok, print_mesh, stimulus_seed, write_mesh
 
     design = load_design(args.design)
+    if not (math.isfinite(args.base_cm) and args.base_cm > 0):
+        raise ValueError(f"--base-cm {args.base_cm:g}: the base slab holding the bumps needs a "
+                         "finite thickness above 0 cm, e.g. --base-cm 0.3 (the default)")
     if args.depth_level not in design.depth.labels:
         raise ValueError(f"--depth-level {args.depth_level} is not a depth level; "
                          f"choose one of {list(design.depth.labels)}")
+    if args.out.exists() and not args.force:
+        raise ValueError(f"{args.out} exists and would be replaced by the mesh; choose another "
+                         "file name, or add --force to replace it")
     seed = args.seed if args.seed is not None else stimulus_seed(args.depth_level, args.array_index)
     geometry = draw_array(design, float(design.depth.cm(args.depth_level)), seed)
     mesh = print_mesh(geometry, spacing_cm=args.spacing_cm, base_cm=args.base_cm)
@@ -253,6 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("folder", type=Path)
     p.add_argument("out", type=Path)
     p.add_argument("--tile-px", type=int, default=160)
+    p.add_argument("--force", action="store_true", help="replace an existing OUT")
     p.set_defaults(func=_cmd_contact_sheet)
 
     p = sub.add_parser("export-print", help="write a watertight STL/PLY of an array for 3-D printing")
@@ -263,7 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--base-cm", type=float, default=0.3, help="base slab thickness, cm")
     p.add_argument("--units", choices=["mm", "cm"], default="mm",
                    help="length unit in the file (default mm: slicers read STL as mm)")
-    p.add_argument("out", type=Path, help="output .stl or .ply")
+    p.add_argument("out", type=Path, help="output .stl or .ply (never replaced without --force)")
+    p.add_argument("--force", action="store_true", help="replace an existing output file")
     p.set_defaults(func=_cmd_export_print)
 
     p = sub.add_parser("plan-spp", help="measure the spp each gloss level needs for the design's "

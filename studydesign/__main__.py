@@ -65,7 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     sub.add_parser("show", help="print a summary of the design")
     sub.add_parser("check", help="validate the design file; exit 1 with the reason if invalid")
     st = sub.add_parser("stimuli", help="write the stimulus table as CSV")
-    st.add_argument("--out", default="-", help="CSV path, '-' for stdout")
+    st.add_argument("--out", default="-", help="CSV path, '-' for stdout (never replaced "
+                                               "without --force)")
+    st.add_argument("--force", action="store_true", help="replace an existing --out")
     sub.add_parser("json", help="print the design as JSON")
     args = parser.parse_args(argv)
     try:
@@ -82,7 +84,25 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == "-":
             table.to_csv(sys.stdout, index=False)
         else:
-            table.to_csv(args.out, index=False)
+            from pathlib import Path
+
+            from labfiles import atomic_write_text
+
+            out = Path(args.out)
+            if out.is_dir():
+                print(f"error: --out {out} is a folder; name the CSV file to write, e.g. "
+                      f"--out {out / 'stimuli.csv'}", file=sys.stderr)
+                return 1
+            if out.exists() and not args.force:
+                print(f"error: {out} exists and would be replaced by the stimulus table; "
+                      "choose another --out, or add --force to replace it", file=sys.stderr)
+                return 1
+            try:
+                atomic_write_text(out, table.to_csv(index=False))
+            except OSError as exc:
+                print(f"error: cannot write {out} ({exc.strerror}); choose a writable --out",
+                      file=sys.stderr)
+                return 1
     elif args.command == "json":
         print(json.dumps(design.to_dict(), indent=2))
     return 0

@@ -7,6 +7,7 @@ slider scale, analysis bins) lives in ``design.toml`` and reaches code only thro
 
 from __future__ import annotations
 
+import math
 import re
 import tomllib
 from dataclasses import asdict, dataclass
@@ -668,6 +669,20 @@ def _models(raw: Any, path: Path) -> tuple[AnalysisModel, ...]:
     return tuple(out)
 
 
+def _refuse_non_finite(value, path, key: str = "") -> None:
+    """TOML writes nan and inf as numbers; no design value may be either (a Box-Cox lambda of
+    nan, a refresh rate of inf passed every range check written as ``x > 0``)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _refuse_non_finite(v, path, f"{key}.{k}" if key else k)
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _refuse_non_finite(v, path, f"{key}[{i}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise DesignError(f"design file {path}: {key} = {value} is not a finite number; write "
+                          "a number there (see the shipped design.toml)")
+
+
 def load_design(path: str | Path | None = None) -> StudyDesign:
     """Load and validate a study design.
 
@@ -696,6 +711,7 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         raise DesignError(f"design file {exc}") from None
     except tomllib.TOMLDecodeError as exc:
         raise DesignError(f"design file {path} is not valid TOML: {exc}") from exc
+    _refuse_non_finite(raw, path)
 
     g = _section(raw, "gloss", path)
     d = _section(raw, "depth", path)

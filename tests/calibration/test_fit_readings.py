@@ -232,7 +232,7 @@ def test_a_folder_with_other_readings_is_never_replaced(tmp_path, rng, cli):
     assert cli(["fit", a, *args]).returncode == 0
     before = (out / "readings.csv").read_bytes()
     res = cli(["fit", b, *args])
-    assert res.returncode == 1 and "holds other readings" in res.stderr
+    assert res.returncode == 1 and "fitted from other readings" in res.stderr
     assert (out / "readings.csv").read_bytes() == before
 
 

@@ -129,7 +129,14 @@ def test_unplug_keeps_readings_and_rerun_resumes(fake_proc, tmp_path):
     assert len(first) == 3
     with fake_proc("pr650") as (port, aim, _):
         res = _run(port, aim, out, *SMALL, device="pr650")
-    assert res.returncode == 0, res.stderr
+        assert res.returncode == 0, res.stderr
+        # The same command once more on the finished folder (issue 33): nothing to measure, and
+        # calibration.json stays byte for byte (it was rewritten with a new created_utc, so a
+        # session that recorded its SHA-256 could not resume).
+        before = (out / "calibration.json").read_bytes()
+        again = _run(port, aim, out, *SMALL, device="pr650")
+        assert again.returncode == 0 and "6 of 6 readings already" in again.stdout
+        assert (out / "calibration.json").read_bytes() == before
     assert "3 of 6 readings already" in res.stdout
     both = pd.read_csv(out / "readings.csv")
     assert len(both) == 6

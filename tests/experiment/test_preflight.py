@@ -397,8 +397,10 @@ def test_a_relative_lab_data_root_is_refused(tmp_path, monkeypatch, capsys):
     assert main(["plan", "--participant", "P01"]) == 2
     assert "relative path" in capsys.readouterr().err
     assert not (tmp_path / "data").exists()
-    assert main(["plan", "--participant", "P01", "--data", "data"]) == 0  # explicit: allowed
-    assert (tmp_path / "data" / "plans" / "P01_plan.csv").is_file()
+    # So would a relative --data (issue 33): refused the same way, naming the absolute path.
+    assert main(["plan", "--participant", "P01", "--data", "data"]) == 2
+    assert f"--data {tmp_path / 'data'}" in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
 
 
 def test_complete_session_whose_run_log_failed_says_so(monkeypatch, capsys, tmp_path):

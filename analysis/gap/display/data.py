@@ -256,4 +256,9 @@ def _times(frame: pd.DataFrame) -> pd.Series:
     if t.isna().any():
         raise GapError(f"{int(t.isna().sum())} readings have no ISO 8601 timestamp_utc; "
                        "the drift model needs them (fix or drop those rows)")
+    from labfiles.clock import future_problem
+
+    problem = future_problem(t.max().to_pydatetime(), "newest reading's timestamp_utc")
+    if problem:  # the drift model would extrapolate to a time that has not come
+        raise GapError(problem)
     return t

@@ -1,0 +1,96 @@
+"""What a session's records say happened: how many trials were answered, and when.
+
+A session CSV is the record the analysis reads, but not the only one: each trial's slider
+histories (``sliders/``), the run history (``logs/*_runs.jsonl``) and each run's log
+(``logs/*_run<k>.json``) say how far the session got. Before a session resumes they are
+compared with the CSV, so that a CSV moved aside, replaced by an older copy or cut short never
+makes the session start over (a participant would see stimuli twice); their times are compared
+with this PC's clock.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pandas as pd
+
+from calibration import CalibrationError
+from experiment.checks import PreflightError
+from labfiles.clock import future_problem
+
+__all__ = ["check_no_lost_trials", "future_record_notes", "recorded_trials"]
+
+
+def recorded_trials(records: list[dict]) -> int:
+    """How many trials a slider-histories file or a run history shows answered.
+
+    A slider history is written just before its trial's row (a crash between them leaves one
+    history without its row, and the trial is taken again): the last trial of the histories may
+    be unanswered. A run that started at trial ``first_trial`` had ``first_trial - 1`` answered
+    before it, and its end event adds ``trials_this_run``.
+    """
+    n = 0
+    first = {}
+    for r in records:
+        if "gloss_history" in r and isinstance(r.get("trial"), int):
+            n = max(n, r["trial"] - 1)
+        elif r.get("event") == "start" and isinstance(r.get("first_trial"), int):
+            first[r.get("run")] = r["first_trial"]
+            n = max(n, r["first_trial"] - 1)
+        elif isinstance(r.get("trials_this_run"), int) and r.get("run") in first:
+            n = max(n, first[r.get("run")] - 1 + r["trials_this_run"])
+    return n
+
+
+def check_no_lost_trials(n_done: int, path: Path, records: dict) -> None:
+    """A session never starts over (nor goes back) while a record of later trials exists.
+
+    Parameters
+    ----------
+    n_done : int
+        Rows of the session CSV ``path``.
+    records : dict
+        Path -> its records (slider histories, run events), as read.
+
+    Raises
+    ------
+    PreflightError
+        A record shows more answered trials than ``path`` holds: the file was moved aside,
+        replaced by an older copy or cut short. Resuming would show the participant stimuli
+        again.
+    """
+    if not records:
+        return
+    n, where = max((recorded_trials(recs), str(where)) for where, recs in records.items())
+    if n > n_done:
+        raise PreflightError(
+            f"{path} holds {n_done} answered trial(s), but {where} records {n}: the session "
+            "file was moved aside, replaced by an older copy or cut short, and starting from "
+            f"trial {n_done + 1} would show the participant stimuli again. Put the original "
+            f"{path.name} back in {path.parent} (keep every copy), then run the same "
+            "command; `python -m experiment status` shows what is recorded")
+
+
+def future_record_notes(rows: pd.DataFrame, events: list, path: Path, runs: Path) -> list[str]:
+    """Warnings for a session whose records carry times after this PC's clock.
+
+    A run on a PC whose clock ran ahead (or this PC's clock set back since) stamps trials and
+    run events in the future: the session can go on, but its times are not in order; the
+    warning names the newest time and the fix (set the clock right).
+    """
+    from calibration.readings import parse_utc
+
+    found = []
+    for where, texts in ((path, rows.get("timestamp_utc", ())),
+                         (runs, [e.get("utc") for e in events])):
+        times = []
+        for text in texts:
+            try:
+                times.append(parse_utc(text))
+            except CalibrationError:
+                continue
+        problem = future_problem(max(times), f"{where}: newest recorded time") if times else None
+        if problem:
+            found.append(problem.replace(", then give the true time", "; the session goes on "
+                                         "but its times are out of order"))
+    return found
