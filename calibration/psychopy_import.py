@@ -39,6 +39,7 @@ from calibration.readings import READINGS_COLUMNS, parse_utc
 from calibration.record import DEFAULT_CRT, Calibration, load_calibration, utc_now_iso
 from calibration.report import report_text, write_outputs
 from calibration.run import _lock, _write_imported_readings, _write_meta, refit
+from labfiles.clock import future_problem
 
 __all__ = ["PsychopyProfile", "import_psychopy_profile", "read_psychopy_profile"]
 
@@ -274,7 +275,10 @@ def import_psychopy_profile(source, out_dir, design, *, calib_name: str | None =
     if measured is None:
         raise CalibrationError(f"{profile.path} has no calibDate, so the calibration's age is "
                                "unknown; pass --measured-utc with the time it was measured")
-    parse_utc(measured, "--measured-utc")
+    problem = future_problem(parse_utc(measured, "--measured-utc"),
+                             f"{profile.path}: calibDate" if date else "--measured-utc")
+    if problem:
+        raise CalibrationError(problem)
     geometry, warn = _geometry(profile, design)
     source_note = (f"imported from the PsychoPy profile {profile.path.resolve()}, calibration "
                    f"{profile.calib_name!r} (`calibration import-psychopy`)")

@@ -295,3 +295,18 @@ def test_another_profile_of_the_same_name_is_never_changed(lab_profiles, tmp_pat
     assert (out / "monitors" / "other.json").read_bytes() == theirs
     assert {p.name: p.read_bytes() for p in lab_profiles.iterdir()} == lab_before
     assert calibTools.monitorFolder == str(lab_profiles)
+
+
+def test_a_profile_dated_in_the_future_is_refused(lab_profiles, tmp_path, cli):
+    """A Monitor Center profile saved on a PC whose clock ran a year ahead would never age
+    (issue 33, finding 2): its calibDate is refused as every recorded time after now is."""
+    raw = json.loads((lab_profiles / "gridonly.json").read_text())
+    text = json.dumps(raw).replace(str(LAB_DATE), "4102444800.0")  # 2100-01-01
+    assert text != json.dumps(raw)
+    ahead = tmp_path / "monitors" / "gridonly.json"
+    ahead.parent.mkdir()
+    ahead.write_text(text)
+    res = cli(["import-psychopy", ahead, "--out", tmp_path / "cal"])
+    assert res.returncode == 1
+    assert "calibDate 2100-01-01" in res.stderr and "after this PC's clock" in res.stderr
+    assert not (tmp_path / "cal").exists()
