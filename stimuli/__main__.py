@@ -13,6 +13,7 @@ import os
 import sys
 from pathlib import Path
 
+from labfiles.outdir import write_error_line
 from studydesign import load_design
 
 
@@ -265,6 +266,10 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+#: Write errors said as what to do (labfiles.outdir) rather than as errno's words.
+_NAMED_WRITE_ERRORS = (errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -279,6 +284,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
             hint = ("; the disk is full: free space and re-run the same command (finished files "
                     "are kept, no half-written file remains)")
+        elif isinstance(exc, OSError) and exc.errno in _NAMED_WRITE_ERRORS:
+            option = "--out" if "--out" in (argv if argv is not None else sys.argv) else "OUT"
+            exc = write_error_line(exc, option=option)
         print(f"error: {exc}{hint}", file=sys.stderr)
         return 1
 

@@ -87,6 +87,7 @@ def load_display(real_path, sim_path):
         readings are left.
     """
     real = Path(real_path)
+    _refuse_swapped(real, Path(sim_path))
     cpath, cal = _load_calibration(Path(sim_path))
     notes: list[str] = []
     rpath, kind, check = _locate_readings(real, cal, notes)
@@ -115,6 +116,16 @@ def load_display(real_path, sim_path):
     readings.attrs["display_source"] = source
     readings.attrs["noise_frames"] = noise_frames
     return readings, cal
+
+
+def _refuse_swapped(real: Path, sim: Path) -> None:
+    """A calibration passed as --real or readings passed as --sim: say so, with the order."""
+    if not ((real.is_file() and real.suffix.lower() == ".json")
+            or (sim.is_file() and sim.suffix.lower() == ".csv")):
+        return
+    raise GapError(f"--real {real} --sim {sim}: --real and --sim swapped? The display layer "
+                   "takes --real the readings (readings.csv, validation.csv or a check run's "
+                   "folder) and --sim the calibration (calibration.json or its folder)")
 
 
 def _load_calibration(sim: Path):
