@@ -278,6 +278,7 @@ def _cmd_simulate(args) -> int:
 
     design = load_design(args.design)
     rng = np.random.default_rng(args.seed)
+    _check_participants(args.participants)
     problem = _observer_params_problem(args.observer_params, args.observer)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
@@ -298,6 +299,35 @@ def _cmd_simulate(args) -> int:
     print(f"{len(paths)} session files ({args.observer} observers, seed {args.seed}) in "
           f"{paths[0].parent}")
     return 0
+
+
+def _check_participants(ids: list[str]) -> None:
+    """Refuse invalid or repeated ``--participants`` (ids differing only in case name one
+    person, and one file on a case-insensitive disk), in the option's name."""
+    from experiment.participants import check_participant_id
+
+    seen: dict[str, str] = {}
+    for pid in ids:
+        try:
+            check_participant_id(pid)
+        except ValueError as exc:
+            raise UsageError(f"--participants: {exc}") from None
+        if pid.casefold() in seen:
+            raise UsageError(f"--participants names {seen[pid.casefold()]!r} and {pid!r}: give "
+                             "each participant once (ids that differ only in case are one "
+                             "person)")
+        seen[pid.casefold()] = pid
+
+
+def _seed(text: str) -> int:
+    """A seed for numpy's generator: a whole number >= 0 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value}: a seed is a whole number >= 0 (e.g. 1)")
+    return value
 
 
 # ---- fit-observer: the simulated observers fitted to a lab's own sessions -------------------
@@ -330,12 +360,18 @@ def _cmd_fit_observer(args) -> int:
         read_sessions_for_fit,
     )
     from experiment.observers import write_observer_params
+    from labfiles.outdir import OutDirError, prepare_out_dir, write_error_line
 
     design = load_design(args.design)
     out = Path(args.out)
     if out.exists():
         print(f"error: {out} exists and is never overwritten; choose another --out or move it "
               "aside", file=sys.stderr)
+        return 1
+    try:
+        prepare_out_dir(out.parent)  # before the fit: a read-only folder costs seconds
+    except OutDirError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     try:
         frame, simulated, files = read_sessions_for_fit(args.sessions)
@@ -353,6 +389,9 @@ def _cmd_fit_observer(args) -> int:
         write_observer_params(out, params)
     except FileExistsError:
         print(f"error: {out} appeared while fitting; it is never overwritten", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the disk filled or went read-only during the fit
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
         return 1
     fit, se = params["fit"], params["fit"]["standard_errors"]["humanlike"]
     if len(fit["simulated_sessions"]) == len(fit["sessions"]):
@@ -402,7 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--simulate", choices=["ideal", "humanlike"],
                    help="a simulated observer answers through X11 input events (XTEST)")
     r.add_argument("--observer-params", help="observers.toml to use with --simulate")
-    r.add_argument("--seed", type=int, help="seed of the simulated observer (default: from "
+    r.add_argument("--seed", type=_seed, help="seed of the simulated observer (default: from "
                                             "the participant id)")
     r.add_argument("--screenshot", help="save the first answered trial screen (back buffer) as "
                                         "this PNG")
@@ -423,7 +462,7 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--data", required=True,
                    help="data folder (writes DATA/sessions/); not the lab's data: the analysis "
                         "report flags simulated participants")
-    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--seed", type=_seed, default=1)
     s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
     s.set_defaults(func=_cmd_simulate)
 

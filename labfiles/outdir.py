@@ -70,11 +70,13 @@ def prepare_out_dir(path, *, option: str = "--out") -> Path:
     if path.exists() and not path.is_dir():
         raise OutDirError(f"{option} {path} is a file, not a folder: pass {option} a new folder "
                           "name (the file is left as it is)")
+    probe = path / f".write-test-{os.getpid()}"
     try:
         path.mkdir(parents=True, exist_ok=True)
-        probe = path / f".write-test-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
     except OSError as exc:
+        if exc.filename == str(probe):  # name the folder, not the probe
+            exc = type(exc)(exc.errno, exc.strerror, str(path))
         raise OutDirError(write_error_line(exc, option=option, target=path)) from None
     return path

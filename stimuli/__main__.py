@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import errno
 import json
+import math
 import os
 import sys
 from pathlib import Path
@@ -195,6 +196,41 @@ def _add_selection(p) -> None:
     p.add_argument("--limit", type=int, help="keep only the first N selected rows")
 
 
+def _render_variant(text: str) -> str:
+    """A Mitsuba variant the stimulus renderer can use (argparse type)."""
+    from studydesign.design import RENDER_VARIANTS
+
+    if text not in RENDER_VARIANTS:
+        hint = (" (scalar variants trace one ray at a time and cannot build the stimulus "
+                "meshes)" if text.startswith("scalar") else "")
+        raise argparse.ArgumentTypeError(f"{text!r} cannot render the stimuli{hint}; use one of "
+                                         f"{', '.join(RENDER_VARIANTS)}")
+    return text
+
+
+def _positive_cm(text: str) -> float:
+    """A finite length > 0 in cm (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of cm") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text} cm: give a length above 0 (e.g. 0.02)")
+    return value
+
+
+def _array_index(text: str) -> int:
+    """An array index >= 0 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value}: arrays are numbered from 0 (default 0, the "
+                                         "rendered one)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m stimuli", description="Render stimulus sets.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
@@ -220,7 +256,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "machine); 0 renders in this process")
     g.add_argument("--scheduler", help="address of an existing Dask scheduler (tcp://host:8786); "
                    "its workers must see --out at the same path (shared file system)")
-    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant; "
+    p.add_argument("--variant", type=_render_variant,
+                   help="Mitsuba variant (default: the design's render.variant; "
                    "'auto' = llvm_ad_mono, or cuda_ad_mono on a GPU: exact for the grey stimuli)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
@@ -237,9 +274,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export-print", help="write a watertight STL/PLY of an array for 3-D printing")
     p.add_argument("--depth-level", type=int, required=True, help="depth level label (1-11)")
-    p.add_argument("--array-index", type=int, default=0, help="which array (default 0, as rendered)")
+    p.add_argument("--array-index", type=_array_index, default=0,
+                   help="which array (default 0, as rendered)")
     p.add_argument("--seed", type=int, help="array seed (default: that of the rendered stimuli)")
-    p.add_argument("--spacing-cm", type=float, default=0.02, help="height-field grid, cm")
+    p.add_argument("--spacing-cm", type=_positive_cm, default=0.02,
+                   help="height-field grid, cm")
     p.add_argument("--base-cm", type=float, default=0.3, help="base slab thickness, cm")
     p.add_argument("--units", choices=["mm", "cm"], default="mm",
                    help="length unit in the file (default mm: slicers read STL as mm)")
@@ -254,7 +293,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-spp", type=int, default=1024, help="upper bound of the search (1024)")
     p.add_argument("--target-pct", type=float, help="displayed-error target in %% of the display "
                    "range (default: the design's render.displayed_error_pct)")
-    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant)")
+    p.add_argument("--variant", type=_render_variant,
+                   help="Mitsuba variant (default: the design's render.variant)")
     p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
     p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
     p.set_defaults(func=_cmd_plan_spp)
