@@ -51,8 +51,10 @@ def write_error_line(exc: OSError, *, option: str = "--out", target=None) -> str
     if exc.errno == errno.EISDIR:
         return f"{option} {where} is a folder: pass {option} a file name"
     if exc.errno == errno.ENOENT:
-        return (f"{where}: no such folder: create it first (mkdir -p {Path(str(where)).parent}) "
-                f"or pass {option} an existing folder")
+        folder = Path(str(where))
+        folder = folder.parent if folder.suffix else folder  # a file's name: its folder
+        return (f"{folder}: no such folder: create it first (mkdir -p {folder}) or give "
+                f"{option} an existing folder")
     return f"cannot write {where} ({why}); pass {option} another place"
 
 

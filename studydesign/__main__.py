@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import os
 import sys
 
 from studydesign.design import DesignError, load_design
@@ -82,7 +84,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.out == "-":
             table.to_csv(sys.stdout, index=False)
         else:
-            table.to_csv(args.out, index=False)
+            from labfiles.outdir import write_error_line
+
+            try:  # a missing or read-only folder: one line, with the fix
+                folder = os.path.dirname(os.path.abspath(args.out))
+                if not os.path.isdir(folder):
+                    raise FileNotFoundError(errno.ENOENT, "no such folder", folder)
+                table.to_csv(args.out, index=False)
+            except OSError as exc:
+                print(f"error: {write_error_line(exc)}", file=sys.stderr)
+                return 1
     elif args.command == "json":
         print(json.dumps(design.to_dict(), indent=2))
     return 0
