@@ -79,7 +79,7 @@ def read_model_data(path, design) -> pd.DataFrame:
     Raises
     ------
     LmmError
-        If ``path`` is neither a folder nor a CSV file.
+        If ``path`` is neither a folder nor a CSV file, or a CSV separated by ';' or tabs.
     """
     from pathlib import Path
 
@@ -91,6 +91,12 @@ def read_model_data(path, design) -> pd.DataFrame:
         return model_frame(load_sessions(path, design).frame, design)
     if path.is_file() and path.suffix.lower() == ".csv":
         frame = pd.read_csv(path)
+        sep = next((name for ch, name in ((";", "';'"), ("\t", "tabs"))
+                    if len(frame.columns) == 1 and ch in str(frame.columns[0])), None)
+        if sep:
+            raise LmmError(f"{path}: its columns are separated by {sep}, not commas (its header "
+                           f"is {str(frame.columns[0])[:80]!r}): export it as CSV with commas "
+                           "(and a decimal point)")
         for col in frame.columns:
             if frame[col].dtype == object:
                 frame[col] = frame[col].astype(str).where(frame[col].notna(), np.nan)
