@@ -147,6 +147,7 @@ def _cmd_run(args) -> int:
         max_calibration_age_days=args.max_calibration_age_days, simulate=args.simulate,
         observer_params=args.observer_params, seed=args.seed, fast=args.fast,
         fullscr=args.fullscr, accept_calibration_mismatch=args.accept_calibration_mismatch,
+        accept_unverified_resume=args.accept_unverified_resume,
         screenshot=args.screenshot, quit_at_trial=args.simulate_quit_at,
         early_space_probability=args.simulate_early_space,
     )
@@ -434,6 +435,10 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--accept-calibration-mismatch", action="store_true",
                    help="run although the stimuli were corrected for another calibration "
                         "(recorded in the log)")
+    r.add_argument("--accept-unverified-resume", action="store_true",
+                   help="resume a session whose record of its stimuli and calibration "
+                        "(_runs.jsonl, run logs) is lost, once you have checked they are the "
+                        "ones it started with (recorded in the log)")
     r.add_argument("--fullscr", action="store_true",
                    help="full screen (the lab CRT; the screen must be at the design's resolution)")
     r.add_argument("--fast", action="store_true",

@@ -63,8 +63,10 @@ from experiment.datafile import (
     write_run_log,
 )
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
+from experiment.provenance import check_earlier_sessions
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
+from stimuli import load_manifest
 from studydesign import StudyDesign
 
 __all__ = ["SessionOutcome", "SessionRequest", "prepare_session", "run_session"]
@@ -96,6 +98,7 @@ class SessionRequest:
     fast: bool = False
     fullscr: bool = False
     accept_calibration_mismatch: bool = False
+    accept_unverified_resume: bool = False
     screenshot: str | None = None
     quit_at_trial: int | None = None
     early_space_probability: float = 0.0
@@ -254,6 +257,21 @@ def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
     return records
 
 
+def _no_record(req: SessionRequest, path: Path, session: int, notes: list) -> None:
+    """A resumed session whose start record is gone (``_runs.jsonl`` deleted or its start line
+    torn, the run logs missing): refused, since every image could have been swapped, unless
+    the operator vouches for the inputs with --accept-unverified-resume (logged)."""
+    msg = (f"{path}: no record of the stimuli and calibration file this session started with "
+           f"({runs_path(req.data_dir, req.participant, session)} and the run logs are missing "
+           "or torn), so this resume cannot check that the images are the ones its first trials "
+           "showed")
+    if not req.accept_unverified_resume:
+        raise PreflightError(msg + "; restore the missing file from a backup, or, once you have "
+                             "checked that --stimuli and --calibration are the ones the session "
+                             "started with, add --accept-unverified-resume (recorded in the log)")
+    notes.append(msg + " (--accept-unverified-resume given)")
+
+
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
@@ -295,11 +313,13 @@ def prepare_session(req: SessionRequest) -> Prepared:
                                for _, log in _run_logs(req.data_dir, path.stem)
                                if "inputs" in log]
             if not any("stimuli_sha256" in e for e in events):
-                notes.append(f"{path}: no record of the stimuli and calibration file this "
-                             f"session started with ({runs_path(req.data_dir, req.participant, session)} "
-                             "and the run logs are missing); this resume cannot check that they "
-                             "are the same")
+                _no_record(req, path, session, notes)
         _check_same_inputs(inputs, done, events, path)
+        check_earlier_sessions(
+            load_manifest(stim.manifest_path), plan, session, inputs, data_dir=req.data_dir,
+            participant=req.participant, notes=notes,
+            run_logs=lambda k: [log for _, log in _run_logs(
+                req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
         if other:
             msg = (f"the stimuli were gamma-corrected for calibration {other}, but this session "
