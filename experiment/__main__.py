@@ -14,6 +14,7 @@ any directory. Messages print absolute paths.
 from __future__ import annotations
 
 import argparse
+import signal
 import errno
 import os
 import sys
@@ -165,6 +166,7 @@ def main_run(req) -> int:
     from experiment.checks import PreflightError
     from experiment.display import DisplayError
     from experiment.session import run_session
+    from experiment.signals import SessionSignal
     from labfiles import LabFileError
 
     again = "run the same command to continue"
@@ -173,10 +175,11 @@ def main_run(req) -> int:
     except (PreflightError, DisplayError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"interrupted (Ctrl-C); every answered trial is kept in {req.data_dir}; "
-              f"{again}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        how, rc = (f"ended by {exc.name}", 128 + exc.signum) if isinstance(exc, SessionSignal) \
+            else ("interrupted (Ctrl-C)", 130)
+        print(f"{how}; every answered trial is kept in {req.data_dir}; {again}", file=sys.stderr)
+        return rc
     except LabFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -200,6 +203,10 @@ def main_run(req) -> int:
     if res.status == "quit":
         print(f"session {res.session} of {res.participant} paused: {kept}", file=sys.stderr)
         return 3
+    if res.status == "interrupted" and res.signal:
+        print(f"ended by {res.signal} (a shutdown, a closed terminal or kill): {kept}; the run's "
+              f"log: {res.log_file}", file=sys.stderr)
+        return 128 + int(getattr(signal, res.signal))
     if res.status == "interrupted":
         print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
         return 130

@@ -64,6 +64,7 @@ from experiment.datafile import (
 )
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.provenance import check_earlier_sessions
+from experiment.signals import SessionSignal, ending_signals
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
 from stimuli import load_manifest
@@ -124,8 +125,8 @@ class Prepared:
 
 @dataclass(frozen=True)
 class SessionOutcome:
-    """How a run ended: ``status`` is ``complete``, ``quit``, ``interrupted`` (Ctrl-C) or
-    ``already complete``."""
+    """How a run ended: ``status`` is ``complete``, ``quit``, ``interrupted`` (Ctrl-C, or the
+    SIGTERM / SIGHUP named in ``signal``) or ``already complete``."""
 
     status: str
     participant: str
@@ -134,6 +135,8 @@ class SessionOutcome:
     trials_total: int
     data_file: str
     log_file: str | None = None
+    #: The signal that ended an ``interrupted`` run other than Ctrl-C (``"SIGTERM"``, ``"SIGHUP"``).
+    signal: str | None = None
 
 
 def _check_done(done: pd.DataFrame, plan: pd.DataFrame, path: Path) -> None:
@@ -430,8 +433,15 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         The window could not show the session as required (it is closed again).
     OSError
         A write failed (``ENOSPC``: the disk is full; everything recorded before is kept).
+
+    SIGTERM and SIGHUP end the run as Ctrl-C does (:mod:`experiment.signals`).
     """
-    prep = prepare_session(req)
+    with ending_signals():
+        return _run_prepared(prepare_session(req), out)
+
+
+def _run_prepared(prep: Prepared, out) -> SessionOutcome:
+    req = prep.request
     data = session_path(req.data_dir, req.participant, prep.session)
     total = len(prep.plan)
     for w in prep.warnings:
@@ -556,6 +566,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
     hand = None
     status = "error"
     log_path = None
+    ended_by = None
     with SessionDisplay(req.design, cal, stim_frame.reset_index(drop=True), fullscr=req.fullscr,
                         fast=req.fast, monitor_profile=prep.monitor_profile) as disp, \
             SessionWriter(req.data_dir, req.participant, prep.session,
@@ -598,21 +609,25 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
                 frames.append(win.frameIntervals, int(row["trial"]))
             else:
                 status = "complete"
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             status = "interrupted"
+            ended_by = exc.name if isinstance(exc, SessionSignal) else "SIGINT"
+            log["ended_by"] = ended_by
         finally:
             if hand is not None:
                 hand.stop()
             log_path = _finish_log(log, status, win, trials_log, hand, logs, stem, run, out)
             try:
                 append_run_event(events, {"event": status, "run": run, "utc": _now(),
-                                          "trials_this_run": len(trials_log)})
+                                          "trials_this_run": len(trials_log),
+                                          **({"signal": ended_by} if ended_by else {})})
             except OSError as exc:
                 # Never hides the error that ended the run (a full disk fails here too).
                 out(f"warning: the run's end was not recorded in {events} ({exc})")
     done = len(prep.done) + len(trials_log)
     return SessionOutcome(status, req.participant, prep.session, done, len(prep.plan), str(data),
-                          None if log_path is None else str(log_path))
+                          None if log_path is None else str(log_path),
+                          ended_by if ended_by != "SIGINT" else None)
 
 
 def _finish_log(log: dict, status: str, win, trials_log: list, hand, logs: Path, stem: str,
