@@ -7,10 +7,12 @@ Commands: ``list``, ``render``, ``verify``, ``contact-sheet``, ``export-print``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import json
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -45,6 +47,19 @@ def _load_gloss(path):
     if path:
         return load_gloss_table(path), str(path)
     return default_gloss_table(), str(default_gloss_table_path())
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """Start Dask's nannies and workers with SIGINT ignored (inherited, and kept by Python and
+    by the processes they start), so that Ctrl-C reaches only this process, which closes the
+    cluster and its workers: no worker prints a KeyboardInterrupt traceback. A Ctrl-C during
+    these seconds of start-up is ignored (press it again)."""
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _cmd_render(args) -> int:
@@ -96,8 +111,11 @@ def _cmd_render(args) -> int:
         elif workers > 0:
             from dask.distributed import Client, LocalCluster
 
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=":0")
+            print(f"starting {workers} Dask worker process(es) (Ctrl-C is taken once they "
+                  "run)", file=sys.stderr, flush=True)
+            with _workers_ignore_ctrl_c():
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0")
             client = Client(cluster)
         summary = render_set(table, args.out, job=job, gloss_table=gloss, calibration=cal,
                              tonemap_spec=design.tonemap, client=client,
