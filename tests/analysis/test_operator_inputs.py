@@ -131,3 +131,19 @@ def test_semicolon_csv_names_the_separator(small_csv, tmp_path, capsys):
     pd.read_csv(small_csv).to_csv(semi, index=False, sep=";", decimal=",")
     rc, err = _run(capsys, "fit", semi, "--formula", "y ~ x + (1 | g)", "--out", tmp_path / "f")
     assert rc == 1 and "separated by ';'" in err and "export it as CSV with commas" in err
+
+
+def test_a_simulation_covering_half_the_stimuli_is_named_a_mismatch(tmp_path, design):
+    """The simulated sessions (real files, cut to gloss levels 1-5) cover 36 of the 81 gloss x
+    depth levels of the real ones: the warning the report shows (stderr, index.html,
+    diagnosis.json) says how much is covered, not only that the designs differ."""
+    from analysis.gap.observer.data import check_sim, load_sim, read_session_csvs
+
+    half = tmp_path / "half"
+    half.mkdir()
+    for path in sorted((DEMO / "ideal").glob("*.csv")):
+        frame = pd.read_csv(path)
+        frame[frame["gloss_level"] <= 5].to_csv(half / path.name, index=False)
+    notes = check_sim(read_session_csvs(DEMO / "humanlike"), load_sim(half, design))
+    assert any(n.startswith("mismatch: the simulation covers 36 of the 81 gloss x depth levels")
+               for n in notes), notes
