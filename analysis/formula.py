@@ -147,6 +147,10 @@ def split_formula(formula: str) -> tuple[str, str, tuple[RandomTerm, ...]]:
                                "'+'")
         else:
             fixed.append(p)
+    seen = [t for k, t in enumerate(random) if t in random[:k]]
+    if seen:
+        raise FormulaError(f"random term ({seen[0].expr} | {seen[0].group}) is given twice in "
+                           f"{formula!r}: its two variances could not be told apart; give it once")
     if not random:
         raise FormulaError(
             f"formula {formula!r} has no random-effect term such as (1 | participant); "
@@ -285,6 +289,9 @@ def _unsupported_call(text: str, where: str) -> None:
 
 def _check_columns(text: str, data: pd.DataFrame, what: str) -> None:
     _unsupported_call(text, what)
+    if re.search(r"(?<![\w.])\.(?![\w.])", text):
+        raise FormulaError(f"{what}: '.' (every other column) is unsupported: name the "
+                           "predictors, e.g. 'y ~ a + b + (1 | g)'")
     known = set(map(str, data.columns)) | set(_FUNCTIONS)
     text = re.sub(r"'[^']*'|\"[^\"]*\"", "", text)
     for name in re.findall(r"(?<![\w.])([A-Za-z_.][A-Za-z0-9_.]*)", text):

@@ -68,6 +68,9 @@ def prepare_out_dir(path, *, option: str = "--out") -> Path:
     OutDirError
         With a one-line message naming ``path`` and the fix (see :func:`write_error_line`).
     """
+    if not str(path).strip():
+        raise OutDirError(f"{option} is empty: give it a folder name (an empty name would write "
+                          "into the current folder)")
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise OutDirError(f"{option} {path} is a file, not a folder: pass {option} a new folder "

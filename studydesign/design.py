@@ -628,9 +628,21 @@ def _check_types(cls, raw: dict, name: str, path: Path) -> None:
         else:
             continue
         if not ok:
+            shipped = _shipped_value(name, key)
             raise DesignError(f"{path}: [{name}] {key} = {_toml_repr(value)}: write {want}"
                               f"{', without quotes' if 'number' in want else ''} (e.g. {key} = "
-                              f"{example})")
+                              f"{example if shipped is None else _toml_repr(shipped)})")
+
+
+def _shipped_value(section: str, key: str):
+    """The shipped design's value of ``[section] key`` (an example in messages), or None."""
+    try:
+        raw = tomllib.loads(default_design_path().read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    table = raw.get(section)
+    table = table[0] if isinstance(table, list) and table else table
+    return table.get(key) if isinstance(table, dict) else None
 
 
 def _toml_repr(value) -> str:

@@ -120,12 +120,16 @@ def load_display(real_path, sim_path):
 
 def _refuse_swapped(real: Path, sim: Path) -> None:
     """A calibration passed as --real or readings passed as --sim: say so, with the order."""
-    if not ((real.is_file() and real.suffix.lower() == ".json")
-            or (sim.is_file() and sim.suffix.lower() == ".csv")):
-        return
-    raise GapError(f"--real {real} --sim {sim}: --real and --sim swapped? The display layer "
-                   "takes --real the readings (readings.csv, validation.csv or a check run's "
-                   "folder) and --sim the calibration (calibration.json or its folder)")
+    real_cal = real.is_file() and real.suffix.lower() == ".json"
+    sim_readings = sim.is_file() and sim.suffix.lower() == ".csv"
+    order = ("the display layer takes --real the readings (readings.csv, validation.csv or a "
+             "check run's folder) and --sim the calibration (calibration.json or its folder)")
+    if real_cal and sim_readings:
+        raise GapError(f"--real {real} --sim {sim}: --real and --sim swapped? {order}")
+    if sim_readings:
+        raise GapError(f"--sim {sim} is a readings file, not a calibration: {order}")
+    if real_cal:
+        raise GapError(f"--real {real} is a calibration, not readings: {order}")
 
 
 def _load_calibration(sim: Path):

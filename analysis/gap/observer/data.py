@@ -45,6 +45,11 @@ def read_session_csvs(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise GapError(f"{path} does not exist; pass a folder holding <P>_s<N>.csv session files")
+    if path.is_file() and path.suffix.lower() != ".csv":
+        hint = (" (an observers TOML is a simulation: --real and --sim swapped? --real takes the "
+                "real session CSVs, --sim the TOML)" if path.suffix.lower() == ".toml" else "")
+        raise GapError(f"{path} is not a session CSV{hint}; pass a folder holding <P>_s<N>.csv "
+                       "session files")
     files = [path] if path.is_file() else sorted(path.rglob("*.csv"))
     if not files:
         raise GapError(f"no session CSVs found at {path}; pass a folder holding <P>_s<N>.csv files")
