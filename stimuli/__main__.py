@@ -155,6 +155,11 @@ def _cmd_export_print(args) -> int:
                          f"choose one of {list(design.depth.labels)}")
     seed = args.seed if args.seed is not None else stimulus_seed(args.depth_level, args.array_index)
     geometry = draw_array(design, float(design.depth.cm(args.depth_level)), seed)
+    side = int(2 * (geometry.half_extent_cm + 0.5) / args.spacing_cm) + 1  # print_mesh's grid
+    if side > _MAX_PRINT_GRID:
+        raise ValueError(f"--spacing-cm {args.spacing_cm:g} makes a {side} x {side} height field, "
+                         f"too large to mesh; use {_fine_spacing(geometry):.3g} cm or more (0.02 "
+                         "cm, the default, is about a printer's resolution)")
     mesh = print_mesh(geometry, spacing_cm=args.spacing_cm, base_cm=args.base_cm)
     ok, why = mesh_edges_ok(mesh)
     if not ok:
@@ -169,6 +174,16 @@ def _cmd_export_print(args) -> int:
                       "size": f"{size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} {args.units}",
                       "watertight": why}, indent=1))
     return 0
+
+
+#: The largest height-field side export-print meshes (4000^2 = 16 M vertices, about 1.5 GB of
+#: STL): finer than any printer resolves for the design's arrays.
+_MAX_PRINT_GRID = 4000
+
+
+def _fine_spacing(geometry) -> float:
+    """The finest --spacing-cm whose grid stays within :data:`_MAX_PRINT_GRID`."""
+    return 2 * (geometry.half_extent_cm + 0.5) / (_MAX_PRINT_GRID - 1)
 
 
 def _cmd_check_env(args) -> int:
