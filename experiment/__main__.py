@@ -14,9 +14,9 @@ any directory. Messages print absolute paths.
 from __future__ import annotations
 
 import argparse
-import signal
 import errno
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -287,6 +287,9 @@ def _cmd_simulate(args) -> int:
     design = load_design(args.design)
     rng = np.random.default_rng(args.seed)
     _check_participants(args.participants)
+    if not args.data.strip():
+        raise UsageError("--data is empty: give it a folder (an empty name would write into the "
+                         "current folder)")
     problem = _observer_params_problem(args.observer_params, args.observer)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
@@ -372,6 +375,10 @@ def _cmd_fit_observer(args) -> int:
 
     design = load_design(args.design)
     out = Path(args.out)
+    if not args.out.strip() or out.is_dir():
+        print(f"error: --out {args.out!r} is {'a folder' if args.out.strip() else 'empty'}: give "
+              "it a file name, e.g. --out observers.toml", file=sys.stderr)
+        return 2
     if out.exists():
         print(f"error: {out} exists and is never overwritten; choose another --out or move it "
               "aside", file=sys.stderr)
