@@ -17,7 +17,7 @@ from pathlib import Path
 import pandas as pd
 
 from experiment.checks import PreflightError
-from experiment.datafile import DataFileError, read_run_events, runs_path
+from experiment.datafile import DataFileError, read_run_events, runs_path, session_path
 
 __all__ = ["check_earlier_sessions", "stimuli_digest"]
 
@@ -65,6 +65,11 @@ def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: 
     for earlier in range(1, session):
         first = _first_start(data_dir, participant, earlier, run_logs(earlier))
         ids = list(plan.loc[plan["session"] == earlier, "stimulus_id"])
+        if first is None and session_path(data_dir, participant, earlier).exists():
+            notes.append(f"session {earlier} of {participant} has no record of the images it "
+                         f"showed ({runs_path(data_dir, participant, earlier).name} and its run "
+                         "logs are missing): this run cannot check that --stimuli holds the same "
+                         f"render; pass the manifest session {earlier} used")
         if first is None or not all(i in sha for i in ids):
             continue
         if stimuli_digest(ids, [sha[i] for i in ids]) == first["stimuli_sha256"]:
