@@ -14,6 +14,7 @@ any directory. Messages print absolute paths.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import os
 import signal
@@ -495,14 +496,22 @@ def main(argv: list[str] | None = None) -> int:
     f.set_defaults(func=_cmd_fit_observer)
 
     args = parser.parse_args(argv)
+    from experiment.signals import SessionSignal, ending_signals
+
     try:
-        return args.func(args)
+        # From here, not only once the session runs: a SIGTERM while PsychoPy loads is said too.
+        with ending_signals() if args.command == "run" else contextlib.nullcontext():
+            return args.func(args)
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except DesignError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except SessionSignal as exc:
+        print(f"ended by {exc.name} before the session started: no trial was shown or recorded; "
+              "run the same command to start it", file=sys.stderr)
+        return 128 + exc.signum
 
 
 if __name__ == "__main__":
