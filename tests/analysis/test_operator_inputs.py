@@ -147,3 +147,22 @@ def test_a_simulation_covering_half_the_stimuli_is_named_a_mismatch(tmp_path, de
     notes = check_sim(read_session_csvs(DEMO / "humanlike"), load_sim(half, design))
     assert any(n.startswith("mismatch: the simulation covers 36 of the 81 gloss x depth levels")
                for n in notes), notes
+
+
+def test_second_round_refusals(small_csv, tmp_path, capsys, monkeypatch):
+    """An empty --out wrote the report into the current folder; a random term given twice was
+    fitted; R's '.' was 'not a column'; an observers TOML as --real got a list of columns."""
+    monkeypatch.chdir(tmp_path)
+    rc, err = _run(capsys, "report", DEMO / "humanlike", "--out", "", "--bootstrap", "0")
+    assert rc == 1 and "--out is empty" in err and not (tmp_path / "index.html").exists()
+    rc, err = _run(capsys, "fit", small_csv, "--formula", "y ~ x + (1 | g) + (1 | g)",
+                   "--out", tmp_path / "f")
+    assert rc == 1 and "random term (1 | g) is given twice" in err
+    rc, err = _run(capsys, "fit", small_csv, "--formula", "y ~ . + (1 | g)", "--out",
+                   tmp_path / "f")
+    assert rc == 1 and "'.' (every other column) is unsupported" in err
+    toml = tmp_path / "observers.toml"
+    toml.write_text("[humanlike]\n")
+    rc, err = _run(capsys, "gap", "diagnose", "--layer", "observer", "--real", toml, "--sim",
+                   DEMO / "ideal", "--out", tmp_path / "g")
+    assert rc == 2 and "is not a session CSV (an observers TOML is a simulation" in err

@@ -43,3 +43,21 @@ def test_fake_photometer_with_an_unknown_fault_is_one_line(cli):
     assert res.returncode == 2
     assert res.stderr.startswith("error: fault 'bogus:3': write KIND:WHEN with KIND one of")
     assert res.stderr.count("\n") == 1
+
+
+def test_a_scale_a_little_above_the_files_white_and_an_empty_out(tmp_path, cli, monkeypatch):
+    """0-300 on 8-bit readings fitted white as level 0.85 without a word; --out '' wrote
+    calibration.json into the current folder."""
+    lines = PTB.joinpath("readings.csv").read_text().splitlines()
+    k = lines[0].split(",").index("level")
+    rows = [line.split(",") for line in lines[1:]]
+    for row in rows:
+        row[k] = str(round(float(row[k]) * 255))
+    src = tmp_path / "readings_8bit.csv"
+    src.write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    res = cli(["fit", src, "--out", tmp_path / "cal", "--level-scale", "0-300"])
+    assert res.returncode == 1 and "white would read as level 0.85" in res.stderr
+    monkeypatch.chdir(tmp_path)
+    res = cli(["fit", src, "--out", "", "--level-scale", "0-255"])
+    assert res.returncode == 2 and "--out is empty" in res.stderr
+    assert not (tmp_path / "calibration.json").exists()

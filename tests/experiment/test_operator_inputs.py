@@ -172,3 +172,14 @@ def test_fit_observer_into_a_read_only_folder_is_one_line(tmp_path, capsys):
     err = capsys.readouterr().err
     assert rc == 1 and f"cannot write {ro} (Read-only file system)" in err
     assert "Traceback" not in err and ".tmp-" not in err
+
+
+def test_empty_data_and_a_folder_as_observers_file_are_refused(tmp_path, capsys, monkeypatch):
+    """simulate --data '' wrote sessions/ into the current folder; fit-observer --out FOLDER
+    said the folder 'is never overwritten'."""
+    monkeypatch.chdir(tmp_path)
+    rc = main(["simulate", "--observer", "ideal", "--participants", "Q01", "--data", ""])
+    assert rc == 2 and "--data is empty" in capsys.readouterr().err
+    assert not (tmp_path / "sessions").exists()
+    rc = main(["fit-observer", str(DEMO / "humanlike"), "--out", str(tmp_path)])
+    assert rc == 2 and "is a folder: give it a file name" in capsys.readouterr().err

@@ -60,3 +60,11 @@ def test_render_resumed_with_another_calibration_is_refused(tmp_path, design, ca
     assert "render into a new --out folder" in err
     assert (out / "manifest.csv").read_bytes() == before
     assert set(pd.read_csv(out / "manifest.csv")["calibration_id"]) == {"lab-a"}
+
+
+def test_export_print_spacing_too_fine_to_mesh_is_refused(tmp_path, capsys):
+    """1e-4 cm asked numpy for 40 GiB and ended in a MemoryError traceback."""
+    rc = main(["export-print", "--depth-level", "5", "--spacing-cm", "1e-4",
+               str(tmp_path / "a.stl")])
+    err = capsys.readouterr().err
+    assert rc == 1 and "too large to mesh; use 0.00" in err and "Traceback" not in err
