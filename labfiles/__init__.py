@@ -7,6 +7,8 @@ manifests, session CSVs and slider histories, run logs, reports):
 - a record is appended the moment it exists, one line, fsynced; a torn tail is detected on every
   open, kept in a side file, cut back to the last whole record and reported (:mod:`.records`);
 - a folder one run writes into is locked against a second run (:mod:`.lock`).
+- an output folder is checked before a command's work, and a failed write is said in one line
+  naming the file and the fix (:mod:`.outdir`).
 
 It sits upstream of every package (it imports none of them), like ``studydesign``.
 """
