@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+from pathlib import Path
 
+from labfiles.outdir import OutDirError, prepare_out_dir, write_error_line
 from studydesign import DesignError, load_design
 
 # Subcommands owned by subpackages: everything after the name goes to their own main(argv).
@@ -22,6 +24,15 @@ _PASSTHROUGH = {
                  "blind benchmarks of the gap diagnosis (see `gapbench --help`)"),
     "imagestats": ("analysis.imagestats.__main__", "image statistics (see `imagestats --help`)"),
 }
+
+
+def _bad_jobs(args) -> bool:
+    """Refuse ``--jobs`` below 1 in the command's words (joblib's would name no option)."""
+    if args.jobs >= 1:
+        return False
+    print(f"error: --jobs {args.jobs}: use 1 or more parallel workers (e.g. --jobs 2)",
+          file=sys.stderr)
+    return True
 
 
 def _cmd_units(args) -> int:
@@ -43,7 +54,6 @@ def _cmd_units(args) -> int:
 def _cmd_fit(args) -> int:
     import json
     from dataclasses import asdict
-    from pathlib import Path
 
     from analysis.bootstrap import parametric_bootstrap
     from analysis.formula import LmmError
@@ -59,10 +69,17 @@ def _cmd_fit(args) -> int:
             print(f"error: --{flag} {getattr(args, flag)}: use 0 (none) or a positive number of "
                   "runs", file=sys.stderr)
             return 2
+    if _bad_jobs(args):
+        return 2
     out = Path(args.out)
     if (out / "fit.json").exists():
         print(f"error: {out / 'fit.json'} exists; fits are never overwritten: pass another --out",
               file=sys.stderr)
+        return 1
+    try:
+        prepare_out_dir(out)
+    except OutDirError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     try:
         data = read_model_data(args.data, load_design(args.design))
@@ -94,13 +111,16 @@ def _cmd_fit(args) -> int:
         text += (f"Bootstrap LRT (PBmodcomp) {lrt['term']}: LRT = {lrt['lrt']:.4f}, df = "
                  f"{lrt['df']}, p (chi2) = {lrt['p_chi2']:.3g}, p (bootstrap, {lrt['n_ok']} runs)"
                  f" = {lrt['p_boot']:.3g}\n")
-    out.mkdir(parents=True, exist_ok=True)
     try:
+        out.mkdir(parents=True, exist_ok=True)
         write_new_file(out / "fit.json", json.dumps(record, indent=1))
+        atomic_write_text(out / "summary.txt", text)
     except FileExistsError as exc:
         print(f"error: {exc.strerror}", file=sys.stderr)
         return 1
-    atomic_write_text(out / "summary.txt", text)
+    except OSError as exc:  # the disk filled or went read-only during the fit
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
+        return 1
     print(text, end="")
     print(f"fit: {out / 'fit.json'}")
     return 0
@@ -114,7 +134,11 @@ def _cmd_report(args) -> int:
         print(f"error: --bootstrap {args.bootstrap}: use 0 (none) or a positive number of runs",
               file=sys.stderr)
         return 2
+    if _bad_jobs(args):
+        return 2
     try:
+        if not (Path(args.out) / "index.html").exists():  # an existing report: refused below
+            prepare_out_dir(args.out)
         design = load_design(args.design)
         # What the report includes, said here too: simulated participants, torn rows left
         # out, more than one calibration (the report lists them under "Data warnings").
@@ -125,6 +149,9 @@ def _cmd_report(args) -> int:
                              progress=not args.quiet)
     except (ReportExistsError, SessionDataError, DesignError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # a write that failed after the checks (a full disk)
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
         return 1
     print(f"report: {index}")
     return 0

@@ -141,8 +141,16 @@ def split_formula(formula: str) -> tuple[str, str, tuple[RandomTerm, ...]]:
         m = re.fullmatch(r"\((.*)\)", p, flags=re.DOTALL)
         if m and "|" in m.group(1) and len(_split_top(m.group(1), "|")) > 1:
             random.extend(_expand_bar(m.group(1)))
+        elif "|" in p:  # a random term with text before or after its parentheses
+            raise FormulaError(f"term {p!r} of {formula!r} is not one random-effect term: write "
+                               "it alone in parentheses, (expr | group), and join terms with "
+                               "'+'")
         else:
             fixed.append(p)
+    seen = [t for k, t in enumerate(random) if t in random[:k]]
+    if seen:
+        raise FormulaError(f"random term ({seen[0].expr} | {seen[0].group}) is given twice in "
+                           f"{formula!r}: its two variances could not be told apart; give it once")
     if not random:
         raise FormulaError(
             f"formula {formula!r} has no random-effect term such as (1 | participant); "
@@ -253,11 +261,38 @@ def _variables(text: str, data: pd.DataFrame) -> list[str]:
     return [c for c in data.columns if c in names]
 
 
+#: Functions formulaic (and R) accept inside a formula's fixed or random part.
+_FUNCTIONS = ("C", "I", "Q", "log", "exp", "sqrt", "center", "scale", "poly", "bs", "np.log",
+              "np.exp", "np.sqrt", "contr.sum", "contr.treatment", "contr.helmert", "contr.poly")
+#: R formula functions this lmer does not fit, and what to do instead.
+_UNSUPPORTED = {
+    "offset": "subtract the offset from the response in the data (a new column) and name that "
+              "column left of '~'",
+    "s": "smooth terms belong to GAMs (mgcv), not lmer: use poly(x, 2) or bs(x, df=4)",
+    "te": "smooth terms belong to GAMs (mgcv), not lmer: use poly(x, 2) or bs(x, df=4)",
+    "cbind": "a two-column response is for binomial glmer; this fits a Gaussian lmer to one "
+             "numeric column",
+    "factor": "write C(x) (the same; C(x, contr.sum) for sum contrasts)",
+}
+
+
+def _unsupported_call(text: str, where: str) -> None:
+    """Refuse a function call the fits do not support, naming what is supported."""
+    for name in re.findall(r"(?<![\w.])([A-Za-z_.][A-Za-z0-9_.]*)\s*\(", text):
+        if name in _FUNCTIONS:
+            continue
+        why = _UNSUPPORTED.get(name, "not a function of these formulas")
+        raise FormulaError(f"{where}: {name}() is unsupported: {why}. Supported: column names, "
+                           "a * b, a:b, a + b, -1 and "
+                           f"{', '.join(f + '()' for f in _FUNCTIONS if '.' not in f)}")
+
+
 def _check_columns(text: str, data: pd.DataFrame, what: str) -> None:
-    # Functions formulaic (and R) accept inside a formula.
-    known = set(map(str, data.columns)) | {
-        "C", "I", "Q", "log", "exp", "sqrt", "center", "scale", "poly", "bs", "np.log",
-        "np.exp", "np.sqrt", "contr.sum", "contr.treatment", "contr.helmert", "contr.poly"}
+    _unsupported_call(text, what)
+    if re.search(r"(?<![\w.])\.(?![\w.])", text):
+        raise FormulaError(f"{what}: '.' (every other column) is unsupported: name the "
+                           "predictors, e.g. 'y ~ a + b + (1 | g)'")
+    known = set(map(str, data.columns)) | set(_FUNCTIONS)
     text = re.sub(r"'[^']*'|\"[^\"]*\"", "", text)
     for name in re.findall(r"(?<![\w.])([A-Za-z_.][A-Za-z0-9_.]*)", text):
         if name not in known and not name.isdigit():
@@ -314,6 +349,11 @@ def build_model(formula: str, data: pd.DataFrame) -> ModelSpec:
         two levels, or as many random effects per level as observations.
     """
     response, fixed_text, random = split_formula(formula)
+    if response not in data.columns and "(" in response:
+        _unsupported_call(response, f"the response {response!r}")
+        raise FormulaError(f"the response {response!r} is a transformed column, which is "
+                           "unsupported: add the transformed values to the data as a column "
+                           "(e.g. log_y) and name that column left of '~'")
     if response not in data.columns:
         raise FormulaError(f"response {response!r} is not a column of the data; the columns are "
                            f"{sorted(map(str, data.columns))}")
@@ -332,7 +372,12 @@ def build_model(formula: str, data: pd.DataFrame) -> ModelSpec:
         raise FormulaError(f"no complete rows for {used}; every row has a missing value")
     y = pd.to_numeric(frame[response], errors="coerce").to_numpy(float)
     if not np.isfinite(y).all():
-        raise FormulaError(f"response {response!r} must be numeric and finite")
+        bad = int(np.flatnonzero(~np.isfinite(y))[0])
+        row = int(np.flatnonzero(keep)[bad])
+        raise FormulaError(
+            f"response {response!r} must be numeric and finite; data row {row + 1} (line "
+            f"{row + 2} of a CSV with a header) has {frame[response].iloc[bad]!r}: fix or remove "
+            "that row")
     mm = _design(fixed_text, frame)
     spec = mm.model_spec
     contrasts = {str(k): v.levels for k, v in spec.factor_contrasts.items()}

@@ -179,8 +179,8 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
     SessionDataError
         No session files; a file with a bad name, wrong columns, non-numeric values, matches
         outside the slider range, duplicate trials or trial numbers with gaps, a stimulus that is
-        not in the design (or whose levels disagree with it), or one stimulus shown twice to a
-        participant.
+        not in the design (or whose levels disagree with it), one stimulus shown twice to a
+        participant, or a participant's trials copied under another id.
     """
     folder = _session_dir(Path(data_dir))
     files = sorted(folder.glob("*.csv"))
@@ -218,6 +218,7 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
             f"stimuli shown twice to one participant: {who.head(5).values.tolist()}; two files "
             "of one participant overlap (a session recorded twice?)"
         )
+    _refuse_copies(data)
     for participant, grp in data.groupby("participant"):
         missing = sorted(set(range(1, design.sessions.n_sessions + 1)) - set(grp["session"]))
         if missing:
@@ -230,6 +231,25 @@ def load_sessions(data_dir, design: StudyDesign) -> SessionData:
     data = data.sort_values(["participant", "session", "trial"], ignore_index=True)
     return SessionData(frame=data, warnings=tuple(notes), files=tuple(str(f) for f in files),
                        calibrations=calibrations)
+
+
+def _refuse_copies(data: pd.DataFrame) -> None:
+    """Refuse a session file copied under another participant id: trials of two participants
+    with the same answers, response time and timestamp (to the last digit) are one recording,
+    which the models would count as two independent people."""
+    key = ["timestamp_utc", "rt_s", "gloss_match", "depth_match"]
+    same = data[data.duplicated(key, keep=False)]
+    if same.empty:
+        return
+    pairs = same.groupby(key)["participant"].agg(lambda p: tuple(sorted(set(p))))
+    pairs = pairs[pairs.map(len) > 1]
+    if pairs.empty:
+        return
+    who, n = pairs.value_counts().index[0], int(pairs.value_counts().iloc[0])
+    raise SessionDataError(
+        f"participants {list(who)} share {n} trials with the same answers, response times and "
+        "timestamps: one recording copied under another id? Move the copy's file out of the "
+        "sessions folder (keep the participant who was really tested) and run again")
 
 
 def _provenance(data: pd.DataFrame) -> tuple[tuple, list[str]]:

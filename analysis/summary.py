@@ -80,7 +80,7 @@ def read_model_data(path, design) -> pd.DataFrame:
     Raises
     ------
     LmmError
-        If ``path`` is neither a folder nor a CSV file.
+        If ``path`` is neither a folder nor a CSV file, or a CSV separated by ';' or tabs.
     """
     from pathlib import Path
 

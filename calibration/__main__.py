@@ -498,7 +498,17 @@ def main(argv: list[str] | None = None) -> int:
     import warnings
 
     warnings.showwarning = _show_warning  # one line per warning, no source line
-    return args.func(args)
+    from calibration.errors import CalibrationError
+
+    if getattr(args, "out", None) is not None and not str(args.out).strip():
+        print("error: --out is empty: give it a folder name (an empty name would write into "
+              "the current folder)", file=sys.stderr)
+        return 2
+    try:
+        return args.func(args)
+    except CalibrationError as exc:  # a handler's own refusal (e.g. a bad --fault): one line
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

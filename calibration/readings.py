@@ -408,6 +408,7 @@ def _scale_levels(path: Path, records: list[dict], level_scale: float
         raise CalibrationError(
             f"{path}: levels run up to {raw.max():g}, but levels are read as 0-1; pass "
             f"--level-scale {guess} (the drive value of full white)")
+    _refuse_scale_too_large(path, raw, level_scale)
     kept, notes = [], []
     for rec in records:
         level = rec["level"] / level_scale
@@ -418,6 +419,23 @@ def _scale_levels(path: Path, records: list[dict], level_scale: float
         rec["level"] = level
         kept.append(rec)
     return kept, notes
+
+
+def _refuse_scale_too_large(path: Path, raw: np.ndarray, level_scale: float) -> None:
+    """A ``--level-scale`` whose full white lies above every level in the file: the file's
+    white would read as a grey (and a fit would then ask for more levels, or brighter ones,
+    when the scale is the cause). A calibration measures full white, so the file's highest
+    level is its white; below 90 % of the scale it is refused."""
+    if not raw.size or level_scale <= 1.0 or raw.max() >= 0.9 * level_scale:
+        return
+    top = raw.max()
+    guess = ("drop --level-scale (0-1 is the default)" if top <= 1 else
+             f"pass --level-scale {'0-255' if top <= 255 else f'0-{top:g}'} if that is full "
+             "white, or measure full white")
+    raise CalibrationError(
+        f"{path}: levels run up to {top:g}, but --level-scale 0-{level_scale:g} says full white "
+        f"is {level_scale:g}: the file's white would read as level {top / level_scale:.3g}; "
+        f"{guess}")
 
 
 def _readings_frame(path: Path, records: list[dict], *, has_repeat: bool

@@ -14,8 +14,10 @@ any directory. Messages print absolute paths.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import os
+import signal
 import sys
 from pathlib import Path
 
@@ -158,6 +160,7 @@ def _cmd_run(args) -> int:
         max_calibration_age_days=args.max_calibration_age_days, simulate=args.simulate,
         observer_params=args.observer_params, seed=args.seed, fast=args.fast,
         fullscr=args.fullscr, accept_calibration_mismatch=args.accept_calibration_mismatch,
+        accept_unverified_resume=args.accept_unverified_resume,
         screenshot=args.screenshot, quit_at_trial=args.simulate_quit_at,
         early_space_probability=args.simulate_early_space,
     )
@@ -175,6 +178,7 @@ def main_run(req) -> int:
     from experiment.checks import PreflightError
     from experiment.display import DisplayError
     from experiment.session import run_session
+    from experiment.signals import SessionSignal
     from labfiles import LabFileError
 
     again = "run the same command to continue"
@@ -183,10 +187,11 @@ def main_run(req) -> int:
     except (PreflightError, DisplayError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except KeyboardInterrupt:
-        print(f"interrupted (Ctrl-C); every answered trial is kept in {req.data_dir}; "
-              f"{again}", file=sys.stderr)
-        return 130
+    except KeyboardInterrupt as exc:
+        how, rc = (f"ended by {exc.name}", 128 + exc.signum) if isinstance(exc, SessionSignal) \
+            else ("interrupted (Ctrl-C)", 130)
+        print(f"{how}; every answered trial is kept in {req.data_dir}; {again}", file=sys.stderr)
+        return rc
     except LabFileError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -210,6 +215,10 @@ def main_run(req) -> int:
     if res.status == "quit":
         print(f"session {res.session} of {res.participant} paused: {kept}", file=sys.stderr)
         return 3
+    if res.status == "interrupted" and res.signal:
+        print(f"ended by {res.signal} (a shutdown, a closed terminal or kill): {kept}; the run's "
+              f"log: {res.log_file}", file=sys.stderr)
+        return 128 + int(getattr(signal, res.signal))
     if res.status == "interrupted":
         print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
         return 130
@@ -323,6 +332,10 @@ def _cmd_simulate(args) -> int:
 
     design = load_design(args.design)
     rng = np.random.default_rng(args.seed)
+    _check_participants(args.participants)
+    if not args.data.strip():
+        raise UsageError("--data is empty: give it a folder (an empty name would write into the "
+                         "current folder)")
     problem = _observer_params_problem(args.observer_params, args.observer)
     if problem is not None:
         print(f"error: {problem}", file=sys.stderr)
@@ -343,6 +356,35 @@ def _cmd_simulate(args) -> int:
     print(f"{len(paths)} session files ({args.observer} observers, seed {args.seed}) in "
           f"{paths[0].parent}")
     return 0
+
+
+def _check_participants(ids: list[str]) -> None:
+    """Refuse invalid or repeated ``--participants`` (ids differing only in case name one
+    person, and one file on a case-insensitive disk), in the option's name."""
+    from experiment.participants import check_participant_id
+
+    seen: dict[str, str] = {}
+    for pid in ids:
+        try:
+            check_participant_id(pid)
+        except ValueError as exc:
+            raise UsageError(f"--participants: {exc}") from None
+        if pid.casefold() in seen:
+            raise UsageError(f"--participants names {seen[pid.casefold()]!r} and {pid!r}: give "
+                             "each participant once (ids that differ only in case are one "
+                             "person)")
+        seen[pid.casefold()] = pid
+
+
+def _seed(text: str) -> int:
+    """A seed for numpy's generator: a whole number >= 0 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value}: a seed is a whole number >= 0 (e.g. 1)")
+    return value
 
 
 # ---- fit-observer: the simulated observers fitted to a lab's own sessions -------------------
@@ -418,6 +460,7 @@ def _cmd_fit_observer(args) -> int:
         read_sessions_for_fit,
     )
     from experiment.observers import write_observer_params
+    from labfiles.outdir import OutDirError, prepare_out_dir, write_error_line
 
     if args.study:
         return _cmd_fit_study(args)
@@ -427,9 +470,18 @@ def _cmd_fit_observer(args) -> int:
         return 2
     design = load_design(args.design)
     out = Path(args.out)
+    if not args.out.strip() or out.is_dir():
+        print(f"error: --out {args.out!r} is {'a folder' if args.out.strip() else 'empty'}: give "
+              "it a file name, e.g. --out observers.toml", file=sys.stderr)
+        return 2
     if out.exists():
         print(f"error: {out} exists and is never overwritten; choose another --out or move it "
               "aside", file=sys.stderr)
+        return 1
+    try:
+        prepare_out_dir(out.parent)  # before the fit: a read-only folder costs seconds
+    except OutDirError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 1
     try:
         frame, simulated, files = read_sessions_for_fit(args.sessions)
@@ -447,6 +499,9 @@ def _cmd_fit_observer(args) -> int:
         write_observer_params(out, params)
     except FileExistsError:
         print(f"error: {out} appeared while fitting; it is never overwritten", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the disk filled or went read-only during the fit
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
         return 1
     fit, se = params["fit"], params["fit"]["standard_errors"]["humanlike"]
     if len(fit["simulated_sessions"]) == len(fit["sessions"]):
@@ -489,6 +544,10 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--accept-calibration-mismatch", action="store_true",
                    help="run although the stimuli were corrected for another calibration "
                         "(recorded in the log)")
+    r.add_argument("--accept-unverified-resume", action="store_true",
+                   help="resume a session whose record of its stimuli and calibration "
+                        "(_runs.jsonl, run logs) is lost, once you have checked they are the "
+                        "ones it started with (recorded in the log)")
     r.add_argument("--fullscr", action="store_true",
                    help="full screen (the lab CRT; the screen must be at the design's resolution)")
     r.add_argument("--fast", action="store_true",
@@ -496,7 +555,7 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--simulate", choices=["ideal", "humanlike"],
                    help="a simulated observer answers through X11 input events (XTEST)")
     r.add_argument("--observer-params", help="observers.toml to use with --simulate")
-    r.add_argument("--seed", type=int, help="seed of the simulated observer (default: from "
+    r.add_argument("--seed", type=_seed, help="seed of the simulated observer (default: from "
                                             "the participant id)")
     r.add_argument("--screenshot", help="save the first answered trial screen (back buffer) as "
                                         "this PNG")
@@ -517,7 +576,7 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("--data", required=True,
                    help="data folder (writes DATA/sessions/); not the lab's data: the analysis "
                         "report flags simulated participants")
-    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--seed", type=_seed, default=1)
     s.add_argument("--observer-params", help="observers.toml (default: the shipped one)")
     s.set_defaults(func=_cmd_simulate)
 
@@ -535,14 +594,22 @@ def main(argv: list[str] | None = None) -> int:
     f.set_defaults(func=_cmd_fit_observer)
 
     args = parser.parse_args(argv)
+    from experiment.signals import SessionSignal, ending_signals
+
     try:
-        return args.func(args)
+        # From here, not only once the session runs: a SIGTERM while PsychoPy loads is said too.
+        with ending_signals() if args.command == "run" else contextlib.nullcontext():
+            return args.func(args)
     except UsageError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     except DesignError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    except SessionSignal as exc:
+        print(f"ended by {exc.name} before the session started: no trial was shown or recorded; "
+              "run the same command to start it", file=sys.stderr)
+        return 128 + exc.signum
 
 
 if __name__ == "__main__":

@@ -213,6 +213,7 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame, *,
         i = int(np.flatnonzero(~(np.isfinite(width) & (width > 0)))[0])
         raise PreflightError(f"stimulus manifest {path}: {ids[i]} has image_width_cm = "
                              f"{rows['image_width_cm'].iloc[i]!r}; it must be a positive size in cm")
+    _check_one_size(path, frame.set_index("stimulus_id").loc[checked].reset_index())
     out = pd.DataFrame({
         "stimulus_id": ids,
         "png": [str((path.parent / str(p)).resolve()) for p in rows["png_path"]],
@@ -223,6 +224,28 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame, *,
         "png_sha256": rows["png_sha256"].to_numpy(),
     })
     return SessionStimuli(manifest_path=path, frame=out)
+
+
+def _check_one_size(path: Path, rows: pd.DataFrame) -> None:
+    """Every stimulus of a participant is shown at one physical size: a row whose
+    ``image_width_cm`` differs from the others' median by more than 1 % (a row edited, or
+    rendered for another screen) is refused before any session, naming it."""
+    width = pd.to_numeric(rows["image_width_cm"], errors="coerce").to_numpy(float)
+    ok = np.isfinite(width) & (width > 0)
+    if not ok.all():
+        i = int(np.flatnonzero(~ok)[0])
+        raise PreflightError(f"stimulus manifest {path}: {rows['stimulus_id'].iloc[i]} has "
+                             f"image_width_cm = {rows['image_width_cm'].iloc[i]!r}; it must be a "
+                             "positive size in cm: re-render it")
+    median = float(np.median(width))
+    off = np.abs(width / median - 1) > 0.01
+    if off.any():
+        i = int(np.flatnonzero(off)[0])
+        raise PreflightError(
+            f"stimulus manifest {path}: {rows['stimulus_id'].iloc[i]} is {width[i]:g} cm wide, "
+            f"the other stimuli {median:g} cm ({int(off.sum())} of {len(width)} differ): every "
+            "stimulus is shown at one size; re-render the set (python -m stimuli render) or "
+            "restore the manifest")
 
 
 def _decode_problems(manifest_path: Path, rows: pd.DataFrame) -> list[str]:

@@ -66,8 +66,11 @@ from experiment.datafile import (
 from experiment.history import check_no_lost_trials, future_record_notes
 from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
+from experiment.provenance import check_earlier_sessions
+from experiment.signals import SessionSignal, ending_signals
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
+from stimuli import load_manifest
 from studydesign import StudyDesign
 
 __all__ = ["SessionOutcome", "SessionRequest", "prepare_session", "run_session"]
@@ -99,6 +102,7 @@ class SessionRequest:
     fast: bool = False
     fullscr: bool = False
     accept_calibration_mismatch: bool = False
+    accept_unverified_resume: bool = False
     screenshot: str | None = None
     quit_at_trial: int | None = None
     early_space_probability: float = 0.0
@@ -124,8 +128,8 @@ class Prepared:
 
 @dataclass(frozen=True)
 class SessionOutcome:
-    """How a run ended: ``status`` is ``complete``, ``quit``, ``interrupted`` (Ctrl-C) or
-    ``already complete``."""
+    """How a run ended: ``status`` is ``complete``, ``quit``, ``interrupted`` (Ctrl-C, or the
+    SIGTERM / SIGHUP named in ``signal``) or ``already complete``."""
 
     status: str
     participant: str
@@ -134,6 +138,8 @@ class SessionOutcome:
     trials_total: int
     data_file: str
     log_file: str | None = None
+    #: The signal that ended an ``interrupted`` run other than Ctrl-C (``"SIGTERM"``, ``"SIGHUP"``).
+    signal: str | None = None
 
 
 def _check_done(done: pd.DataFrame, plan: pd.DataFrame, path: Path) -> None:
@@ -277,6 +283,21 @@ def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
     return twins + future_record_notes(done, events, path, events_path)
 
 
+def _no_record(req: SessionRequest, path: Path, session: int, notes: list) -> None:
+    """A resumed session whose start record is gone (``_runs.jsonl`` deleted or its start line
+    torn, the run logs missing): refused, since every image could have been swapped, unless
+    the operator vouches for the inputs with --accept-unverified-resume (logged)."""
+    msg = (f"{path}: no record of the stimuli and calibration file this session started with "
+           f"({runs_path(req.data_dir, req.participant, session)} and the run logs are missing "
+           "or torn), so this resume cannot check that the images are the ones its first trials "
+           "showed")
+    if not req.accept_unverified_resume:
+        raise PreflightError(msg + "; restore the missing file from a backup, or, once you have "
+                             "checked that --stimuli and --calibration are the ones the session "
+                             "started with, add --accept-unverified-resume (recorded in the log)")
+    notes.append(msg + " (--accept-unverified-resume given)")
+
+
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
@@ -319,11 +340,13 @@ def prepare_session(req: SessionRequest) -> Prepared:
                                for _, log in _run_logs(req.data_dir, path.stem)
                                if "inputs" in log]
             if not any("stimuli_sha256" in e for e in events):
-                notes.append(f"{path}: no record of the stimuli and calibration file this "
-                             f"session started with ({runs_path(req.data_dir, req.participant, session)} "
-                             "and the run logs are missing); this resume cannot check that they "
-                             "are the same")
+                _no_record(req, path, session, notes)
         _check_same_inputs(inputs, done, events, path)
+        check_earlier_sessions(
+            load_manifest(stim.manifest_path), plan, session, inputs, data_dir=req.data_dir,
+            participant=req.participant, notes=notes,
+            run_logs=lambda k: [log for _, log in _run_logs(
+                req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
         if other:
             msg = (f"the stimuli were gamma-corrected for calibration {other}, but this session "
@@ -438,8 +461,15 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
         The window could not show the session as required (it is closed again).
     OSError
         A write failed (``ENOSPC``: the disk is full; everything recorded before is kept).
+
+    SIGTERM and SIGHUP end the run as Ctrl-C does (:mod:`experiment.signals`).
     """
-    prep = prepare_session(req)
+    with ending_signals():
+        return _run_prepared(prepare_session(req), out)
+
+
+def _run_prepared(prep: Prepared, out) -> SessionOutcome:
+    req = prep.request
     data = session_path(req.data_dir, req.participant, prep.session)
     total = len(prep.plan)
     for w in prep.warnings:
@@ -568,6 +598,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
     hand = None
     status = "error"
     log_path = None
+    ended_by = None
     with SessionDisplay(req.design, cal, stim_frame.reset_index(drop=True), fullscr=req.fullscr,
                         fast=req.fast, monitor_profile=prep.monitor_profile) as disp, \
             SessionWriter(req.data_dir, req.participant, prep.session,
@@ -610,21 +641,25 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
                 frames.append(win.frameIntervals, int(row["trial"]))
             else:
                 status = "complete"
-        except KeyboardInterrupt:
+        except KeyboardInterrupt as exc:
             status = "interrupted"
+            ended_by = exc.name if isinstance(exc, SessionSignal) else "SIGINT"
+            log["ended_by"] = ended_by
         finally:
             if hand is not None:
                 hand.stop()
             log_path = _finish_log(log, status, win, trials_log, hand, logs, stem, run, out)
             try:
                 append_run_event(events, {"event": status, "run": run, "utc": _now(),
-                                          "trials_this_run": len(trials_log)})
+                                          "trials_this_run": len(trials_log),
+                                          **({"signal": ended_by} if ended_by else {})})
             except OSError as exc:
                 # Never hides the error that ended the run (a full disk fails here too).
                 out(f"warning: the run's end was not recorded in {events} ({exc})")
     done = len(prep.done) + len(trials_log)
     return SessionOutcome(status, req.participant, prep.session, done, len(prep.plan), str(data),
-                          None if log_path is None else str(log_path))
+                          None if log_path is None else str(log_path),
+                          ended_by if ended_by != "SIGINT" else None)
 
 
 def _finish_log(log: dict, status: str, win, trials_log: list, hand, logs: Path, stem: str,

@@ -9,7 +9,9 @@ manifests, session CSVs and slider histories, run logs, reports):
 - a folder one run writes into is locked against a second run (:mod:`.lock`);
 - a file another tool wrote (CRLF line ends, a BOM, UTF-16, quoted fields) is read as the
   project's own, and one in another form (``;``-separated, a Windows code page) is refused
-  naming the fix (:mod:`.text`).
+  naming the fix (:mod:`.text`);
+- an output folder is checked before a command's work, and a failed write is said in one line
+  naming the file and the fix (:mod:`.outdir`).
 
 It sits upstream of every package (it imports none of them), like ``studydesign``.
 """

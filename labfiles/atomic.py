@@ -117,11 +117,10 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         _fsync(tmp)
         os.replace(tmp, path)
         fsync_dir(path.parent)  # the rename itself survives a power cut
+    except OSError as exc:
+        raise _about_target(exc, tmp, path) from None
     finally:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
+        _remove(tmp)
 
 
 @contextmanager
@@ -169,9 +168,25 @@ def write_new_file(path: str | os.PathLike, data: bytes | str) -> Path:
             raise FileExistsError(errno.EEXIST, f"{path} exists already and is never "
                                   "overwritten; choose another name", str(path)) from None
         fsync_dir(path.parent)
+    except OSError as exc:
+        raise _about_target(exc, tmp, path) from None
     finally:
-        try:
-            tmp.unlink()
-        except FileNotFoundError:
-            pass
+        _remove(tmp)
     return path
+
+
+def _remove(tmp: Path) -> None:
+    """Remove a temporary file if it is there; a failure here must not hide the write's own
+    error (on a read-only disk the unlink fails too)."""
+    try:
+        tmp.unlink()
+    except OSError:
+        pass
+
+
+def _about_target(exc: OSError, tmp: Path, path: Path) -> OSError:
+    """The error of a write to the temporary file (or a write that names no file: a full disk),
+    told about the file the user asked for."""
+    if exc.filename not in (str(tmp), tmp, None):
+        return exc
+    return type(exc)(exc.errno, exc.strerror, str(path))

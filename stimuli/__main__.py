@@ -7,13 +7,16 @@ Commands: ``list``, ``render``, ``verify``, ``contact-sheet``, ``export-print``,
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import json
 import math
 import os
+import signal
 import sys
 from pathlib import Path
 
+from labfiles.outdir import write_error_line
 from studydesign import load_design
 
 
@@ -59,6 +62,19 @@ def _load_gloss(path):
     if path:
         return load_gloss_table(path), str(path)
     return default_gloss_table(), str(default_gloss_table_path())
+
+
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c():
+    """Start Dask's nannies and workers with SIGINT ignored (inherited, and kept by Python and
+    by the processes they start), so that Ctrl-C reaches only this process, which closes the
+    cluster and its workers: no worker prints a KeyboardInterrupt traceback. A Ctrl-C during
+    these seconds of start-up is ignored (press it again)."""
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _cmd_render(args) -> int:
@@ -128,8 +144,11 @@ def _cmd_render(args) -> int:
         def local():
             from dask.distributed import LocalCluster
 
-            return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                dashboard_address=":0")
+            print(f"starting {workers} Dask worker process(es) (Ctrl-C is taken once they "
+                  "run)", file=sys.stderr, flush=True)
+            with _workers_ignore_ctrl_c():
+                return LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                    dashboard_address=":0")
 
         with open_client(scheduler=args.scheduler, spec=spec, local=local) as (client, advice):
             summary = render_set(**run, client=client,
@@ -176,6 +195,11 @@ def _cmd_export_print(args) -> int:
                          "file name, or add --force to replace it")
     seed = args.seed if args.seed is not None else stimulus_seed(args.depth_level, args.array_index)
     geometry = draw_array(design, float(design.depth.cm(args.depth_level)), seed)
+    side = int(2 * (geometry.half_extent_cm + 0.5) / args.spacing_cm) + 1  # print_mesh's grid
+    if side > _MAX_PRINT_GRID:
+        raise ValueError(f"--spacing-cm {args.spacing_cm:g} makes a {side} x {side} height field, "
+                         f"too large to mesh; use {_fine_spacing(geometry):.3g} cm or more (0.02 "
+                         "cm, the default, is about a printer's resolution)")
     mesh = print_mesh(geometry, spacing_cm=args.spacing_cm, base_cm=args.base_cm)
     ok, why = mesh_edges_ok(mesh)
     if not ok:
@@ -190,6 +214,16 @@ def _cmd_export_print(args) -> int:
                       "size": f"{size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} {args.units}",
                       "watertight": why}, indent=1))
     return 0
+
+
+#: The largest height-field side export-print meshes (4000^2 = 16 M vertices, about 1.5 GB of
+#: STL): finer than any printer resolves for the design's arrays.
+_MAX_PRINT_GRID = 4000
+
+
+def _fine_spacing(geometry) -> float:
+    """The finest --spacing-cm whose grid stays within :data:`_MAX_PRINT_GRID`."""
+    return 2 * (geometry.half_extent_cm + 0.5) / (_MAX_PRINT_GRID - 1)
 
 
 def _cmd_check_env(args) -> int:
@@ -235,6 +269,41 @@ def _add_selection(p) -> None:
     p.add_argument("--limit", type=int, help="keep only the first N selected rows")
 
 
+def _render_variant(text: str) -> str:
+    """A Mitsuba variant the stimulus renderer can use (argparse type)."""
+    from studydesign.design import RENDER_VARIANTS
+
+    if text not in RENDER_VARIANTS:
+        hint = (" (scalar variants trace one ray at a time and cannot build the stimulus "
+                "meshes)" if text.startswith("scalar") else "")
+        raise argparse.ArgumentTypeError(f"{text!r} cannot render the stimuli{hint}; use one of "
+                                         f"{', '.join(RENDER_VARIANTS)}")
+    return text
+
+
+def _positive_cm(text: str) -> float:
+    """A finite length > 0 in cm (argparse type)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of cm") from None
+    if not math.isfinite(value) or value <= 0:
+        raise argparse.ArgumentTypeError(f"{text} cm: give a length above 0 (e.g. 0.02)")
+    return value
+
+
+def _array_index(text: str) -> int:
+    """An array index >= 0 (argparse type)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"{value}: arrays are numbered from 0 (default 0, the "
+                                         "rendered one)")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m stimuli", description="Render stimulus sets.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
@@ -265,7 +334,8 @@ def build_parser() -> argparse.ArgumentParser:
     from stimuli.dask_cluster import add_cluster_arguments
 
     add_cluster_arguments(p, g)
-    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant; "
+    p.add_argument("--variant", type=_render_variant,
+                   help="Mitsuba variant (default: the design's render.variant; "
                    "'auto' = llvm_ad_mono, or cuda_ad_mono on a GPU: exact for the grey stimuli)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
@@ -283,9 +353,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("export-print", help="write a watertight STL/PLY of an array for 3-D printing")
     p.add_argument("--depth-level", type=int, required=True, help="depth level label (1-11)")
-    p.add_argument("--array-index", type=int, default=0, help="which array (default 0, as rendered)")
+    p.add_argument("--array-index", type=_array_index, default=0,
+                   help="which array (default 0, as rendered)")
     p.add_argument("--seed", type=int, help="array seed (default: that of the rendered stimuli)")
-    p.add_argument("--spacing-cm", type=float, default=0.02, help="height-field grid, cm")
+    p.add_argument("--spacing-cm", type=_positive_cm, default=0.02,
+                   help="height-field grid, cm")
     p.add_argument("--base-cm", type=float, default=0.3, help="base slab thickness, cm")
     p.add_argument("--units", choices=["mm", "cm"], default="mm",
                    help="length unit in the file (default mm: slicers read STL as mm)")
@@ -301,7 +373,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-spp", type=int, default=1024, help="upper bound of the search (1024)")
     p.add_argument("--target-pct", type=float, help="displayed-error target in %% of the display "
                    "range (default: the design's render.displayed_error_pct)")
-    p.add_argument("--variant", help="Mitsuba variant (default: the design's render.variant)")
+    p.add_argument("--variant", type=_render_variant,
+                   help="Mitsuba variant (default: the design's render.variant)")
     p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
     p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
     p.set_defaults(func=_cmd_plan_spp)
@@ -311,6 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_check_env)
     __import__("stimuli.glossfit.cli").glossfit.cli.register(sub)  # fit-gloss, synth-photos
     return parser
+
+
+#: Write errors said as what to do (labfiles.outdir) rather than as errno's words.
+_NAMED_WRITE_ERRORS = (errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -327,6 +404,9 @@ def main(argv: list[str] | None = None) -> int:
         if isinstance(exc, OSError) and exc.errno == errno.ENOSPC:
             hint = ("; the disk is full: free space and re-run the same command (finished files "
                     "are kept, no half-written file remains)")
+        elif isinstance(exc, OSError) and exc.errno in _NAMED_WRITE_ERRORS:
+            option = "--out" if "--out" in (argv if argv is not None else sys.argv) else "OUT"
+            exc = write_error_line(exc, option=option)
         print(f"error: {exc}{hint}", file=sys.stderr)
         return 1
 

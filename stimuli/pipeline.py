@@ -345,6 +345,20 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
     return n_png, n_png_skipped, manifest_path
 
 
+def _check_one_calibration(manifest_path: Path, calibration) -> None:
+    """One manifest, one gamma correction: a resume into a folder whose PNGs were corrected
+    for another calibration is refused before anything is rendered."""
+    if not manifest_path.exists():
+        return
+    ids = sorted(set(load_manifest(manifest_path)["calibration_id"].astype(str)))
+    if ids and ids != [calibration.calibration_id]:
+        raise StimuliError(
+            f"{manifest_path} lists PNGs gamma-corrected for calibration {ids}; this run uses "
+            f"{calibration.calibration_id!r}, and one manifest holds one calibration's images: "
+            f"render into a new --out folder, or pass the calibration of {ids[0]!r} with "
+            "--calibration to finish this set")
+
+
 def render_set(
     table: pd.DataFrame,
     out_dir: str | os.PathLike,
@@ -391,6 +405,7 @@ def render_set(
         Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
     """
     out = Path(out_dir)
+    _check_one_calibration(out / "manifest.csv", calibration)
     for sub in ("exr", "png"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     stale = _remove_stale_temporaries(out)

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import json
+import os
 import sys
 
 from studydesign.design import DesignError, load_design
@@ -87,6 +89,7 @@ def main(argv: list[str] | None = None) -> int:
             from pathlib import Path
 
             from labfiles import atomic_write_text
+            from labfiles.outdir import write_error_line
 
             out = Path(args.out)
             if out.is_dir():
@@ -97,11 +100,13 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"error: {out} exists and would be replaced by the stimulus table; "
                       "choose another --out, or add --force to replace it", file=sys.stderr)
                 return 1
-            try:
+            try:  # a missing or read-only folder: one line, with the fix
+                folder = os.path.dirname(os.path.abspath(out))
+                if not os.path.isdir(folder):
+                    raise FileNotFoundError(errno.ENOENT, "no such folder", folder)
                 atomic_write_text(out, table.to_csv(index=False))
             except OSError as exc:
-                print(f"error: cannot write {out} ({exc.strerror}); choose a writable --out",
-                      file=sys.stderr)
+                print(f"error: {write_error_line(exc)}", file=sys.stderr)
                 return 1
     elif args.command == "json":
         print(json.dumps(design.to_dict(), indent=2))

@@ -634,14 +634,76 @@ def default_design_path() -> Path:
     return Path(str(resources.files("studydesign").joinpath("design.toml")))
 
 
-def _section(raw: dict, name: str, path: Path) -> dict:
+def _section(raw: dict, name: str, path: Path, cls=None) -> dict:
     if name not in raw:
         raise DesignError(f"{path}: missing section [{name}]; see the shipped design.toml")
+    if not isinstance(raw[name], dict):
+        raise DesignError(f"{path}: {name} must be a table ([{name}]), got {raw[name]!r}")
+    if cls is not None:
+        _check_types(cls, raw[name], name, path)
     return raw[name]
+
+
+#: TOML types a design field of each annotated Python type accepts (bool is not a number):
+#: (types, what to write, an example).
+_TOML_TYPES = {"int": ((int,), "a whole number", "2"),
+               "float": ((int, float), "a number", "85.0"),
+               "str": ((str,), "text in quotes", '"indoor"')}
+
+
+def _check_types(cls, raw: dict, name: str, path: Path) -> None:
+    """Each value of ``raw`` of the type its field is annotated with (numbers unquoted, lists
+    of numbers), so that a quoted number is named here, not as Python's "'>' not supported
+    between 'str' and 'int'" later."""
+    fields = cls.__dataclass_fields__
+    for key, value in raw.items():
+        if key not in fields:
+            continue  # unknown keys: _build names them
+        ann = str(fields[key].type)
+        elem = ann.split("[", 1)[1].split(",")[0].strip() if ann.startswith("tuple[") else None
+        if ann in _TOML_TYPES:
+            types, want, example = _TOML_TYPES[ann]
+            ok = isinstance(value, types) and not isinstance(value, bool)
+        elif elem in _TOML_TYPES:
+            types, want, example = _TOML_TYPES[elem]
+            want, example = f"a list of {want.removeprefix('a ')}s", f"[{example}, {example}]"
+            ok = isinstance(value, list) and all(
+                isinstance(v, types) and not isinstance(v, bool) for v in value)
+        else:
+            continue
+        if not ok:
+            shipped = _shipped_value(name, key)
+            raise DesignError(f"{path}: [{name}] {key} = {_toml_repr(value)}: write {want}"
+                              f"{', without quotes' if 'number' in want else ''} (e.g. {key} = "
+                              f"{example if shipped is None else _toml_repr(shipped)})")
+
+
+def _shipped_value(section: str, key: str):
+    """The shipped design's value of ``[section] key`` (an example in messages), or None."""
+    try:
+        raw = tomllib.loads(default_design_path().read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError):
+        return None
+    table = raw.get(section)
+    table = table[0] if isinstance(table, list) and table else table
+    return table.get(key) if isinstance(table, dict) else None
+
+
+def _toml_repr(value) -> str:
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_repr(v) for v in value) + "]"
+    return repr(value)
 
 
 def _build(cls, raw: dict, name: str, path: Path, **override):
     fields = set(cls.__dataclass_fields__)
+    if not isinstance(raw, dict):
+        raise DesignError(f"{path}: [{name}] must be a table of keys, got {_toml_repr(raw)}")
+    _check_types(cls, raw, name, path)
     given = dict(raw)
     given.update(override)
     unknown = set(given) - fields
@@ -713,8 +775,8 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         raise DesignError(f"design file {path} is not valid TOML: {exc}") from exc
     _refuse_non_finite(raw, path)
 
-    g = _section(raw, "gloss", path)
-    d = _section(raw, "depth", path)
+    g = _section(raw, "gloss", path, GlossSpec)
+    d = _section(raw, "depth", path, DepthSpec)
     gloss = _build(
         GlossSpec, g, "gloss", path,
         rendered_levels=_levels(g.get("rendered_levels"), int(g.get("n_levels", 0)), "gloss"),
@@ -732,13 +794,13 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     )
     tonemap = _build(ToneMapSpec, _section(raw, "tonemap", path), "tonemap", path)
     sessions = _build(SessionSpec, _section(raw, "sessions", path), "sessions", path)
-    disp = _section(raw, "display", path)
+    disp = _section(raw, "display", path, DisplaySpec)
     display = _build(
         DisplaySpec, disp, "display", path,
         resolution_px=tuple(int(v) for v in disp.get("resolution_px", ())),
     )
     slider = _build(SliderSpec, _section(raw, "slider", path), "slider", path)
-    an = _section(raw, "analysis", path)
+    an = _section(raw, "analysis", path, AnalysisSpec)
     analysis = _build(
         AnalysisSpec, an, "analysis", path,
         depth_bins_cm={
@@ -750,7 +812,7 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         models=_models(an.get("models", {}), path),
     )
     imagestats = _build(ImageStatsSpec, _section(raw, "imagestats", path), "imagestats", path)
-    rd = _section(raw, "render", path)
+    rd = _section(raw, "render", path, RenderSpec)
     render = _build(RenderSpec, rd, "render", path,
                     spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
     gap = _build(GapSpec, {**asdict(GapSpec()), **raw.get("gap", {})}, "gap", path)

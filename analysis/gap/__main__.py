@@ -8,8 +8,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 from analysis.gap.engine import LAYER_NAMES, GapError
+from labfiles.outdir import OutDirError, prepare_out_dir, write_error_line
 from studydesign import load_design
 
 LAYERS = LAYER_NAMES
@@ -93,10 +95,15 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     design = load_design()
     try:
+        if not (Path(args.out) / "index.html").exists():  # an existing report: refused later
+            prepare_out_dir(args.out)
         return _diagnose(args, design)
-    except GapError as exc:
+    except (GapError, OutDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OSError as exc:  # a write that failed after the check (a full disk)
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

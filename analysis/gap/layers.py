@@ -32,6 +32,9 @@ def parse_layer_paths(text: str) -> dict[str, Path]:
         if not sep or name not in LAYER_ORDER:
             raise GapError(f"--layer all needs LAYER=PATH pairs separated by commas with LAYER "
                            f"in {LAYER_ORDER}; got {part!r}")
+        if name in out:
+            raise GapError(f"--layer all: {name} is named twice ({name}={out[name]} and {part}); "
+                           f"give each layer once, e.g. {name}={path}")
         out[name] = Path(path)
     if not out:
         raise GapError("--layer all: no LAYER=PATH pairs given")

@@ -155,7 +155,8 @@ def test_torn_last_row_is_announced_and_left_for_the_run(design, session_files):
     path.parent.mkdir(parents=True)
     text = rows[list(SESSION_COLUMNS)].to_csv(index=False)
     path.write_text(text[:-9])  # the second row loses its last fields and its newline
-    prep = prepare_session(_request(design, session_files))
+    # Rows written by hand have no start record (_runs.jsonl): vouched for, as an operator would.
+    prep = prepare_session(_request(design, session_files, accept_unverified_resume=True))
     assert len(prep.done) == 1 and prep.todo["trial"].iloc[0] == 2
     assert any("line 3 is torn" in w and "takes that record again" in w for w in prep.warnings)
     assert path.read_text() == text[:-9]
@@ -336,7 +337,12 @@ def test_resume_without_its_run_history_checks_the_run_logs_and_numbers_the_next
         prepare_session(_request(design, f, manifest=str(small)))
     assert [k for k, _ in _run_logs(f["data"], "P01_s1")] == [1]
     (logs / "P01_s1_run1.json").unlink()
-    prep = prepare_session(_request(design, f, manifest=str(small)))
+    # With no record left, the resume is refused (it used to warn and show the other images),
+    # unless the operator vouches for the inputs (then the warning stays in the log).
+    with pytest.raises(PreflightError, match="--accept-unverified-resume"):
+        prepare_session(_request(design, f, manifest=str(small)))
+    prep = prepare_session(_request(design, f, manifest=str(small),
+                                    accept_unverified_resume=True))
     assert any("cannot check" in w for w in prep.warnings)
 
 

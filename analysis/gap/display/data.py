@@ -88,6 +88,7 @@ def load_display(real_path, sim_path):
         readings are left.
     """
     real = Path(real_path)
+    _refuse_swapped(real, Path(sim_path))
     cpath, cal = _load_calibration(Path(sim_path))
     notes: list[str] = []
     rpath, kind, check = _locate_readings(real, cal, notes)
@@ -116,6 +117,20 @@ def load_display(real_path, sim_path):
     readings.attrs["display_source"] = source
     readings.attrs["noise_frames"] = noise_frames
     return readings, cal
+
+
+def _refuse_swapped(real: Path, sim: Path) -> None:
+    """A calibration passed as --real or readings passed as --sim: say so, with the order."""
+    real_cal = real.is_file() and real.suffix.lower() == ".json"
+    sim_readings = sim.is_file() and sim.suffix.lower() == ".csv"
+    order = ("the display layer takes --real the readings (readings.csv, validation.csv or a "
+             "check run's folder) and --sim the calibration (calibration.json or its folder)")
+    if real_cal and sim_readings:
+        raise GapError(f"--real {real} --sim {sim}: --real and --sim swapped? {order}")
+    if sim_readings:
+        raise GapError(f"--sim {sim} is a readings file, not a calibration: {order}")
+    if real_cal:
+        raise GapError(f"--real {real} is a calibration, not readings: {order}")
 
 
 def _load_calibration(sim: Path):

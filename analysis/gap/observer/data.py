@@ -45,6 +45,11 @@ def read_session_csvs(path: str | Path) -> pd.DataFrame:
     path = Path(path)
     if not path.exists():
         raise GapError(f"{path} does not exist; pass a folder holding <P>_s<N>.csv session files")
+    if path.is_file() and path.suffix.lower() != ".csv":
+        hint = (" (an observers TOML is a simulation: --real and --sim swapped? --real takes the "
+                "real session CSVs, --sim the TOML)" if path.suffix.lower() == ".toml" else "")
+        raise GapError(f"{path} is not a session CSV{hint}; pass a folder holding <P>_s<N>.csv "
+                       "session files")
     files = [path] if path.is_file() else sorted(path.rglob("*.csv"))
     if not files:
         raise GapError(f"no session CSVs found at {path}; pass a folder holding <P>_s<N>.csv files")
@@ -139,9 +144,16 @@ def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:
             out.append(f"the simulated participants {list(base.participants)} are not the real "
                        f"ones {list(real_ids)}: their plans (stimulus orders) differ; simulate "
                        "with the same participant ids")
-    if base.stimuli and base.stimuli != _stimuli(real):
+    real_stimuli = _stimuli(real)
+    covered = set(base.stimuli) & set(real_stimuli)
+    if base.stimuli and len(covered) < len(real_stimuli):
+        out.append(f"mismatch: the simulation covers {len(covered)} of the {len(real_stimuli)} "
+                   f"gloss x depth levels of the real sessions ({100 * len(covered) / len(real_stimuli):.0f} %); "
+                   "the verdict on the others rests on extrapolation: simulate every real "
+                   "participant and session with the real data's study design")
+    elif base.stimuli and base.stimuli != real_stimuli:
         out.append(f"the simulated sessions show other stimuli ({len(base.stimuli)} gloss x depth "
-                   f"levels) than the real ones ({len(_stimuli(real))}); simulate with the "
+                   f"levels) than the real ones ({len(real_stimuli)}); simulate with the "
                    "real data's study design")
     if base.n_illuminations is not None and base.n_illuminations != real["illumination"].nunique():
         out.append(f"the simulation has {base.n_illuminations} illuminations, the real data "

@@ -1,0 +1,87 @@
+"""Which stimuli a participant's earlier sessions were shown, checked before a later one.
+
+A session's first run records a SHA-256 over its ``stimulus_id:png_sha256`` lines
+(:func:`experiment.session.session_inputs`). The same digest, computed from this run's manifest
+for an earlier session's stimuli, says whether the manifest still holds the images that session
+showed. It does not when the set was re-rendered: with the same calibration that is a mistake
+(refused, naming the manifest the earlier session used); after a new calibration it is how the
+protocol keeps the gamma correction right, and is said on stderr and in the run's log.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import warnings
+from pathlib import Path
+
+import pandas as pd
+
+from experiment.checks import PreflightError
+from experiment.datafile import DataFileError, read_run_events, runs_path, session_path
+
+__all__ = ["check_earlier_sessions", "stimuli_digest"]
+
+
+def stimuli_digest(stimulus_ids, png_sha256) -> str:
+    """SHA-256 of the sorted ``stimulus_id:png_sha256`` lines (one session's images)."""
+    lines = sorted(f"{i}:{h}" for i, h in zip(stimulus_ids, png_sha256))
+    return hashlib.sha256("\n".join(lines).encode()).hexdigest()
+
+
+def _first_start(data_dir, participant: str, session: int, run_logs) -> dict | None:
+    """The first recorded start of a session (``_runs.jsonl``, else its run logs), or None."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # a torn tail is the session's own run to report
+        try:
+            events = read_run_events(runs_path(data_dir, participant, session))
+        except DataFileError:
+            events = []
+    events = events + [{"event": "start", **log["inputs"]} for log in run_logs if "inputs" in log]
+    return next((e for e in events if e.get("event") == "start" and "stimuli_sha256" in e), None)
+
+
+def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: int,
+                           inputs: dict, *, data_dir, participant: str, run_logs,
+                           notes: list) -> None:
+    """Refuse a manifest whose images of an earlier session differ from those it showed while
+    the calibration is the same file; note it when the calibration changed between sessions.
+
+    Parameters
+    ----------
+    manifest : DataFrame
+        This run's manifest (``stimulus_id``, ``png_sha256``).
+    plan : DataFrame
+        The participant's whole plan (``session``, ``stimulus_id``).
+    session : int
+        This session's number; sessions 1 .. session-1 are checked.
+    inputs : dict
+        This run's :func:`experiment.session.session_inputs`.
+    run_logs : callable
+        ``run_logs(session) -> list of dict``: that session's run logs.
+    notes : list
+        Warnings of the pre-flight (appended to).
+    """
+    sha = dict(zip(manifest["stimulus_id"], manifest["png_sha256"]))
+    for earlier in range(1, session):
+        first = _first_start(data_dir, participant, earlier, run_logs(earlier))
+        ids = list(plan.loc[plan["session"] == earlier, "stimulus_id"])
+        if first is None and session_path(data_dir, participant, earlier).exists():
+            notes.append(f"session {earlier} of {participant} has no record of the images it "
+                         f"showed ({runs_path(data_dir, participant, earlier).name} and its run "
+                         "logs are missing): this run cannot check that --stimuli holds the same "
+                         f"render; pass the manifest session {earlier} used")
+        if first is None or not all(i in sha for i in ids):
+            continue
+        if stimuli_digest(ids, [sha[i] for i in ids]) == first["stimuli_sha256"]:
+            continue
+        what = (f"session {earlier} of {participant} was shown the images of "
+                f"{first.get('manifest')}; this run's manifest {inputs['manifest']} holds other "
+                f"images for those stimuli (re-rendered)")
+        if first.get("calibration_sha256") == inputs["calibration_sha256"]:
+            raise PreflightError(
+                f"{what}, with the same calibration: a participant's sessions show one rendered "
+                f"set. Pass --stimuli {Path(str(first.get('manifest')))} (restore its images if "
+                "they were replaced)")
+        notes.append(f"{what} for the new calibration {inputs['calibration_id']!r} (session "
+                     f"{earlier} used {first.get('calibration_id')!r}): the participant's "
+                     "sessions show two renders of the set")
