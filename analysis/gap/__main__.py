@@ -25,6 +25,11 @@ def _diagnose(args, design) -> int:
     from analysis.gap.report import write_multi_report, write_report
 
     opts = {"sim_kind": args.sim_kind} if args.sim_kind else {}
+    if args.lights:
+        if args.layer != "render":
+            raise GapError("--lights holds out photos of a directional-light set: use it with "
+                           "--layer render")
+        opts["lights"] = args.lights
     if args.layer == "all":
         from analysis.gap.layers import parse_layer_paths, which_layer
 
@@ -77,6 +82,10 @@ def main(argv=None) -> int:
     d.add_argument("--sim-kind", choices=("humanlike", "ideal"), default=None,
                    help="observer layer with an observers TOML: which table is the simulation "
                         "(default humanlike)")
+    d.add_argument("--lights", default=None,
+                   help="render layer, directional-light sets: the lights held out, e.g. 25-48 "
+                        "(REAL the photo set, SIM the fit of other lights: python -m stimuli "
+                        "fit-gloss SET --lights 1-24 --out FIT)")
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0,
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")

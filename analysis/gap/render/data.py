@@ -89,46 +89,8 @@ def load_render(real_path, sim_path=None) -> RenderData:
         if not g.exists():
             raise GapError(f"{g} missing: the render for {f.name} is not in --sim")
         with np.load(f) as a, np.load(g) as b:
-            need = [k for k in ("photo", *NPZ_MASKS) if k not in a.files]
-            need += [f"{k} (sim)" for k in ("render", "diffuse", "specular") if k not in b.files]
-            if need:
-                raise GapError(f"{f.name}: arrays {need} missing; the residual files need "
-                               f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
-            P = _lum(a["photo"])
-            D, S = _lum(b["diffuse"]), _lum(b["specular"])
-            # The fit's render is B + D + S, B the panorama around the (black) sphere: it
-            # reaches into the rim's edge pixels, which the sphere covers only in part.
-            B = _lum(b["render"]) - D - S
-            masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
-            valid = np.asarray(a["valid"], bool) if "valid" in a.files else np.isfinite(P)
-        if P.shape != D.shape:
-            raise GapError(f"{f.name}: photo {P.shape} and render {D.shape} differ in size")
-        h, w = P.shape
-        sph = masks["sphere"]
-        if sph.sum() < 20:
-            raise GapError(f"{f.name}: the sphere mask has {int(sph.sum())} pixels (< 20)")
-        yy, xx = np.mgrid[0:h, 0:w].astype(float)
-        cy, cx = yy[sph].mean(), xx[sph].mean()
-        # The fit's sphere mask stops 1 px inside the silhouette.
-        radius = np.sqrt(sph.sum() / np.pi) + 1.0
-        r = np.hypot(yy - cy, xx - cx) / radius
-        cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
-        fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
-        coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
-                                      (xx - cx) / radius, cover, distance)
-        rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
-        fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
-        train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
-        m = re.search(r"(\d+(?:\.\d+)?)", f.stem)
-        R0 = B + D + S
-        noise = noise_model(P - R0, R0, valid & sph)
-        levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
-                       "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
-                       "coat": coat, "cover": cover, "rho2": rho2,
-                       "geometry": (cy, cx, radius), "distance": distance,
-                       "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
-                       "train": train, "use": fit, "width": w,
-                       "noise": noise, "sd": noise_sd(R0, *noise)})
+            levels.append(make_level(f.stem, {k: a[k] for k in a.files},
+                                     {k: b[k] for k in b.files}, distance))
     # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe),
     # brought onto this level's sphere.
     sharp = {lv["name"]: _sharpness(lv) for lv in levels}
@@ -139,6 +101,55 @@ def load_render(real_path, sim_path=None) -> RenderData:
     for lv in levels:
         lv["coat"]["mirror"] = _coat_mirror(light, lv)
     return RenderData(levels)
+
+
+def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
+               coat_lights: bool = True) -> dict:
+    """One level's dict (:class:`RenderData`) from a residual file's arrays: the photo and
+    masks from ``a`` (REAL's), the render's components from ``b`` (SIM's). ``coat_lights``:
+    fit the coat's lights to the diffuse shading (a panorama's levels; a directional light's
+    level knows its light, :mod:`analysis.gap.render.lights`)."""
+    need = [k for k in ("photo", *NPZ_MASKS) if k not in a]
+    need += [f"{k} (sim)" for k in ("render", "diffuse", "specular") if k not in b]
+    if need:
+        raise GapError(f"{name}: arrays {need} missing; the residual files need "
+                       f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
+    P = _lum(a["photo"])
+    D, S = _lum(b["diffuse"]), _lum(b["specular"])
+    # The fit's render is B + D + S, B the panorama around the (black) sphere: it
+    # reaches into the rim's edge pixels, which the sphere covers only in part.
+    B = _lum(b["render"]) - D - S
+    masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
+    valid = np.asarray(a["valid"], bool) if "valid" in a else np.isfinite(P)
+    if P.shape != D.shape:
+        raise GapError(f"{name}: photo {P.shape} and render {D.shape} differ in size")
+    h, w = P.shape
+    sph = masks["sphere"]
+    if sph.sum() < 20:
+        raise GapError(f"{name}: the sphere mask has {int(sph.sum())} pixels (< 20)")
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    cy, cx = yy[sph].mean(), xx[sph].mean()
+    # The fit's sphere mask stops 1 px inside the silhouette.
+    radius = np.sqrt(sph.sum() / np.pi) + 1.0
+    r = np.hypot(yy - cy, xx - cx) / radius
+    cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
+    fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
+    if coat_lights:
+        coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
+                                      (xx - cx) / radius, cover, distance)
+    rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
+    fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
+    train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
+    m = re.search(r"(\d+(?:\.\d+)?)", name)
+    R0 = B + D + S
+    noise = noise_model(P - R0, R0, valid & sph)
+    return {"name": name, "gloss": float(m.group(1)) if m else np.nan,
+            "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
+            "coat": coat, "cover": cover, "rho2": rho2,
+            "geometry": (cy, cx, radius), "distance": distance,
+            "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
+            "train": train, "use": fit, "width": w,
+            "noise": noise, "sd": noise_sd(R0, *noise)}
 
 
 def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:
