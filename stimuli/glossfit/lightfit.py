@@ -79,31 +79,47 @@ class LightScene:
         if self._before is not None and self._mi.variant() != self._before:
             self._mi.set_variant(self._before)
 
+    def _dict(self, light) -> dict:
+        """The scene of the sphere (Ward, rho_d 1) under ``light`` as a Mitsuba dict."""
+        mi = self._mi
+        key = [float(v) for v in np.asarray(light, float)]
+        h, w = self.shape
+        cy, cx, radius = self.geometry
+        half = w / 2 / radius  # the film's half width in sphere radii
+        cam = (mi.ScalarTransform4f().look_at(origin=[0, 0, 10], target=[0, 0, 0],
+                                              up=[0, 1, 0])
+               @ mi.ScalarTransform4f().scale([half, half, 1]))
+        return {
+            "type": "scene",
+            "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
+            "sensor": {"type": "orthographic", "to_world": cam,
+                       "film": {"type": "hdrfilm", "width": w, "height": h,
+                                "rfilter": {"type": "box"}, "pixel_format": "rgb"},
+                       "sampler": {"type": "multijitter", "sample_count": self.spp}},
+            "light": {"type": "directional", "direction": [-v for v in key],
+                      "irradiance": 1.0},
+            "sphere": {"type": "sphere", "radius": 1.0,
+                       "center": [(cx - w / 2) / radius, -(cy - h / 2) / radius, 0.0],
+                       "bsdf": {"type": "ward", "rho_d": 1.0, "rho_s": 0.0, "alpha": 0.1,
+                                "lobe_probability": FIT_LOBE_PROBABILITY}}}
+
     def _scene(self, light):
         key = tuple(np.round(np.asarray(light, float), 9))
         if key not in self._scenes:
-            mi = self._mi
-            h, w = self.shape
-            cy, cx, radius = self.geometry
-            half = w / 2 / radius  # the film's half width in sphere radii
-            cam = (mi.ScalarTransform4f().look_at(origin=[0, 0, 10], target=[0, 0, 0],
-                                                  up=[0, 1, 0])
-                   @ mi.ScalarTransform4f().scale([half, half, 1]))
-            scene = mi.load_dict({
-                "type": "scene",
-                "integrator": {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0},
-                "sensor": {"type": "orthographic", "to_world": cam,
-                           "film": {"type": "hdrfilm", "width": w, "height": h,
-                                    "rfilter": {"type": "box"}, "pixel_format": "rgb"},
-                           "sampler": {"type": "multijitter", "sample_count": self.spp}},
-                "light": {"type": "directional", "direction": [-float(v) for v in key],
-                          "irradiance": 1.0},
-                "sphere": {"type": "sphere", "radius": 1.0,
-                           "center": [(cx - w / 2) / radius, -(cy - h / 2) / radius, 0.0],
-                           "bsdf": {"type": "ward", "rho_d": 1.0, "rho_s": 0.0, "alpha": 0.1,
-                                    "lobe_probability": FIT_LOBE_PROBABILITY}}})
-            self._scenes[key] = (scene, mi.traverse(scene))
+            scene = self._mi.load_dict(self._dict(key))
+            self._scenes[key] = (scene, self._mi.traverse(scene))
         return self._scenes[key]
+
+    def render_material(self, light, bsdf: dict, seed: int | None = None) -> np.ndarray:
+        """The sphere with any Mitsuba BSDF ``bsdf`` under ``light`` (a scene of its own,
+        not kept): luminance (h, w), y down."""
+        mi = self._mi
+        scene_dict = self._dict(light)
+        scene_dict["sphere"] = dict(scene_dict["sphere"], bsdf=bsdf)
+        scene = mi.load_dict(scene_dict)
+        self.n_renders += 1
+        img = mi.render(scene, seed=self.seed if seed is None else int(seed), spp=self.spp)
+        return np.array(img, dtype=np.float64)[..., :3].mean(axis=-1)
 
     def render(self, light, rho_d: float, rho_s: float, alpha: float) -> np.ndarray:
         """The sphere under ``light`` (unit vector, x right, y up, z to the camera), unit

@@ -317,7 +317,7 @@ register("render_lights", Candidate(
     "broad_lobe", _fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS),
     "a second, broad specular lobe beside the fitted one (light scattered about the mirror "
     "direction, not evenly as Lambert's)", apply=_apply_broad_lobe, inject=_inject_broad_lobe,
-    default_strength=0.3, units="share of the diffuse albedo in the broad lobe",
+    default_strength=0.1, units="share of the diffuse albedo in the broad lobe",
     # The lobe's albedo in units of the fitted diffuse one: s / (1 - s) once the diffuse scale
     # has given up the share s.
     truth=lambda s: {"c": float(s) / (1 - float(s)), "alpha2": 0.5},

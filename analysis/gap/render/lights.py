@@ -38,8 +38,9 @@ __all__ = ["BROAD_ALPHAS", "LIGHT_CANDIDATES", "is_light_fit", "light_ceiling", 
 #: The render catalogue's candidates whose parameters a material shares across lights, in
 #: the order their terms apply; the broad lobe (registered as layer "render_lights") after.
 LIGHT_CANDIDATES = ("fresnel", "clearcoat", "veiling_glare", "vignetting")
-#: Widths (Ward alpha) of the second, broad lobe, a grid.
-BROAD_ALPHAS = (0.15, 0.25, 0.4, 0.6, 0.9, 1.3)
+#: Widths (Ward alpha) of the second lobe, a grid: broad (a resin's haze), or sharp where the
+#: fitted lobe took the broad light and left a sharp highlight.
+BROAD_ALPHAS = (0.05, 0.1, 0.15, 0.25, 0.4, 0.6, 0.9, 1.3)
 
 
 def is_light_fit(folder) -> bool:
