@@ -106,6 +106,19 @@ def _cmd_synth(args) -> int:
     return 0
 
 
+def _cmd_synth_lights(args) -> int:
+    from stimuli.glossfit.lightsynth import synth_light_set
+
+    try:
+        synth_light_set(args.out, size=args.size, n_lights=args.lights, material=args.material,
+                        seed=args.seed, spp=args.spp)
+    except (ValueError, FileExistsError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    print(f"photo set: {args.out} ({args.lights} lights; truth in {args.out}/truth.json)")
+    return 0
+
+
 def _spp_default(cmd):
     """``cmd`` told whether --spp was given (its default depends on the photo set's kind)."""
     def run(args):
@@ -164,6 +177,20 @@ def register(subparsers) -> None:
     s.add_argument("--exposure", type=float, default=1.0,
                    help="photo units per panorama unit (default 1)")
     s.set_defaults(func=_cmd_synth)
+
+    t = subparsers.add_parser(
+        "synth-lights", help="render a synthetic directional-light photo set (tests, demo)",
+        description="A sphere under a ring of directional lights, DiLiGenT's layout (16-bit "
+                    "PNGs, light_directions.txt, light_intensities.txt, mask.png); fit it with "
+                    "fit-gloss --lights and hold the other lights out.")
+    t.add_argument("out", help="new folder")
+    t.add_argument("--size", type=int, default=48, help="photo width = height, px (default 48)")
+    t.add_argument("--lights", type=int, default=12, help="number of lights (default 12)")
+    t.add_argument("--material", choices=("rich", "ward"), default="rich",
+                   help="rich: clear-coated plastic (roughplastic); ward: the fit's own model")
+    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--spp", type=int, default=16)
+    t.set_defaults(func=_cmd_synth_lights)
 
 
 def main(argv: list[str] | None = None) -> int:
