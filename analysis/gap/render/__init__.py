@@ -78,9 +78,12 @@ ceiling.py     the floor, the ceiling (:func:`render_ceiling`) and the remaining
                (:func:`render_misfit_pct`), with the thresholds for what counts
 where.py       where the misfit lies (:func:`render_where`, :func:`localise_render`,
                :func:`residual_maps`)
-lights.py      photos under directional lights: the fit's lights train, held-out lights
-               test (:func:`load_lights`), their ceiling, the held-out misfit in % and the
-               broad lobe's form (a sixth file: the layout only a light set has)
+Under directional lights (a directional-light gloss fit, ``--lights``): the fit's lights
+train, lights it never saw test (``data.load_lights``); one material, so one pair of scales
+for all lights (``model._shared_scaled_fit``); the ceiling a cross-fitted smooth of each
+held-out photo (``ceiling.light_ceiling``); the broad_lobe candidate (a second Ward lobe,
+``model.ward_lobe``), registered as catalogue ``render_lights`` as its form needs each photo's
+light; the held-out misfit in % (``ceiling.misfit_pct``) in diagnosis.json.
 candidates.py  one registered Candidate per effect (its term, fit and injector), in the order
                their terms apply
 =============  ===============================================================================
@@ -93,16 +96,19 @@ it).
 """
 
 # The private names are re-exported for the tests that reach them (as before the split).
+import json
 from pathlib import Path
 
 import numpy as np
 
 from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan, catalogue
-from analysis.gap.render.candidates import RENDER_CANDIDATES
+from analysis.gap.render.candidates import LIGHT_CANDIDATES, RENDER_CANDIDATES
 from analysis.gap.render.ceiling import (
     RENDER_MIN_GAIN,
     RENDER_MIN_SHARE,
     RENDER_SIZE_UNIT,
+    light_ceiling,
+    misfit_pct,
     render_ceiling,
     render_floor,
     render_misfit_pct,
@@ -111,14 +117,8 @@ from analysis.gap.render.data import (
     NPZ_ARRAYS,
     NPZ_MASKS,
     RenderData,
-    load_render,
-)
-from analysis.gap.render.lights import (
-    LIGHT_CANDIDATES,
-    is_light_fit,
-    light_ceiling,
     load_lights,
-    misfit_pct,
+    load_render,
 )
 from analysis.gap.render.model import (
     noise_model,
@@ -212,6 +212,14 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
 
 #: At most this many levels (held-out lights) drawn in the report's residual maps.
 _MAX_MAPS = 8
+
+
+def is_light_fit(folder) -> bool:
+    """True when ``folder`` holds a directional-light gloss fit (fit.json kind "lights")."""
+    try:
+        return json.loads((Path(folder) / "fit.json").read_text()).get("kind") == "lights"
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return False
 
 
 def _some(data: RenderData, n: int) -> RenderData:

@@ -16,8 +16,7 @@ import numpy as np
 from scipy import optimize
 
 from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
-from analysis.gap.render.data import _FRESNEL_CAPS, RenderData
-from analysis.gap.render.lights import BROAD_ALPHAS
+from analysis.gap.render.data import _FRESNEL_CAPS, BROAD_ALPHAS, RenderData
 from analysis.gap.render.model import (
     _basis,
     _best_on_grid,
@@ -30,6 +29,9 @@ from analysis.gap.render.model import (
     _wings,
 )
 
+#: The render catalogue's candidates whose parameters one material shares across directional
+#: lights, in the order their terms apply; the broad lobe ("render_lights") after them.
+LIGHT_CANDIDATES = ("fresnel", "clearcoat", "veiling_glare", "vignetting")
 #: Glare spreads (x image width): a Gaussian's SD (> 0) or a power-law kernel's core (< 0).
 _GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: Where the diffuse light entered the coat (see _coat_t, _coat_lights and _coat_mirror): from

@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
-from analysis.gap.render.model import _fill, noise_model, noise_sd
+from analysis.gap.render.model import _fill, noise_model, noise_sd, ward_lobe
 from studydesign import rec709_luminance
 
 NPZ_ARRAYS = ("photo", "render", "diffuse", "specular")
@@ -40,6 +40,9 @@ _KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
 #: The 'mirror' coat entry (see _mirror_light, _coat_mirror): at most about this many light
 #: directions, and pixels summed over in blocks of this many (memory: 8 bytes x the product).
 _MIRROR_LIGHTS, _MIRROR_CHUNK = 4096, 1024
+#: Widths (Ward alpha) of the broad_lobe candidate's second lobe under directional lights, a
+#: grid: broad (a resin's haze), or sharp where the fitted lobe took the broad light.
+BROAD_ALPHAS = (0.05, 0.1, 0.15, 0.25, 0.4, 0.6, 0.9, 1.3)
 
 
 def _lum(a: np.ndarray) -> np.ndarray:
@@ -150,6 +153,60 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
             "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
             "train": train, "use": fit, "width": w,
             "noise": noise, "sd": noise_sd(R0, *noise)}
+
+
+
+def load_lights(real, sim, lights=None) -> tuple[RenderData, RenderData, str]:
+    """(train, test, split in words) of a directional-light fit (SIM; None: REAL). With
+    ``lights``: train = SIM's fitted pixels, test = REAL's (the photo set's) photos under
+    ``lights`` against the fitted material rendered there. Without: each fitted light's photo
+    split into a checkerboard of 4 x 4 px blocks. GapError: no such fit, a fitted light held
+    out, a bad photo set."""
+    from stimuli.glossfit.lightfit import predict_lights, read_light_fit
+    from stimuli.glossfit.photoset import GlossFitError
+
+    sim = Path(sim if sim is not None else real)
+    try:
+        info = read_light_fit(sim)
+        fitted = []
+        for f in sorted((sim / "residuals").glob("light_*.npz")):
+            with np.load(f) as a:
+                fitted.append(_light_level(f.stem, {k: a[k] for k in a.files}))
+        if lights is None:
+            data = RenderData(fitted)
+            return data.view("train"), data.view("test"), "checkerboard of 4 x 4 px blocks"
+        test = [_light_level(f"light_{k:03d}", a, held_out=True)
+                for k, a in predict_lights(sim, real, lights).items()]
+    except (GlossFitError, ValueError) as exc:
+        raise GapError(str(exc)) from None
+    split = (f"held-out lights {', '.join(lv['name'][6:].lstrip('0') for lv in test)} (the "
+             f"fit's lights: {', '.join(str(k) for k in info['lights'])})")
+    return RenderData(fitted), RenderData(test), split
+
+
+def _light_level(name: str, arrays: dict, held_out: bool = False) -> dict:
+    """A level under one directional light: :func:`make_level`'s with the light, the normals
+    (3, h, w), shared scales, the coat's exact entry T(n.l) beside its exit (mean 1 within 0.3
+    radii of the centre) and the broad lobes (``rho_d f n.l = pi D f``, per BROAD_ALPHAS);
+    every fitted pixel used (``held_out``: as the test)."""
+    if "light" not in arrays or "normals" not in arrays:
+        raise GapError(f"{name}: no light or normals in the residual file; fit the set with "
+                       "python -m stimuli fit-gloss SET --lights 1-24 --out FIT")
+    lv = make_level(name, arrays, arrays, None, coat_lights=False)
+    lv["light"] = light = np.asarray(arrays["light"], float)
+    lv["normals"] = n = np.moveaxis(np.asarray(arrays["normals"], float), -1, 0)
+    lv["shared"], lv["wider"], lv["use"] = True, {}, lv["fit"]
+    ndl = np.tensordot(light, n, axes=([0], [0]))
+    cy, cx, radius = lv["geometry"]
+    yy, xx = np.mgrid[0:ndl.shape[0], 0:ndl.shape[1]].astype(float)
+    r2 = ((yy - cy) ** 2 + (xx - cx) ** 2) / radius**2
+    lv["coat"]["lights"] = lv["coat"]["mirror"] = _unit_at_centre(
+        lv["coat"]["surround"] * _coat_t(np.clip(ndl, 0.0, 1.0)), r2, lv["cover"] > 0)
+    per_ndl = np.pi * np.where(lv["D"] > 0, lv["D"], 0.0) / np.where(ndl > 1e-6, ndl, 1.0)
+    lv["lobes"] = {a: per_ndl * ward_lobe(n, light, a) for a in BROAD_ALPHAS}
+    if held_out:
+        lv["train"] = np.zeros_like(lv["fit"])
+    return lv
 
 
 def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:

@@ -56,3 +56,22 @@ def test_real_ball_ward_predicts_held_out_lights(tmp_path):
     assert 0.03 < info["ward"]["alpha"] < 0.07
     pct = _misfit_pct(list(predict_lights(tmp_path / "fit", BALL, "25-48").values()))
     assert pct <= min(9.5, 1.1 * NUMPY_WARD_PCT)
+
+
+def test_broad_lobe_form_is_the_ward_plugins_lobe():
+    """The broad lobe's numpy form (model.ward_lobe) is what Mitsuba renders with the Ward
+    plugin under the same light (the fit's renders), away from the silhouette."""
+    import numpy as np
+
+    from analysis.gap.render.model import ward_lobe
+    from stimuli.glossfit.lightfit import LightScene
+    from stimuli.glossfit.lightset import mask_normals
+
+    geometry = (16.0, 16.0, 12.0)
+    light = np.array([0.3, 0.4, np.sqrt(1 - 0.25)])
+    with LightScene((32, 32), geometry, spp=64) as scene:
+        render = scene.render(light, 0.0, 1.0, 0.3)
+    n = np.moveaxis(mask_normals((32, 32), geometry), -1, 0)
+    inner = n[2] > 0.5
+    form = ward_lobe(n, light, 0.3)
+    assert np.abs(render - form)[inner].max() < 0.02 * form[inner].max()
