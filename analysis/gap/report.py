@@ -193,9 +193,8 @@ def _before_after(d: Diagnosis) -> str:
     if math.isfinite(d.misfit_pct_before):
         rows.append(("held-out RMS misfit, % of the photos' RMS luminance",
                      f"{d.misfit_pct_before:.2f} % before, {d.misfit_pct_after:.2f} % after"))
-    split = f"<p>Held out: {html.escape(d.split)}.</p>" if d.split else ""
     return ("<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats "
-            "per unit)</h3>" + split + _rows_table(rows))
+            "per unit)</h3>" + _rows_table(rows))
 
 
 def _ranking(d: Diagnosis) -> str:
