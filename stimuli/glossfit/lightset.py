@@ -108,6 +108,24 @@ def sphere_geometry(mask: np.ndarray) -> tuple[float, float, float]:
     return float(yy.mean() + 0.5), float(xx.mean() + 0.5), float(np.sqrt(yy.size / np.pi))
 
 
+def normals_geometry(normals: np.ndarray, mask: np.ndarray) -> tuple[float, float, float]:
+    """(cy, cx, radius) of an orthographic sphere from its normals: each pixel centre lies at
+    x = cx + R n_x, y = cy - R n_y (least squares over the mask's pixels facing the camera,
+    n_z > 0.3). Sub-pixel where the mask's area is not: a disc of radius 16 px holds 804 +- 6
+    pixel centres, which moves its area's radius by up to 0.07 px (2 % in n_z at 0.9 radii)."""
+    on = mask & (normals[..., 2] > 0.3)
+    if on.sum() < 20:
+        raise GlossFitError("normal_gt.npy: fewer than 20 mask pixels face the camera (n_z > "
+                            "0.3); check its frame (x right, y up, z to the camera)")
+    yy, xx = np.nonzero(on)
+    nx, ny = normals[on][:, 0], normals[on][:, 1]
+    ones, zeros = np.ones_like(nx), np.zeros_like(nx)
+    a = np.r_[np.c_[zeros, ones, nx], np.c_[ones, zeros, -ny]]
+    b = np.r_[xx + 0.5, yy + 0.5]
+    (cy, cx, radius), *_ = np.linalg.lstsq(a, b, rcond=None)
+    return float(cy), float(cx), float(radius)
+
+
 def mask_normals(shape, geometry) -> np.ndarray:
     """Normals of an orthographic sphere (h, w, 3), x right, y up, z to the camera; 0 off it."""
     cy, cx, radius = geometry
@@ -139,7 +157,8 @@ class LightSet:
     normals : ndarray (h, w, 3)
         From normal_gt.npy when the set has it, else from the mask's disc.
     geometry : (cy, cx, radius)
-        The silhouette's centre and radius (px).
+        The silhouette's centre and radius (px): from the normals when the set has them
+        (:func:`normals_geometry`), else from the mask's centroid and area.
     normals_source : str
     warnings : list of str
     """
@@ -237,6 +256,7 @@ def load_light_set(folder: str | Path, lights: tuple[int, ...] | str | None = No
             raise GlossFitError(f"{normals_path}: shape {normals.shape}; expected "
                                 f"{(*mask.shape, 3)} (h x w x 3, as mask.png)")
         source = "normal_gt.npy"
+        geometry = normals_geometry(normals, mask)
     else:
         normals, source = mask_normals(mask.shape, geometry), "the mask's disc (orthographic)"
     return LightSet(folder=folder, lights=lights, names={k: names[k - 1] for k in lights},

@@ -3,7 +3,7 @@
 noise, written as 16-bit raw PNGs that saturate at 65535.
 
 ``python -m stimuli synth-lights OUT --size 48 --lights 12`` writes a set whose sphere is a
-clear-coated plastic (Mitsuba's ``roughplastic``: GGX lobe, Fresnel, the coat's transmission
+clear-coated plastic (with its true normals, as DiLiGenT gives them; Mitsuba's ``roughplastic``: GGX lobe, Fresnel, the coat's transmission
 on the diffuse light), not the fit's Ward: its held-out lights show a gap (``--material ward``:
 the fit's own model, none).
 """
@@ -128,8 +128,11 @@ def synth_light_set(folder, *, size: int = 48, n_lights: int = 12, material: str
         gain = _PEAK_CODE / photons  # codes per photon
         noisy = gain * rng.poisson(clean / gain) + rng.normal(0, 2.0, clean.shape)
         photos.append(noisy)
-    mask = np.linalg.norm(mask_normals((size, size), geometry), axis=-1) > 0
+    normals = mask_normals((size, size), geometry)
+    mask = np.linalg.norm(normals, axis=-1) > 0
     write_light_set(folder, photos, dirs, ints, mask)
+    with atomic_path(folder / "normal_gt.npy") as tmp, open(tmp, "wb") as fh:
+        np.save(fh, normals.astype(np.float32))
     truth = {"material": material if images is None else "injected", "bsdf": bsdf,
              "geometry_px": geometry, "directions": dirs.tolist(), "intensities": ints.tolist(),
              "codes_per_unit": scale}
