@@ -65,6 +65,10 @@ step "gloss fit: synthetic HDR photos of the gloss spheres -> Ward parameters (b
 # The gloss table spans 0-100 %, so it covers the rendered levels (10-90 %).
 "$PY" -m stimuli synth-photos "$RUN/glossfit/photos" --levels 0,20,40,60,80,100 --seed 1
 "$PY" -m stimuli fit-gloss "$RUN/glossfit/photos" --out "$RUN/glossfit"
+# A photometric-stereo-like set too: a clear-coated sphere under 12 directional lights (16-bit
+# PNGs, DiLiGenT's layout), Ward fitted on lights 1-11; light 12 is held out below.
+"$PY" -m stimuli synth-lights "$RUN/glossfit-lights/photos" --size 48 --lights 12 --seed 1
+"$PY" -m stimuli fit-gloss "$RUN/glossfit-lights/photos" --lights 1-11 --out "$RUN/glossfit-lights"
 # --- end gloss fit ---
 
 # --- stimuli ---
@@ -191,6 +195,9 @@ if compgen -G "$RUN/glossfit/residuals/*.npz" >/dev/null; then
 else
   echo "error: the gap render layer needs \$RUN/glossfit/residuals/*.npz (the gloss fit wrote none)" >&2; exit 1
 fi
+# Render, held out: the directional set's light 12, which the fit never saw.
+"$PY" -m analysis gap diagnose --layer render --real "$RUN/glossfit-lights/photos" --lights 12 \
+  --sim "$RUN/glossfit-lights" --out "$GAP/render-heldout-light"
 if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
     --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"

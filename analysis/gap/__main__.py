@@ -32,6 +32,11 @@ def _diagnose(args, design) -> int:
             raise GapError("--study and --participants are for --layer observer (another "
                            "lab's rating study)")
         opts |= {"study": args.study, "participants": args.participants}
+    if args.lights:
+        if args.layer != "render":
+            raise GapError("--lights holds out photos of a directional-light set: use it with "
+                           "--layer render")
+        opts["lights"] = args.lights
     if args.layer == "all":
         from analysis.gap.layers import parse_layer_paths, which_layer
 
@@ -89,6 +94,10 @@ def main(argv=None) -> int:
                                    "--study); see protocol.md, 'Another lab's study'")
     d.add_argument("--participants", nargs="+",
                    help="with --study: diagnose only these participants")
+    d.add_argument("--lights", default=None,
+                   help="render layer, directional-light sets: the lights held out, e.g. 25-48 "
+                        "(REAL the photo set, SIM the fit of other lights: python -m stimuli "
+                        "fit-gloss SET --lights 1-24 --out FIT)")
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0,
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")

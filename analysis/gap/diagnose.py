@@ -9,6 +9,7 @@ and :func:`analysis.gap.engine.diagnose_losses` does the rest."""
 from __future__ import annotations
 
 import importlib
+from dataclasses import replace
 
 import numpy as np
 
@@ -26,9 +27,12 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
     rng = np.random.default_rng(seed)
     plan = importlib.import_module(f"analysis.gap.{layer}").plan(
         real, sim, design, rng, n_boot=n_boot, **options)
-    diag = diagnose_losses(layer, list(plan.candidates) or catalogue(layer), plan.functions, plan.settings, rng=rng,
-                           seed=seed, train=plan.train, test=plan.test, folds=plan.folds,
-                           loss_info=plan.loss_info, split=plan.split, warnings=plan.warnings)
+    diag = diagnose_losses(layer, list(plan.candidates) or catalogue(layer), plan.functions,
+                           plan.settings, rng=rng, seed=seed, train=plan.train, test=plan.test,
+                           folds=plan.folds, loss_info=plan.loss_info, split=plan.split,
+                           warnings=plan.warnings)
+    if plan.sizes is not None:
+        diag = replace(diag, **plan.sizes(diag))
     return diag, plan.localise(diag, rng)
 
 
@@ -52,7 +56,9 @@ def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
     **options
         Passed to the layer: observer ``sim_kind`` ('humanlike' or 'ideal', the table of an
         observers TOML), ``k_folds``; ``study`` (another lab's study.toml: one response on
-        a rating scale, :mod:`analysis.gap.observer.rating`) and ``participants``.
+        a rating scale, :mod:`analysis.gap.observer.rating`) and ``participants``; render
+        ``lights`` (held-out lights of a directional-light set, e.g. "25-48", with REAL the
+        photo set).
 
     Returns
     -------
@@ -73,5 +79,6 @@ def diagnose(layer: str, real, sim, design, *, seed: int, n_boot: int = 1000,
                             **options) for n in real}
     if layer not in LAYERS:
         raise GapError(f"unknown layer {layer!r}; use {', '.join(LAYERS)} or all")
-    opts = options if layer == "observer" else {}
+    opts = options if layer == "observer" else {
+        k: v for k, v in options.items() if layer == "render" and k == "lights"}
     return _diagnose_layer(layer, real, sim, design, seed=seed, n_boot=n_boot, **opts)

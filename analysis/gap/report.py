@@ -188,10 +188,13 @@ def _before_after(d: Diagnosis) -> str:
               f"{d.shrink_abs_ci[1]:.4f})")
     share = (f"{d.shrink_pct:.1f} % (95 % CI {d.shrink_pct_ci[0]:.1f} to "
              f"{d.shrink_pct_ci[1]:.1f} %)")
+    rows = [("before", f"{d.gap_before:.4f}"), ("after", f"{d.gap_after:.4f}"),
+            ("shrink", shrink), ("shrink, share", share)]
+    if math.isfinite(d.misfit_pct_before):
+        rows.append(("held-out RMS misfit, % of the photos' RMS luminance",
+                     f"{d.misfit_pct_before:.2f} % before, {d.misfit_pct_after:.2f} % after"))
     return ("<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats "
-            "per unit)</h3>" + _rows_table([
-                ("before", f"{d.gap_before:.4f}"), ("after", f"{d.gap_after:.4f}"),
-                ("shrink", shrink), ("shrink, share", share)]))
+            "per unit)</h3>" + _rows_table(rows))
 
 
 def _ranking(d: Diagnosis) -> str:
@@ -213,7 +216,8 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
     """The body of one layer's report section: the verdict with its lead figure, the chosen
     effects and their parameters, before / after, the ceiling, the ranking, the figures."""
     img = f'<h3>Where</h3><img src="{figure}" alt="localisation">' if figure else ""
-    maps_html = ('<h3>Residual maps (noise SDs; before and after the chosen extensions)</h3>'
+    maps_html = ('<h3>Residual maps (held-out photo, prediction with the chosen extensions, '
+                 'residual in noise SDs before and after them)</h3>'
                  f'<img src="{maps}" alt="residual maps">' if maps else "")
     return (_verdict_block(lead_figure(diag), verdict_text(diag))
             + "<h3>Chosen effects (greedy combination) and their fitted parameters</h3>"

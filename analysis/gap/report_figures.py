@@ -69,21 +69,30 @@ def _plot_generic(local, path) -> None:
 
 
 def _plot_maps(maps: dict, path) -> None:
-    """Per gloss level: the photo, and the residual in noise SDs before and after the chosen
-    extensions (the same colour scale, +-5 SD). A row is as tall as the photo's aspect ratio
-    makes a panel, plus its title."""
+    """Per gloss level (or held-out light): the photo, the prediction with the chosen
+    extensions (where the maps hold one; the photo's grey scale), and the residual in noise
+    SDs before and after the chosen extensions (the same colour scale, +-5 SD). A row is as
+    tall as the photo's aspect ratio makes a panel, plus its title."""
     names = list(maps)
     h, w = np.shape(maps[names[0]]["photo"])[:2]
+    pred = "prediction" in maps[names[0]]
+    cols = 4 if pred else 3
     row_in = _PANEL_IN * h / max(w, 1) + _TITLE_IN
-    fig, axes = plt.subplots(len(names), 3, figsize=(3 * _PANEL_IN + 1.2, row_in * len(names)),
+    fig, axes = plt.subplots(len(names), cols,
+                             figsize=(cols * _PANEL_IN + 1.2, row_in * len(names)),
                              squeeze=False, layout="constrained")
+    titles = (("photo", "prediction, extended") if pred else ("photo",)) + (
+        "residual, plain render", "residual, extended")
     for row, name in zip(axes, names):
         m = maps[name]
-        row[0].imshow(m["photo"], cmap="gray")
+        top = float(np.nanpercentile(m["photo"], 99.5)) if np.isfinite(m["photo"]).any() else 1.0
+        row[0].imshow(m["photo"], cmap="gray", vmin=0, vmax=top)
         row[0].set_ylabel(name)
-        for ax, key in zip(row[1:], ("before", "after")):
+        if pred:
+            row[1].imshow(m["prediction"], cmap="gray", vmin=0, vmax=top)
+        for ax, key in zip(row[cols - 2:], ("before", "after")):
             im = ax.imshow(m[key], cmap="RdBu_r", vmin=-5, vmax=5)
-        for ax, title in zip(row, ("photo", "residual, plain render", "residual, extended")):
+        for ax, title in zip(row, titles):
             ax.set_title(title, fontsize=8)
             ax.set_xticks([])
             ax.set_yticks([])

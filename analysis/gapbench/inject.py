@@ -29,6 +29,7 @@ __all__ = [
     "simulate_sessions",
     "write_calibration",
     "write_fit_setup",
+    "write_light_set_with",
     "write_readings",
     "write_render_fit",
     "write_sessions",
@@ -490,6 +491,74 @@ class _Studio:
     rgb = staticmethod(_rgb)
     sphere_r = staticmethod(_sphere_r)
     mean_ratio = staticmethod(_mean_ratio)
+
+
+class _LightStudio:
+    """The renderer the injectors draw with on a directional-light set (the render layer's
+    held-out lights, analysis.gap.render.lights): Mitsuba renders of one Ward sphere under
+    light ``level`` of the set (stimuli.glossfit.lightfit.LightScene), no background."""
+
+    WARD = (0.5, 0.04, 0.08)
+
+    def __init__(self, scene, directions):
+        self.scene, self.directions = scene, directions
+        self._at = 0
+
+    def at(self, k: int) -> _LightStudio:
+        """Draw under light ``k`` (0-based) from here on."""
+        self._at = k
+        return self
+
+    def level(self, k: int):
+        return self.WARD
+
+    def base(self, k: int):
+        rho_d, rho_s, alpha = self.WARD
+        light = self.directions[k]
+        return (rho_d * self.scene.render(light, 1.0, 0.0, alpha),
+                rho_s * self.scene.render(light, 0.0, 1.0, alpha))
+
+    def background(self, shift=(0.0, 0.0)):
+        return 0.0
+
+    def render(self, material: dict, seed: int, shift=(0.0, 0.0)):
+        return self.scene.render_material(self.directions[self._at], material, seed)
+
+    def plain(self, k: int):
+        d0, s0 = self.base(k)
+        return d0 + s0
+
+    ward = staticmethod(_ward)
+    rgb = staticmethod(_rgb)
+
+
+def write_light_set_with(folder, effects: dict, *, seed: int = 0, size: int = 40,
+                         n_lights: int = 12, spp: int = 16) -> dict:
+    """A synthetic directional-light set (stimuli.glossfit.lightsynth) of a Ward sphere with
+    ``effects`` ``{name: strength}`` drawn by their injectors (the render catalogue's and
+    ``render_lights``'), added to the plain photo. Returns the truth, with ``effects``."""
+    from stimuli.glossfit.lightsynth import synth_light_set
+
+    rng = np.random.default_rng(seed)
+
+    def images(scene, light, k):
+        studio = _LightStudio(scene, {k: light}).at(k)
+        plain = studio.plain(k)
+        extra = sum(_light_effect(name).inject(studio, k, s, rng) - plain
+                    for name, s in effects.items())
+        return plain + extra
+    truth = synth_light_set(folder, size=size, n_lights=n_lights, seed=seed, spp=spp,
+                            images=images)
+    truth["effects"] = dict(effects)
+    return truth
+
+
+def _light_effect(name: str):
+    """A render candidate by name, from the render catalogue or the directional lights' one."""
+    table = {c.name: c for c in catalogue("render") + catalogue("render_lights")}
+    if name not in table:
+        raise ValueError(f"no render candidate {name!r}; known: {', '.join(table)}")
+    return table[name]
 
 
 def _inject_albedo_texture(studio, level, s, rng):

@@ -7,10 +7,18 @@ search; same optimum, far fewer renders) -> residuals by region -> ``gloss_table
 (common albedo, rho_s on a line in gloss with leave-one-out errors). ``fit_gloss`` runs it all
 and writes the output folder; ``synth_photo_set`` renders test photo sets.
 
-Command lines: ``python -m stimuli fit-gloss`` and ``python -m stimuli synth-photos``.
+Photos of one sphere under directional lights (DiLiGenT's layout): ``load_light_set``,
+``fit_lights`` (Ward through Mitsuba renders of each light), ``predict_lights`` (the fitted
+material under lights the fit never saw), ``synth_light_set``.
+
+Command lines: ``python -m stimuli fit-gloss`` (``--lights`` for a directional-light set),
+``python -m stimuli synth-photos`` and ``python -m stimuli synth-lights``.
 """
 
 from stimuli.glossfit.fit import FitRun, fit_gloss, fit_level
+from stimuli.glossfit.lightfit import fit_lights, predict_lights
+from stimuli.glossfit.lightset import LightSet, load_light_set, parse_lights
+from stimuli.glossfit.lightsynth import synth_light_set
 from stimuli.glossfit.methods import BasisCache, FitSettings, LevelFit, basis_fit, grid_fit
 from stimuli.glossfit.output import FITS_COLUMNS, write_residuals
 from stimuli.glossfit.photoset import (
@@ -37,6 +45,7 @@ __all__ = [
     "FitSettings",
     "GlossFitError",
     "LevelFit",
+    "LightSet",
     "PhotoSet",
     "PhotoSetup",
     "Registration",
@@ -45,18 +54,23 @@ __all__ = [
     "fit_camera",
     "fit_gloss",
     "fit_level",
+    "fit_lights",
     "gloss_table_from_fits",
     "grid_fit",
     "line_with_loo",
+    "load_light_set",
     "load_photo_set",
     "load_setup",
     "parse_effects",
+    "parse_lights",
     "photo_camera",
     "photo_name",
+    "predict_lights",
     "region_masks",
     "register",
     "room_panorama",
     "sphere_distance_px",
+    "synth_light_set",
     "synth_photo_set",
     "warp_photo",
     "write_residuals",

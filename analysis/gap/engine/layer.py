@@ -37,8 +37,11 @@ class LayerPlan:
     split      how the held-out units were made, in words
     loss_info  what the loss assumes (noise model, base model), recorded in the result
     warnings   notes on the input, shown with the verdict
-    candidates the catalogue for this data, where it is not the layer's registered one
-               (e.g. one response of another lab's study); empty: the registered one
+    candidates the candidates that apply to this data (Candidate objects, in the order
+               their terms apply); empty: the layer's whole catalogue
+    sizes      ``sizes(diag) -> dict``: :class:`Diagnosis` fields measured once the chosen
+               effects are known (the render layer's ``misfit_pct_before`` / ``_after``),
+               or None
     ========== =========================================================================
     """
 
@@ -52,3 +55,4 @@ class LayerPlan:
     loss_info: dict | None = None
     warnings: tuple = field(default_factory=tuple)
     candidates: tuple = ()
+    sizes: Callable[[Diagnosis], dict] | None = None

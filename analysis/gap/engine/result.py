@@ -44,6 +44,9 @@ class Diagnosis:
     removes (so a share never exceeds what a flexible model of the data allows; all of it
     where the ceiling removes nothing and the chosen candidates remove something);
     ``ceiling_share`` is the share of the gap above the floor that the ceiling removes.
+    ``misfit_pct_before`` / ``misfit_pct_after`` (render layer; NaN elsewhere): the held-out
+    RMS misfit of the plain simulation / with the chosen effects, in % of the held-out data's
+    RMS (noise included).
     """
 
     layer: str
@@ -72,6 +75,8 @@ class Diagnosis:
     summary: str = ""
     split: str = ""
     warnings: tuple = ()
+    misfit_pct_before: float = float("nan")
+    misfit_pct_after: float = float("nan")
 
     @property
     def unexplained_remains(self) -> bool:

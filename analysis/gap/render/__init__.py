@@ -78,6 +78,12 @@ ceiling.py     the floor, the ceiling (:func:`render_ceiling`) and the remaining
                (:func:`render_misfit_pct`), with the thresholds for what counts
 where.py       where the misfit lies (:func:`render_where`, :func:`localise_render`,
                :func:`residual_maps`)
+Under directional lights (a directional-light gloss fit, ``--lights``): the fit's lights
+train, lights it never saw test (``data.load_lights``); one material, so one pair of scales
+for all lights (``model._shared_scaled_fit``); the ceiling a cross-fitted smooth of each
+held-out photo (``ceiling.light_ceiling``); the broad_lobe candidate (a second Ward lobe,
+``model.ward_lobe``), registered as catalogue ``render_lights`` as its form needs each photo's
+light; the held-out misfit in % (``ceiling.misfit_pct``) in diagnosis.json.
 candidates.py  one registered Candidate per effect (its term, fit and injector), in the order
                their terms apply
 =============  ===============================================================================
@@ -90,16 +96,19 @@ it).
 """
 
 # The private names are re-exported for the tests that reach them (as before the split).
+import json
 from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
-from analysis.gap.render.candidates import RENDER_CANDIDATES
+from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan, catalogue
+from analysis.gap.render.candidates import LIGHT_CANDIDATES, RENDER_CANDIDATES
 from analysis.gap.render.ceiling import (
     RENDER_MIN_GAIN,
     RENDER_MIN_SHARE,
     RENDER_SIZE_UNIT,
+    light_ceiling,
+    misfit_pct,
     render_ceiling,
     render_floor,
     render_misfit_pct,
@@ -108,6 +117,7 @@ from analysis.gap.render.data import (
     NPZ_ARRAYS,
     NPZ_MASKS,
     RenderData,
+    load_lights,
     load_render,
 )
 from analysis.gap.render.model import (
@@ -143,20 +153,35 @@ __all__ = [
 ]
 
 
-def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> LayerPlan:
+def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=None,
+         **_) -> LayerPlan:
     """Photos from REAL's and renders from SIM's ``residuals/*.npz`` (the gloss fit's output
     folder, usually the same; SIM None: REAL's), or loaded residual files, split once into
-    training and held-out blocks drawn from ``rng``. A remaining gap counts only from the
-    design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is None)."""
-    data = load_render(real, sim if sim is not None else real) if isinstance(
-        real, (str, Path)) else real
+    training and held-out blocks drawn from ``rng``. A directional-light fit
+    (:mod:`analysis.gap.render.lights`): with ``lights`` (e.g. ``"25-48"``) REAL is the photo
+    set and those lights, which the fit never saw, are held out. A remaining gap counts only
+    from the design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is
+    None)."""
+    paths = isinstance(real, (str, Path))
+    light_mode = lights is not None or (paths and is_light_fit(sim if sim is not None else real))
+    candidates, split, ceiling = (), "", render_ceiling
+    if light_mode:
+        train, test, split = load_lights(real, sim, lights)
+        candidates = (tuple(c for c in catalogue("render") if c.name in LIGHT_CANDIDATES)
+                      + tuple(catalogue("render_lights")))
+        if lights is not None:
+            ceiling = light_ceiling
+        shown = test
+    else:
+        data = load_render(real, sim if sim is not None else real) if paths else real
+        train, test = split_render(data, rng)
+        shown = data
     if design is None:
         from studydesign import load_design
 
         design = load_design()
-    train, test = split_render(data, rng)
     functions = LayerFunctions(
-        loss=render_loss, floor=render_floor, ceiling=render_ceiling, ceiling_given_chosen=True,
+        loss=render_loss, floor=render_floor, ceiling=ceiling, ceiling_given_chosen=True,
         where=render_where, size=render_misfit_pct, unit_ids=render_unit_ids,
         # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
         # error (the split is fixed, so the verdict does not depend on the seed). Under the
@@ -168,10 +193,38 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
                                  size_unit=RENDER_SIZE_UNIT,
                                  size_source="the design's [gap] render_tolerance_pct")
 
+    def chosen(diag):
+        return [(s["added"], s["params"]) for s in diag.steps]
+
     def localise(diag, rng):
-        local = localise_render(data, rng, n_boot=min(n_boot, 500))
-        local.attrs["maps"] = residual_maps(data, [(s["added"], s["params"])
-                                                   for s in diag.steps])
+        local = localise_render(shown, rng, n_boot=min(n_boot, 500))
+        local.attrs["maps"] = residual_maps(_some(shown, _MAX_MAPS), chosen(diag))
         return local
+
+    def sizes(diag):
+        return {"misfit_pct_before": misfit_pct(test, []),
+                "misfit_pct_after": misfit_pct(test, chosen(diag))}
     return LayerPlan(functions, settings, localise=localise, train=train, test=test,
-                     loss_info={"noise_a2_b": {lv["name"]: lv["noise"] for lv in data.levels}})
+                     split=split, candidates=candidates, sizes=sizes,
+                     loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
+                                               for lv in train.levels + test.levels}})
+
+
+#: At most this many levels (held-out lights) drawn in the report's residual maps.
+_MAX_MAPS = 8
+
+
+def is_light_fit(folder) -> bool:
+    """True when ``folder`` holds a directional-light gloss fit (fit.json kind "lights")."""
+    try:
+        return json.loads((Path(folder) / "fit.json").read_text()).get("kind") == "lights"
+    except (OSError, json.JSONDecodeError, AttributeError):
+        return False
+
+
+def _some(data: RenderData, n: int) -> RenderData:
+    """``data`` with at most ``n`` of its levels, evenly spaced (the report's maps)."""
+    if len(data.levels) <= n:
+        return data
+    idx = np.unique(np.linspace(0, len(data.levels) - 1, n).round().astype(int))
+    return RenderData([data.levels[i] for i in idx])

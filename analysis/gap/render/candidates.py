@@ -16,7 +16,7 @@ import numpy as np
 from scipy import optimize
 
 from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
-from analysis.gap.render.data import _FRESNEL_CAPS, RenderData
+from analysis.gap.render.data import _FRESNEL_CAPS, BROAD_ALPHAS, RenderData
 from analysis.gap.render.model import (
     _basis,
     _best_on_grid,
@@ -29,6 +29,9 @@ from analysis.gap.render.model import (
     _wings,
 )
 
+#: The render catalogue's candidates whose parameters one material shares across directional
+#: lights, in the order their terms apply; the broad lobe ("render_lights") after them.
+LIGHT_CANDIDATES = ("fresnel", "clearcoat", "veiling_glare", "vignetting")
 #: Glare spreads (x image width): a Gaussian's SD (> 0) or a power-law kernel's core (< 0).
 _GLARE_SIGMAS = (0.125, 0.25, 0.5, -0.015, -0.03, -0.06)
 #: Where the diffuse light entered the coat (see _coat_t, _coat_lights and _coat_mirror): from
@@ -291,6 +294,37 @@ register("render", Candidate(
     units="px", truth=lambda s: {"shift_norm_px": float(s)},
     params={"shift_px": ParamDoc("shift", "px", parts=("render shift down",
                                                        "render shift right")),
+            "scale": _SCALE}))
+
+
+
+# --- under directional lights only (analysis.gap.render.lights) -----------------------------
+
+def _apply_broad_lobe(lv, im, q):
+    return im | {"S": im["S"] + q["c"] * lv["lobes"][q["alpha2"]]}
+
+
+def _inject_broad_lobe(studio, level, s, rng):
+    """A share ``s`` of the diffuse albedo moved into a second, broad Ward lobe (alpha 0.5):
+    a rough or hazy surface's light scattered near the mirror direction, not evenly."""
+    rho_d, _, _ = studio.level(level)
+    d0, s0 = studio.base(level)
+    broad = studio.render(studio.ward(0.0, s * rho_d, 0.5), 71 + level)
+    return studio.background() + (1 - s) * d0 + s0 + broad
+
+
+#: Registered apart ("render_lights"): its form needs each photo's light direction, which
+#: only a directional-light set has; a panorama's levels keep the render catalogue.
+register("render_lights", Candidate(
+    "broad_lobe", _fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS),
+    "a second, broad specular lobe beside the fitted one (light scattered about the mirror "
+    "direction, not evenly as Lambert's)", apply=_apply_broad_lobe, inject=_inject_broad_lobe,
+    default_strength=0.1, units="share of the diffuse albedo in the broad lobe",
+    # The lobe's albedo in units of the fitted diffuse one: s / (1 - s) once the diffuse scale
+    # has given up the share s.
+    truth=lambda s: {"c": float(s) / (1 - float(s)), "alpha2": 0.5},
+    params={"alpha2": ParamDoc("broad lobe's width", "Ward alpha"),
+            "c": ParamDoc("broad lobe's albedo", "× the fitted diffuse albedo"),
             "scale": _SCALE}))
 
 RENDER_CANDIDATES = catalogue("render")

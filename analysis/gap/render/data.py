@@ -21,7 +21,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
-from analysis.gap.render.model import _fill, noise_model, noise_sd
+from analysis.gap.render.model import _fill, noise_model, noise_sd, ward_lobe
 from studydesign import rec709_luminance
 
 NPZ_ARRAYS = ("photo", "render", "diffuse", "specular")
@@ -40,6 +40,9 @@ _KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
 #: The 'mirror' coat entry (see _mirror_light, _coat_mirror): at most about this many light
 #: directions, and pixels summed over in blocks of this many (memory: 8 bytes x the product).
 _MIRROR_LIGHTS, _MIRROR_CHUNK = 4096, 1024
+#: Widths (Ward alpha) of the broad_lobe candidate's second lobe under directional lights, a
+#: grid: broad (a resin's haze), or sharp where the fitted lobe took the broad light.
+BROAD_ALPHAS = (0.05, 0.1, 0.15, 0.25, 0.4, 0.6, 0.9, 1.3)
 
 
 def _lum(a: np.ndarray) -> np.ndarray:
@@ -89,46 +92,8 @@ def load_render(real_path, sim_path=None) -> RenderData:
         if not g.exists():
             raise GapError(f"{g} missing: the render for {f.name} is not in --sim")
         with np.load(f) as a, np.load(g) as b:
-            need = [k for k in ("photo", *NPZ_MASKS) if k not in a.files]
-            need += [f"{k} (sim)" for k in ("render", "diffuse", "specular") if k not in b.files]
-            if need:
-                raise GapError(f"{f.name}: arrays {need} missing; the residual files need "
-                               f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
-            P = _lum(a["photo"])
-            D, S = _lum(b["diffuse"]), _lum(b["specular"])
-            # The fit's render is B + D + S, B the panorama around the (black) sphere: it
-            # reaches into the rim's edge pixels, which the sphere covers only in part.
-            B = _lum(b["render"]) - D - S
-            masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
-            valid = np.asarray(a["valid"], bool) if "valid" in a.files else np.isfinite(P)
-        if P.shape != D.shape:
-            raise GapError(f"{f.name}: photo {P.shape} and render {D.shape} differ in size")
-        h, w = P.shape
-        sph = masks["sphere"]
-        if sph.sum() < 20:
-            raise GapError(f"{f.name}: the sphere mask has {int(sph.sum())} pixels (< 20)")
-        yy, xx = np.mgrid[0:h, 0:w].astype(float)
-        cy, cx = yy[sph].mean(), xx[sph].mean()
-        # The fit's sphere mask stops 1 px inside the silhouette.
-        radius = np.sqrt(sph.sum() / np.pi) + 1.0
-        r = np.hypot(yy - cy, xx - cx) / radius
-        cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
-        fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
-        coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
-                                      (xx - cx) / radius, cover, distance)
-        rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
-        fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
-        train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
-        m = re.search(r"(\d+(?:\.\d+)?)", f.stem)
-        R0 = B + D + S
-        noise = noise_model(P - R0, R0, valid & sph)
-        levels.append({"name": f.stem, "gloss": float(m.group(1)) if m else np.nan,
-                       "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
-                       "coat": coat, "cover": cover, "rho2": rho2,
-                       "geometry": (cy, cx, radius), "distance": distance,
-                       "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
-                       "train": train, "use": fit, "width": w,
-                       "noise": noise, "sd": noise_sd(R0, *noise)})
+            levels.append(make_level(f.stem, {k: a[k] for k in a.files},
+                                     {k: b[k] for k in b.files}, distance))
     # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe),
     # brought onto this level's sphere.
     sharp = {lv["name"]: _sharpness(lv) for lv in levels}
@@ -139,6 +104,109 @@ def load_render(real_path, sim_path=None) -> RenderData:
     for lv in levels:
         lv["coat"]["mirror"] = _coat_mirror(light, lv)
     return RenderData(levels)
+
+
+def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
+               coat_lights: bool = True) -> dict:
+    """One level's dict (:class:`RenderData`) from a residual file's arrays: the photo and
+    masks from ``a`` (REAL's), the render's components from ``b`` (SIM's). ``coat_lights``:
+    fit the coat's lights to the diffuse shading (a panorama's levels; a directional light's
+    level knows its light, :mod:`analysis.gap.render.lights`)."""
+    need = [k for k in ("photo", *NPZ_MASKS) if k not in a]
+    need += [f"{k} (sim)" for k in ("render", "diffuse", "specular") if k not in b]
+    if need:
+        raise GapError(f"{name}: arrays {need} missing; the residual files need "
+                       f"{NPZ_ARRAYS} and masks {NPZ_MASKS}")
+    P = _lum(a["photo"])
+    D, S = _lum(b["diffuse"]), _lum(b["specular"])
+    # The fit's render is B + D + S, B the panorama around the (black) sphere: it
+    # reaches into the rim's edge pixels, which the sphere covers only in part.
+    B = _lum(b["render"]) - D - S
+    masks = {k: np.asarray(a[k], bool) for k in NPZ_MASKS}
+    valid = np.asarray(a["valid"], bool) if "valid" in a else np.isfinite(P)
+    if P.shape != D.shape:
+        raise GapError(f"{name}: photo {P.shape} and render {D.shape} differ in size")
+    h, w = P.shape
+    sph = masks["sphere"]
+    if sph.sum() < 20:
+        raise GapError(f"{name}: the sphere mask has {int(sph.sum())} pixels (< 20)")
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    cy, cx = yy[sph].mean(), xx[sph].mean()
+    # The fit's sphere mask stops 1 px inside the silhouette.
+    radius = np.sqrt(sph.sum() / np.pi) + 1.0
+    r = np.hypot(yy - cy, xx - cx) / radius
+    cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
+    fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
+    if coat_lights:
+        coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
+                                      (xx - cx) / radius, cover, distance)
+    rho2 = ((yy - (h - 1) / 2) ** 2 + (xx - (w - 1) / 2) ** 2) / ((h / 2) ** 2 + (w / 2) ** 2)
+    fit = valid & (masks["highlight"] | masks["body"] | masks["rim"]) & np.isfinite(P)
+    train = ((yy // _BLOCK + xx // _BLOCK) % 2 == 0)
+    m = re.search(r"(\d+(?:\.\d+)?)", name)
+    R0 = B + D + S
+    noise = noise_model(P - R0, R0, valid & sph)
+    return {"name": name, "gloss": float(m.group(1)) if m else np.nan,
+            "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
+            "coat": coat, "cover": cover, "rho2": rho2,
+            "geometry": (cy, cx, radius), "distance": distance,
+            "regions": {k: masks[k] & valid for k in REGIONS}, "fit": fit,
+            "train": train, "use": fit, "width": w,
+            "noise": noise, "sd": noise_sd(R0, *noise)}
+
+
+
+def load_lights(real, sim, lights=None) -> tuple[RenderData, RenderData, str]:
+    """(train, test, split in words) of a directional-light fit (SIM; None: REAL). With
+    ``lights``: train = SIM's fitted pixels, test = REAL's (the photo set's) photos under
+    ``lights`` against the fitted material rendered there. Without: each fitted light's photo
+    split into a checkerboard of 4 x 4 px blocks. GapError: no such fit, a fitted light held
+    out, a bad photo set."""
+    from stimuli.glossfit.lightfit import predict_lights, read_light_fit
+    from stimuli.glossfit.photoset import GlossFitError
+
+    sim = Path(sim if sim is not None else real)
+    try:
+        info = read_light_fit(sim)
+        fitted = []
+        for f in sorted((sim / "residuals").glob("light_*.npz")):
+            with np.load(f) as a:
+                fitted.append(_light_level(f.stem, {k: a[k] for k in a.files}))
+        if lights is None:
+            data = RenderData(fitted)
+            return data.view("train"), data.view("test"), "checkerboard of 4 x 4 px blocks"
+        test = [_light_level(f"light_{k:03d}", a, held_out=True)
+                for k, a in predict_lights(sim, real, lights).items()]
+    except (GlossFitError, ValueError) as exc:
+        raise GapError(str(exc)) from None
+    split = (f"held-out lights {', '.join(lv['name'][6:].lstrip('0') for lv in test)} (the "
+             f"fit's lights: {', '.join(str(k) for k in info['lights'])})")
+    return RenderData(fitted), RenderData(test), split
+
+
+def _light_level(name: str, arrays: dict, held_out: bool = False) -> dict:
+    """A level under one directional light: :func:`make_level`'s with the light, the normals
+    (3, h, w), shared scales, the coat's exact entry T(n.l) beside its exit (mean 1 within 0.3
+    radii of the centre) and the broad lobes (``rho_d f n.l = pi D f``, per BROAD_ALPHAS);
+    every fitted pixel used (``held_out``: as the test)."""
+    if "light" not in arrays or "normals" not in arrays:
+        raise GapError(f"{name}: no light or normals in the residual file; fit the set with "
+                       "python -m stimuli fit-gloss SET --lights 1-24 --out FIT")
+    lv = make_level(name, arrays, arrays, None, coat_lights=False)
+    lv["light"] = light = np.asarray(arrays["light"], float)
+    lv["normals"] = n = np.moveaxis(np.asarray(arrays["normals"], float), -1, 0)
+    lv["shared"], lv["wider"], lv["use"] = True, {}, lv["fit"]
+    ndl = np.tensordot(light, n, axes=([0], [0]))
+    cy, cx, radius = lv["geometry"]
+    yy, xx = np.mgrid[0:ndl.shape[0], 0:ndl.shape[1]].astype(float)
+    r2 = ((yy - cy) ** 2 + (xx - cx) ** 2) / radius**2
+    lv["coat"]["lights"] = lv["coat"]["mirror"] = _unit_at_centre(
+        lv["coat"]["surround"] * _coat_t(np.clip(ndl, 0.0, 1.0)), r2, lv["cover"] > 0)
+    per_ndl = np.pi * np.where(lv["D"] > 0, lv["D"], 0.0) / np.where(ndl > 1e-6, ndl, 1.0)
+    lv["lobes"] = {a: per_ndl * ward_lobe(n, light, a) for a in BROAD_ALPHAS}
+    if held_out:
+        lv["train"] = np.zeros_like(lv["fit"])
+    return lv
 
 
 def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:

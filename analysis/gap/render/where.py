@@ -86,12 +86,13 @@ def residual_maps(data: RenderData, fitted: list) -> dict:
     Returns
     -------
     dict
-        ``{level name: {"photo": P, "before": z, "after": z}}``, each (h, w) float.
+        ``{level name: {"photo": P, "prediction": the extended render, "before": z,
+        "after": z}}``, each (h, w) float.
     """
     out = {}
     for lv in data.levels:
         valid = lv["fit"]
-        maps = {"photo": lv["P"]}
+        maps = {"photo": lv["P"], "prediction": _predict(lv, fitted)}
         for key, steps in (("before", []), ("after", fitted)):
             z = (lv["P"] - _predict(lv, steps)) / lv["sd"]
             maps[key] = np.where(valid, z, np.nan)
