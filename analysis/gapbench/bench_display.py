@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.gap.engine.steps import NO_GAP
 from analysis.gapbench.scoring import (
     balanced_draw,
     per_case,
@@ -428,7 +429,7 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
         true_shrink = _true_shrink(diag, target, real) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
     outside = [e for e in plan["effects"] if e not in cat]
-    named = [] if diag.verdict == "unexplained" else diag.verdict.split(" + ")
+    named = [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + ")
     rem = diag.remaining or {}
     return {"layer": "display", "case": case, "effects": plan["effects"],
             "inside": inside, "outside": outside, "verdict": diag.verdict,

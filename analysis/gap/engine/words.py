@@ -18,7 +18,16 @@ def _names(steps) -> str:
 
 
 def summarise(d: Diagnosis) -> str:
-    """The verdict in one or two plain sentences (no markup)."""
+    """The verdict in one or two plain sentences (no markup), then one per effect the data
+    cannot identify."""
+    text = _verdict_words(d)
+    for name, why in (d.not_identifiable or {}).items():
+        text += f" {name.replace('_', ' ').capitalize()}: not identifiable from these readings ({why})."
+    return text
+
+
+def _verdict_words(d: Diagnosis) -> str:
+    """The verdict's own sentence(s)."""
     if d.floor_status == "misestimated":
         return _floor_words(d)
     rem = d.remaining or {}

@@ -32,7 +32,7 @@ def test_black_offset_recovered(tmp_path):
     assert diag.steps[0]["params"]["c"] == pytest.approx(0.05, abs=0.01)
 
 
-@pytest.mark.parametrize("effect,verdict", [("none", "unexplained"),
+@pytest.mark.parametrize("effect,verdict", [("none", "no_significant_gap"),
                                             ("gamma_change", "unexplained")])
 def test_nothing_or_out_of_catalogue_is_unexplained(tmp_path, effect, verdict):
     diag, _ = _diag(tmp_path, effect, strengths("display").get(effect, 0.0), 8)
