@@ -28,7 +28,8 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
         real, sim, design, rng, n_boot=n_boot, **options)
     diag = diagnose_losses(layer, catalogue(layer), plan.functions, plan.settings, rng=rng,
                            seed=seed, train=plan.train, test=plan.test, folds=plan.folds,
-                           loss_info=plan.loss_info, split=plan.split, warnings=plan.warnings)
+                           loss_info=plan.loss_info, split=plan.split, warnings=plan.warnings,
+                           not_identifiable=plan.not_identifiable)
     return diag, plan.localise(diag, rng)
 
 

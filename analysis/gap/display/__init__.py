@@ -71,7 +71,11 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.display.candidates import DISPLAY_CANDIDATES, DISPLAY_MIN_SHARE
+from analysis.gap.display.candidates import (
+    DISPLAY_CANDIDATES,
+    DISPLAY_MIN_SHARE,
+    display_identifiability,
+)
 from analysis.gap.display.ceiling import display_ceiling, display_floor
 from analysis.gap.display.data import load_display
 from analysis.gap.display.model import (
@@ -94,6 +98,7 @@ __all__ = [
     "display_floor",
     "display_folds",
     "display_frame",
+    "display_identifiability",
     "display_loss",
     "display_loss_info",
     "display_nll",
@@ -120,4 +125,5 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, loss_info=display_loss_info(data))
+        folds=folds, split=text, loss_info=display_loss_info(data),
+        not_identifiable=display_identifiability(data))

@@ -16,9 +16,11 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 from scipy.interpolate import BSpline
+from scipy.special import log_ndtr
 
-from analysis.gap.display.data import _has_pairs, _times
+from analysis.gap.display.data import _has_pairs, _seconds, _timed
 from analysis.gap.engine import GapError, candidate, split_held_out
+from calibration.noise import FLOOR_SD_MULTIPLE, default_noise
 
 #: Interior knots of the time spline the noise fit may use for drift (None: no drift).
 _DRIFT_KNOTS = (None, 0, 1, 2, 4, 8)
@@ -26,13 +28,16 @@ _DRIFT_KNOTS = (None, 0, 1, 2, 4, 8)
 
 # --- the noise floor: pairs of repeats, drift modelled in time -----------------------------
 
-def _pairs(frame: pd.DataFrame, t0) -> tuple[np.ndarray, ...]:
-    """Consecutive readings of each patch (x, y, level), in time: (L1, L2, t1, t2) with t in
-    s since ``t0``."""
-    f = frame.assign(_t=(_times(frame) - t0).dt.total_seconds().to_numpy(float))
-    f = f.sort_values("_t", kind="stable")
+def _pairs(frame: pd.DataFrame, floor: float = 0.0) -> tuple[np.ndarray, ...]:
+    """Consecutive readings of each patch (x, y, level and the file's conditions), in time:
+    (L1, L2, t1, t2) with t since the frame's first reading (:func:`_seconds`). Pairs with a
+    reading at or below the meter's ``floor`` (cd/m^2; a zero at least) are left out: the
+    meter's floor, not its noise, makes them agree."""
+    f = frame.assign(_t=_seconds(frame)).sort_values("_t", kind="stable")
     out = [[], [], [], []]
-    for _, grp in f.groupby(["x_norm", "y_norm", "level"], sort=False):
+    keys = ["x_norm", "y_norm", "level", *frame.attrs.get("conditions", [])]
+    for _, grp in f.groupby(keys, sort=False):
+        grp = grp[grp["luminance_cd_m2"].to_numpy(float) > max(floor, 0.0)]
         if len(grp) < 2:
             continue
         lum, t = grp["luminance_cd_m2"].to_numpy(float), grp["_t"].to_numpy(float)
@@ -51,7 +56,7 @@ def _bspline(x, lo: float, hi: float, n_interior: int, degree: int = 3) -> np.nd
                                  degree).toarray()
 
 
-def fit_noise_drift(frames, *, t0=None) -> dict:
+def fit_noise_drift(frames, *, floor: float = 0.0) -> dict:
     """Photometer noise from pairs of consecutive repeats, with the display's drift in time.
 
     Each pair ``(L1 at t1, L2 at t2)`` of the same patch differs by noise and by whatever the
@@ -67,9 +72,10 @@ def fit_noise_drift(frames, *, t0=None) -> dict:
     Parameters
     ----------
     frames : sequence of DataFrame
-        Readings (READINGS_COLUMNS), e.g. a check's readings and its warm-up series.
-    t0 : pandas.Timestamp, optional
-        Time origin (default: the earliest reading).
+        Readings (READINGS_COLUMNS), e.g. a check's readings and its warm-up series; each
+        file's time counts from its own first reading.
+    floor : float
+        The meter's floor, cd/m^2: pairs with a reading at or below it are left out.
 
     Returns
     -------
@@ -84,9 +90,7 @@ def fit_noise_drift(frames, *, t0=None) -> dict:
         With fewer than 4 pairs of repeated readings.
     """
     frames = [f for f in frames if f is not None and len(f)]
-    if t0 is None:
-        t0 = min(_times(f).min() for f in frames)
-    parts = [p for p in (_pairs(f, t0) for f in frames) if p[0].size]
+    parts = [p for p in (_pairs(f, floor) for f in frames) if p[0].size]
     if sum(p[0].size for p in parts) < 4:
         raise GapError("the display diagnosis needs repeated readings of the same patch "
                        "(same x_norm, y_norm, level; >= 2 repeats) to measure the photometer's "
@@ -153,17 +157,20 @@ def _fit_pairs(d, s2, x) -> dict:
 def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     """Readings with the plain simulation's prediction and the noise model's SD.
 
-    Columns added: ``t_s`` (s since the first reading), ``L`` (cd/m^2), ``lmin``, ``rel``
-    (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (noise SD,
-    cd/m^2), ``cell`` (patch name ``x,y,level``). ``attrs["noise"]``: :func:`fit_noise_drift`
-    on ``readings.attrs["noise_frames"]`` (default: the readings themselves).
+    Columns added: ``t_s`` (time since the first reading: s, or the measurement order where
+    the file has no timestamps, ``attrs["timed"]`` False), ``L`` (cd/m^2), ``lmin``, ``rel``
+    (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (SD of a
+    reading about the calibration's prediction, cd/m^2: :func:`_reading_sd`), ``censored``
+    (at or below the meter's floor, ``attrs["floor"]``), ``cell`` (patch name ``x,y,level``).
+    ``attrs["noise"]``: the photometer's noise (:func:`_noise`); ``attrs["conditions"]``: the
+    file's condition columns (kept).
     """
     noise_frames = readings.attrs.get("noise_frames") or [readings]
     source = readings.attrs.get("display_source", {})
+    conditions = list(readings.attrs.get("conditions", []))
     out = readings.copy().reset_index(drop=True)
     out.attrs = {}
-    t = _times(out)
-    out["t_s"] = (t - t.min()).dt.total_seconds().to_numpy(float)
+    out["t_s"] = _seconds(out)
     out["L"] = out["luminance_cd_m2"].to_numpy(float)
     out["lmin"] = float(cal.min_luminance_cd_m2)
     x, y = out["x_norm"].to_numpy(float), out["y_norm"].to_numpy(float)
@@ -173,19 +180,106 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     else:
         out["rel"] = 1.0
     out["cell"] = [f"{a:+.3f},{b:+.3f},{c:.4f}" for a, b, c in zip(x, y, out["level"])]
-    out.attrs["cal"] = cal
-    out.attrs["display_source"] = source
+    out.attrs |= {"cal": cal, "display_source": source, "timed": _timed(out),
+                  "conditions": conditions}
     out["mu0"] = _mean(out, [])
-    noise = fit_noise_drift(noise_frames)
+    noise = _noise(noise_frames, cal, out["L"].to_numpy(float))
     out.attrs["noise"] = noise
-    out["sd"] = np.sqrt(noise["abs"] ** 2 + (noise["rel"] * out["L"]) ** 2)
+    out.attrs["floor"] = floor = max(noise["floor_cd_m2"], 0.0)
+    out["censored"] = out["L"].to_numpy(float) <= floor
+    out["sd"], out["var_expected"] = _reading_sd(out, noise)
     return out
+
+
+def _noise(frames, cal, lum: np.ndarray) -> dict:
+    """The photometer's noise (:func:`fit_noise_drift` fields plus ``source``, in words, and
+    ``floor_cd_m2``, the meter's floor): from pairs of repeats where there are any, else the
+    noise the calibration measured from its own repeats, else the documented meter model
+    (:func:`calibration.noise.default_noise`: 0.1 % of the brightest reading plus 0.5 %)."""
+    fit = cal.chosen_fit
+    recorded = dict(fit.noise) if fit is not None and fit.noise else {}
+    cal_floor = float(recorded.get("floor_cd_m2", 0.0))
+    try:
+        n = fit_noise_drift(frames, floor=cal_floor)
+        n["source"] = f"{n['n_pairs']} pairs of repeated readings"
+    except GapError:
+        if recorded.get("source") == "repeats":
+            a, b = float(recorded["abs_cd_m2"]), float(recorded["rel"])
+            src = ("the calibration's repeated readings (no repeats here: the noise the "
+                   "calibration measured with its photometer)")
+        else:
+            d = default_noise(lum)
+            a, b = d.abs_cd_m2, d.rel
+            src = ("the documented meter model (no repeats here or in the calibration: "
+                   "calibration.noise.default_noise, 0.1 % of the brightest reading + 0.5 %)")
+        n = {"abs": a, "rel": b, "n_pairs": 0, "drift_knots": None, "drift_pct": 0.0,
+             "drift_abs_cd_m2": 0.0, "source": src}
+    n["floor_cd_m2"] = max(cal_floor, FLOOR_SD_MULTIPLE * n["abs"])
+    return n
+
+
+def _reading_sd(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarray]:
+    """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
+    ``a^2 + (b L)^2`` (L at least the floor) plus the calibration's own error at the reading's
+    drive (:func:`calibration_sd`, above-black part scaled by ``rel``). That error is shared by
+    every reading at the drive level, so it is counted ``n`` times for ``n`` readings there:
+    the level's mean is then weighed as in the exact likelihood with one random error per
+    level, and a calibration fitted from noisy readings is no gap in itself.
+
+    Returns (sd, the expected squared deviation of one reading from a right calibration,
+    noise plus the calibration's error once, for the floor), cd/m^2 and (cd/m^2)^2."""
+    lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
+    var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2
+    level = data["level"].to_numpy(float)
+    cal_sd = calibration_sd(data.attrs["cal"], level) * data["rel"].to_numpy(float)
+    n_at = pd.Series(level).map(pd.Series(level).value_counts()).to_numpy(float)
+    return np.sqrt(var + n_at * cal_sd**2), var + cal_sd**2
+
+
+def calibration_sd(cal, drive) -> np.ndarray:
+    """SD of the calibration's predicted luminance (cd/m^2) at ``drive`` from the uncertainty
+    of its gamma fit: the delta method on the chosen model's parameters, their covariance the
+    inverse Fisher information of the readings it was fitted from (uncensored, under their
+    recorded noise), scaled up by the fit's reduced chi-square where above 1 (a misfit).
+    Zero where the fit's readings were not recorded."""
+    from calibration import gamma_luminance
+    from calibration.noise import NoiseModel
+
+    drive = np.asarray(drive, float)
+    fit = cal.chosen_fit
+    if fit is None or len(fit.levels) < 3:
+        return np.zeros(drive.shape)
+    x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
+    keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
+    noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
+    sd = noise.sd(y[keep])
+    params = {k: float(v) for k, v in cal.gamma_params.items()}
+
+    def grad(at):
+        cols = []
+        for k, v in params.items():
+            h = 1e-4 * max(abs(v), 1e-2)
+            up = gamma_luminance(at, model=cal.gamma_model, params=params | {k: v + h})
+            down = gamma_luminance(at, model=cal.gamma_model, params=params | {k: v - h})
+            cols.append((np.asarray(up, float) - np.asarray(down, float)) / (2 * h))
+        return np.stack(cols, axis=-1)
+    jac, g = grad(x[keep]) / sd[:, None], grad(drive)
+    if not np.all(np.isfinite(jac)) or not np.all(np.isfinite(g)):
+        return np.zeros(drive.shape)
+    cov = np.linalg.pinv(jac.T @ jac)
+    mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model, params=params), float)
+    dof = max(keep.sum() - len(params), 1)
+    scale = max(1.0, float(np.sum(((y[keep] - mu) / sd) ** 2)) / dof)
+    return np.sqrt(np.maximum(np.einsum("...i,ij,...j->...", g, cov, g) * scale, 0.0))
 
 
 def display_loss_info(data: pd.DataFrame) -> dict:
     """The noise model, the drift between repeats and what was diagnosed (for the report)."""
     n = data.attrs["noise"]
     return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"], "noise_pairs": n["n_pairs"],
+            "noise_source": n["source"], "floor_cd_m2": data.attrs["floor"],
+            "censored_readings": int(data["censored"].sum()),
+            "timed": bool(data.attrs["timed"]), "conditions": data.attrs["conditions"],
             "drift_between_repeats_pct": n["drift_pct"],
             "drift_between_repeats_cd_m2": n["drift_abs_cd_m2"],
             "source": data.attrs.get("display_source", {})}
@@ -207,9 +301,16 @@ def _mean(data: pd.DataFrame, fitted: list) -> np.ndarray:
 
 
 def display_nll(data: pd.DataFrame, mean: np.ndarray) -> np.ndarray:
-    """Per-reading Gaussian NLL (nats) of predictions ``mean`` (cd/m^2) under the noise model."""
+    """Per-reading NLL (nats) of predictions ``mean`` (cd/m^2): Gaussian under the reading's
+    SD; a reading at or below the meter's floor is censored, ``-log P(L <= floor)`` (it says
+    only "no more than the floor", as in the calibration's fit), so a zero is never exact."""
     sd = data["sd"].to_numpy(float)
-    return 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((data["L"].to_numpy(float) - mean) / sd) ** 2
+    nll = 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((data["L"].to_numpy(float) - mean) / sd) ** 2
+    cens = data["censored"].to_numpy(bool) if "censored" in data else np.zeros(len(data), bool)
+    if cens.any():
+        z = (data.attrs["floor"] - np.asarray(mean, float)[cens]) / sd[cens]
+        nll[cens] = -log_ndtr(z)
+    return nll
 
 
 def display_loss(data: pd.DataFrame, fitted: list) -> np.ndarray:

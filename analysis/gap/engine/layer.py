@@ -37,6 +37,8 @@ class LayerPlan:
     split      how the held-out units were made, in words
     loss_info  what the loss assumes (noise model, base model), recorded in the result
     warnings   notes on the input, shown with the verdict
+    not_identifiable  ``{effect: reason}``: catalogue effects the data cannot identify (left
+               out of the ranking, named in the words)
     ========== =========================================================================
     """
 
@@ -49,3 +51,4 @@ class LayerPlan:
     split: str = ""
     loss_info: dict | None = None
     warnings: tuple = field(default_factory=tuple)
+    not_identifiable: dict = field(default_factory=dict)
