@@ -185,7 +185,7 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     out["mu0"] = _mean(out, [])
     noise = _noise(noise_frames, cal, out["L"].to_numpy(float))
     out.attrs["noise"] = noise
-    out.attrs["floor"] = floor = max(noise["floor_cd_m2"], 0.0)
+    out.attrs["floor"] = floor = max(noise["floor_cd_m2"], _foot(out), 0.0)
     out["censored"] = out["L"].to_numpy(float) <= floor
     out["sd"], out["var_expected"] = _reading_sd(out, noise)
     return out
@@ -216,6 +216,17 @@ def _noise(frames, cal, lum: np.ndarray) -> dict:
              "drift_abs_cd_m2": 0.0, "source": src}
     n["floor_cd_m2"] = max(cal_floor, FLOOR_SD_MULTIPLE * n["abs"])
     return n
+
+
+def _foot(data: pd.DataFrame) -> float:
+    """A constant foot, cd/m^2: the lowest reading where the two lowest drive levels or more
+    read exactly it (a meter at its floor reports the same value whatever lies below);
+    else 0."""
+    lum, level = data["L"].to_numpy(float), data["level"].to_numpy(float)
+    low = lum.min(initial=0.0)
+    at = np.unique(level[lum == low])
+    below = np.unique(level[level <= at.max()]) if at.size else at
+    return float(low) if at.size >= 2 and at.size == below.size else 0.0
 
 
 def _reading_sd(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarray]:
