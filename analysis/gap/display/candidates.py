@@ -116,15 +116,16 @@ def _apply_quantisation(data, terms, p):
 
 def _step_visible(data, bits: int) -> bool:
     """Whether a ``bits``-bit DAC's staircase shows in these readings: the luminance its
-    rounding moves, less what a smooth change (offset, gain, exponent) of the calibration
-    explains of it, adds up to at least :data:`_STEP_CHI2` (squared noise SDs) over the
-    readings. With levels too coarse (a handful, far apart) every rounding pattern is as
-    smooth as a slightly different gamma, and a coarser DAC cannot be told from one."""
+    rounding moves, less what a smooth change of the calibration explains of it (an offset and
+    a gain that is a cubic in drive: a change of the transfer function's shape), adds up to at
+    least :data:`_STEP_CHI2` (squared noise SDs) over the readings. With a handful of levels
+    (5 or fewer) every rounding pattern is such a smooth change, and a coarser DAC cannot be
+    told from one; with levels fine enough, the step's jump shows."""
     base = _mean(data, [])
     dev = _mean(data, [("quantisation", {"bits": bits})]) - base
     above = base - data["lmin"].to_numpy(float)
-    level = np.maximum(data["level"].to_numpy(float), 1e-3)
-    cols = np.c_[np.ones(len(data)), above, above * np.log(level)]
+    level = data["level"].to_numpy(float)
+    cols = np.c_[np.ones(len(data)), above[:, None] * level[:, None] ** np.arange(4)]
     w = _weights(data)
     resid = dev - cols @ _wls(dev, cols, w)
     return float(np.sum(w * resid**2)) >= _STEP_CHI2

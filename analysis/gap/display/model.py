@@ -219,10 +219,14 @@ def _noise(frames, cal, lum: np.ndarray) -> dict:
 
 
 def _foot(data: pd.DataFrame) -> float:
-    """A constant foot, cd/m^2: the lowest reading where the two lowest drive levels or more
-    read exactly it (a meter at its floor reports the same value whatever lies below);
-    else 0."""
+    """The meter's floor as the readings show it, cd/m^2: where some read 0 (or less), the
+    lowest positive reading (a zero says only "below the floor", and no reading above the
+    floor was reported as 0, so the floor is at most that); else a constant foot, the lowest
+    reading where the two lowest drive levels or more read exactly it (a meter at its floor
+    reports the same value whatever lies below); else 0."""
     lum, level = data["L"].to_numpy(float), data["level"].to_numpy(float)
+    if (lum <= 0).any() and (lum > 0).any():
+        return float(lum[lum > 0].min())
     low = lum.min(initial=0.0)
     at = np.unique(level[lum == low])
     below = np.unique(level[level <= at.max()]) if at.size else at
