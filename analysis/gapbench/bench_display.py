@@ -27,8 +27,8 @@ in_sample           the calibration's own readings passed as REAL: the diagnosis
                     and use the held-out validation readings (nothing to find)
 floor_zeros         nothing, but the photometer reads 0 below its floor (0.5 cd/m^2: every
                     black patch reads exactly 0, in the calibration and the check alike)
-refit_clean         nothing, but the calibration is fitted from its own noisy readings (its
-                    estimation error is no gap)
+refit_clean         nothing, but the calibration is fitted from its own noisy readings, one
+                    pass, and checked with three (its estimation error is no gap)
 gain_change         the white level changed since the calibration (2-6 %, either sign)
 condition           a screen load: the light above black dims with the bright share of the
                     screen (column ``bright_area``), measured in blocks of rising area, so it
@@ -381,7 +381,8 @@ def _case_plan(case: str, rng: np.random.Generator, cat: dict) -> dict:
     names = sorted(cat)
     plan = {"effects": {}, "order": "shuffled", "warmup": True, "start_s": 1800.0,
             "in_sample": False, "fit": "truth", "meter_floor": 0.0, "areas": None,
-            "repeats": 2, "n_levels": 17 if case == "drift_repeats" else 9, "n_other": 5}
+            "repeats": 2, "n_levels": 17 if case == "drift_repeats" else 9, "n_other": 5,
+            "cal_repeats": 3}
 
     def draw(name, lo=0.5, hi=1.5):
         base = cat[name].default_strength if name in cat else OUT_OF_CATALOGUE[name]
@@ -406,8 +407,8 @@ def _case_plan(case: str, rng: np.random.Generator, cat: dict) -> dict:
         plan |= {"effects": {"black_offset": float(rng.uniform(1.0, 2.0))}, "in_sample": True}
     elif case == "floor_zeros":
         plan["meter_floor"] = 0.5
-    elif case == "refit_clean":
-        plan["fit"] = "fitted"
+    elif case == "refit_clean":  # a quick calibration (one pass), a thorough check (3 passes)
+        plan |= {"fit": "fitted", "cal_repeats": 1, "repeats": 3}
     elif case == "gain_change":
         plan["effects"] = {"gain_change": float(rng.uniform(0.02, 0.06) * rng.choice([-1, 1]))}
     elif case == "condition":
@@ -452,7 +453,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cal_display = real if plan["in_sample"] else base
-        write_calibration_folder(tmp / "cal", cal_display, rng, fit=plan["fit"])
+        write_calibration_folder(tmp / "cal", cal_display, rng, fit=plan["fit"],
+                                 repeats=plan["cal_repeats"])
         if plan["in_sample"]:
             target = tmp / "cal"
         else:

@@ -19,9 +19,8 @@ _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
 
 
 def display_floor(data: pd.DataFrame) -> np.ndarray:
-    """Expected NLL of a model right up to the photometer's noise and the calibration's own
-    error (each reading's expected squared deviation ``var_expected`` under its SD); 0 for a
-    censored reading (a model far below the floor predicts it with certainty)."""
+    """Expected NLL of a model right up to the photometer's noise; 0 for a censored reading
+    (a model far below the floor predicts it with certainty)."""
     sd2 = data["sd"].to_numpy(float) ** 2
     expected = data["var_expected"].to_numpy(float) if "var_expected" in data else sd2
     floor = 0.5 * np.log(2 * np.pi * sd2) + 0.5 * expected / sd2

@@ -142,7 +142,8 @@ def load_display(real_path, sim_path):
     (readings, calibration)
         ``readings.attrs["display_source"]`` says what was diagnosed (``real``, ``kind``:
         check / readings / validation, ``in_sample_rows``, ``notes``) and
-        ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from.
+        ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from,
+        ``readings.attrs["calibration_rows"]`` the calibration's own readings (or None).
 
     Raises
     ------
@@ -179,6 +180,7 @@ def load_display(real_path, sim_path):
     readings = readings.copy()
     readings.attrs["display_source"] = source
     readings.attrs["noise_frames"] = noise_frames
+    readings.attrs["calibration_rows"] = fitted_rows
     return readings, cal
 
 

@@ -160,14 +160,16 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     Columns added: ``t_s`` (time since the first reading: s, or the measurement order where
     the file has no timestamps, ``attrs["timed"]`` False), ``L`` (cd/m^2), ``lmin``, ``rel``
     (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (SD of a
-    reading about the calibration's prediction, cd/m^2: :func:`_reading_sd`), ``censored``
+    reading, cd/m^2: :func:`_reading_sd`), ``censored``
     (at or below the meter's floor, ``attrs["floor"]``), ``cell`` (patch name ``x,y,level``).
     ``attrs["noise"]``: the photometer's noise (:func:`_noise`); ``attrs["conditions"]``: the
-    file's condition columns (kept).
+    file's condition columns (kept); ``attrs["cal_jac"]``, ``attrs["cal_prec"]``: the
+    calibration's own uncertainty (:func:`calibration_jacobian`), rows in this frame's order.
     """
     noise_frames = readings.attrs.get("noise_frames") or [readings]
     source = readings.attrs.get("display_source", {})
     conditions = list(readings.attrs.get("conditions", []))
+    cal_rows = readings.attrs.get("calibration_rows")
     out = readings.copy().reset_index(drop=True)
     out.attrs = {}
     out["t_s"] = _seconds(out)
@@ -188,7 +190,40 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     out.attrs["floor"] = floor = max(noise["floor_cd_m2"], _foot(out), 0.0)
     out["censored"] = out["L"].to_numpy(float) <= floor
     out["sd"], out["var_expected"] = _reading_sd(out, noise)
+    jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"])
+    if jac is not None:
+        jac = jac * out["rel"].to_numpy(float)[:, None]
+        pos_jac, pos_prec = _map_jacobian(out, cal, cal_rows, noise["rel"])
+        jac = np.c_[jac, pos_jac]
+        prec = np.block([[prec, np.zeros((prec.shape[0], pos_prec.size))],
+                         [np.zeros((pos_prec.size, prec.shape[0])), np.diag(pos_prec)]])
+    out.attrs["cal_jac"], out.attrs["cal_prec"] = jac, prec
     return out
+
+
+def _map_jacobian(data: pd.DataFrame, cal, rows, noise_rel: float):
+    """The uniformity map's own uncertainty: per measured position off the centre, a column
+    of the above-black light there (a relative gain of the map) and its precision, ``n`` bright
+    readings pooled there and ``n0`` at the centre: ``1 / (b^2 (1 / n + 1 / n0))`` with ``b``
+    the calibration's relative noise (the photometer's ``noise_rel`` where that was only the
+    default). No columns without a map or the calibration's readings."""
+    fit = cal.chosen_fit
+    none = np.zeros((len(data), 0)), np.zeros(0)
+    if cal.uniformity is None or rows is None or not len(rows):
+        return none
+    b = float(fit.noise["rel"]) if fit is not None and fit.noise.get("source") == "repeats" \
+        else float(noise_rel)
+    bright = rows[rows["level"].to_numpy(float) >= cal.uniformity.min_level]
+    count = bright.groupby([bright["x_norm"].round(4), bright["y_norm"].round(4)]).size()
+    n0 = float(count.get((0.0, 0.0), 0))
+    pos = list(zip(data["x_norm"].round(4), data["y_norm"].round(4)))
+    cells = sorted({p for p in pos if p != (0.0, 0.0) and p in count.index})
+    if n0 <= 0 or not cells:
+        return none
+    above = np.maximum(data["mu0"].to_numpy(float) - data["lmin"].to_numpy(float), 0.0)
+    cols = np.array([[float(p == c) for c in cells] for p in pos]) * above[:, None]
+    prec = np.array([1 / (b**2 * (1 / float(count[c]) + 1 / n0)) for c in cells])
+    return cols, prec
 
 
 def _noise(frames, cal, lum: np.ndarray) -> dict:
@@ -234,39 +269,32 @@ def _foot(data: pd.DataFrame) -> float:
 
 
 def _reading_sd(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarray]:
-    """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
-    ``a^2 + (b L)^2`` (L at least the floor) plus the calibration's own error at the reading's
-    drive (:func:`calibration_sd`, above-black part scaled by ``rel``). That error is shared by
-    every reading at the drive level, so it is counted ``n`` times for ``n`` readings there:
-    the level's mean is then weighed as in the exact likelihood with one random error per
-    level, and a calibration fitted from noisy readings is no gap in itself.
-
-    Returns (sd, the expected squared deviation of one reading from a right calibration,
-    noise plus the calibration's error once, for the floor), cd/m^2 and (cd/m^2)^2."""
+    """SD of each reading, cd/m^2: the photometer's noise ``a^2 + (b L)^2`` (L at least the
+    floor); and its square (the floor's expected squared deviation)."""
     lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
     var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2
-    level = data["level"].to_numpy(float)
-    cal_sd = calibration_sd(data.attrs["cal"], level) * data["rel"].to_numpy(float)
-    n_at = pd.Series(level).map(pd.Series(level).value_counts()).to_numpy(float)
-    return np.sqrt(var + n_at * cal_sd**2), var + cal_sd**2
+    return np.sqrt(var), var
 
 
-def calibration_sd(cal, drive) -> np.ndarray:
-    """SD of the calibration's predicted luminance (cd/m^2) at ``drive`` from the uncertainty
-    of its gamma fit: the delta method on the chosen model's parameters, their covariance the
-    inverse Fisher information of the readings it was fitted from (uncensored, under their
-    recorded noise), scaled up by the fit's reduced chi-square where above 1 (a misfit).
-    Zero where the fit's readings were not recorded."""
+def calibration_jacobian(cal, drive, noise_rel: float | None = None):
+    """The calibration's own uncertainty, for the null: ``(J, P)`` with ``J`` (n, p) the
+    derivative of its predicted luminance at ``drive`` (cd/m^2 per unit of each gamma
+    parameter) and ``P`` (p, p) the precision of its parameters, the Fisher information of the
+    readings it was fitted from (uncensored, under its recorded noise, or a relative noise
+    ``noise_rel`` where that noise was only the documented default), divided by the fit's
+    reduced chi-square where above 1 (a misfit). ``(None, None)`` where the fit's readings
+    were not recorded."""
     from calibration import gamma_luminance
     from calibration.noise import NoiseModel
 
-    drive = np.asarray(drive, float)
     fit = cal.chosen_fit
     if fit is None or len(fit.levels) < 3:
-        return np.zeros(drive.shape)
+        return None, None
     x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
     keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
     noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
+    if noise.source != "repeats" and noise_rel is not None:
+        noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
     sd = noise.sd(y[keep])
     params = {k: float(v) for k, v in cal.gamma_params.items()}
 
@@ -278,14 +306,41 @@ def calibration_sd(cal, drive) -> np.ndarray:
             down = gamma_luminance(at, model=cal.gamma_model, params=params | {k: v - h})
             cols.append((np.asarray(up, float) - np.asarray(down, float)) / (2 * h))
         return np.stack(cols, axis=-1)
-    jac, g = grad(x[keep]) / sd[:, None], grad(drive)
-    if not np.all(np.isfinite(jac)) or not np.all(np.isfinite(g)):
-        return np.zeros(drive.shape)
-    cov = np.linalg.pinv(jac.T @ jac)
+    jac_cal, jac = grad(x[keep]) / sd[:, None], grad(np.asarray(drive, float))
+    if not (np.all(np.isfinite(jac_cal)) and np.all(np.isfinite(jac))):
+        return None, None
     mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model, params=params), float)
-    dof = max(keep.sum() - len(params), 1)
+    dof = max(int(keep.sum()) - len(params), 1)
     scale = max(1.0, float(np.sum(((y[keep] - mu) / sd) ** 2)) / dof)
-    return np.sqrt(np.maximum(np.einsum("...i,ij,...j->...", g, cov, g) * scale, 0.0))
+    return jac, jac_cal.T @ jac_cal / scale
+
+
+def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:
+    """The calibration's gamma parameters and uniformity map moved within their uncertainty to
+    fit ``train`` beside the ``fitted`` candidates (linearised, maximum a posteriori: a ridge
+    with the calibration's precision as prior; :func:`calibration_jacobian`,
+    :func:`_map_jacobian`): what a calibration fitted from noisy readings may be off by, which
+    is no gap."""
+    jac, prec = train.attrs.get("cal_jac"), train.attrs.get("cal_prec")
+    if jac is None:
+        return None
+    j = jac[train.index.to_numpy()]
+    r = train["L"].to_numpy(float) - _mean(train, fitted)
+    w = 1 / train["sd"].to_numpy(float) ** 2 * ~train["censored"].to_numpy(bool)
+    return np.linalg.lstsq((j.T * w) @ j + prec, (j.T * w) @ r, rcond=None)[0]
+
+
+def display_loss_given(train: pd.DataFrame):
+    """The engine's loss for a fold trained on ``train``: ``loss(data, fitted)``, the NLL of
+    the simulation extended by ``fitted``, its calibration moved within its uncertainty to fit
+    ``train`` (:func:`_calibration_shift`)."""
+    def loss(data: pd.DataFrame, fitted: list) -> np.ndarray:
+        mean = _mean(data, fitted)
+        delta = _calibration_shift(train, fitted)
+        if delta is not None:
+            mean = mean + data.attrs["cal_jac"][data.index.to_numpy()] @ delta
+        return display_nll(data, mean)
+    return loss
 
 
 def display_loss_info(data: pd.DataFrame) -> dict:
