@@ -160,7 +160,8 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     Columns added: ``t_s`` (time since the first reading: s, or the measurement order where
     the file has no timestamps, ``attrs["timed"]`` False), ``L`` (cd/m^2), ``lmin``, ``rel``
     (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (SD of a
-    reading, cd/m^2: :func:`_reading_sd`), ``censored``
+    reading, cd/m^2: noise and the calibration model's misfit, :func:`_reading_sd`),
+    ``censored``
     (at or below the meter's floor, ``attrs["floor"]``), ``cell`` (patch name ``x,y,level``).
     ``attrs["noise"]``: the photometer's noise (:func:`_noise`); ``attrs["conditions"]``: the
     file's condition columns (kept); ``attrs["cal_jac"]``, ``attrs["cal_prec"]``: the
@@ -189,7 +190,8 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     out.attrs["noise"] = noise
     out.attrs["floor"] = floor = max(noise["floor_cd_m2"], _foot(out), 0.0)
     out["censored"] = out["L"].to_numpy(float) <= floor
-    out["sd"], out["var_expected"] = _reading_sd(out, noise)
+    lof = lack_of_fit_sd(cal, out["mu0"].to_numpy(float), noise["rel"])
+    out["sd"], out["var_expected"] = _reading_sd(out, noise, lof)
     jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"])
     if jac is not None:
         jac = jac * out["rel"].to_numpy(float)[:, None]
@@ -268,11 +270,12 @@ def _foot(data: pd.DataFrame) -> float:
     return float(low) if at.size >= 2 and at.size == below.size else 0.0
 
 
-def _reading_sd(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarray]:
-    """SD of each reading, cd/m^2: the photometer's noise ``a^2 + (b L)^2`` (L at least the
-    floor); and its square (the floor's expected squared deviation)."""
+def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.ndarray]:
+    """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
+    ``a^2 + (b L)^2`` (L at least the floor) and the calibration model's own misfit ``lof``
+    (:func:`lack_of_fit_sd`); and its square (the floor's expected squared deviation)."""
     lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
-    var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2
+    var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2 + np.asarray(lof, float) ** 2
     return np.sqrt(var), var
 
 
@@ -281,9 +284,8 @@ def calibration_jacobian(cal, drive, noise_rel: float | None = None):
     derivative of its predicted luminance at ``drive`` (cd/m^2 per unit of each gamma
     parameter) and ``P`` (p, p) the precision of its parameters, the Fisher information of the
     readings it was fitted from (uncensored, under its recorded noise, or a relative noise
-    ``noise_rel`` where that noise was only the documented default), divided by the fit's
-    reduced chi-square where above 1 (a misfit). ``(None, None)`` where the fit's readings
-    were not recorded."""
+    ``noise_rel`` where that noise was only the documented default). ``(None, None)`` where
+    the fit's readings were not recorded."""
     from calibration import gamma_luminance
     from calibration.noise import NoiseModel
 
@@ -309,10 +311,34 @@ def calibration_jacobian(cal, drive, noise_rel: float | None = None):
     jac_cal, jac = grad(x[keep]) / sd[:, None], grad(np.asarray(drive, float))
     if not (np.all(np.isfinite(jac_cal)) and np.all(np.isfinite(jac))):
         return None, None
-    mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model, params=params), float)
-    dof = max(int(keep.sum()) - len(params), 1)
-    scale = max(1.0, float(np.sum(((y[keep] - mu) / sd) ** 2)) / dof)
-    return jac, jac_cal.T @ jac_cal / scale
+    # A misfit of the model (more residual than noise) is not a parameter error: it is the
+    # reading's lack_of_fit_sd, not a looser prior here.
+    return jac, jac_cal.T @ jac_cal
+
+
+def lack_of_fit_sd(cal, lum, noise_rel: float | None = None) -> np.ndarray:
+    """SD (cd/m^2) of the calibration model's own misfit at luminance ``lum``: where its
+    gamma fit left more residual than its noise explains (reduced chi-square ``s`` above 1),
+    its noise SD at ``lum`` times ``sqrt(s - 1)`` (the calibration's residuals: a model that
+    misses its own readings by that much misses a repeat pass by as much, and that is no
+    change of the display). Zero where the fit fits or was not recorded."""
+    from calibration import gamma_luminance
+    from calibration.noise import NoiseModel
+
+    lum = np.asarray(lum, float)
+    fit = cal.chosen_fit
+    if fit is None or len(fit.levels) < 3:
+        return np.zeros(lum.shape)
+    x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
+    keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
+    noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
+    if noise.source != "repeats" and noise_rel is not None:
+        noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
+    mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model,
+                                    params=cal.gamma_params), float)
+    dof = max(int(keep.sum()) - len(cal.gamma_params), 1)
+    excess = float(np.sum(((y[keep] - mu) / noise.sd(y[keep])) ** 2)) / dof - 1.0
+    return noise.sd(lum) * np.sqrt(max(excess, 0.0))
 
 
 def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:

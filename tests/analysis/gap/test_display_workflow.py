@@ -138,8 +138,9 @@ def test_out_of_catalogue_display_effect_leaves_a_gap_above_the_ceiling(tmp_path
     # The bump: at some drive levels (beside a gain change, the extended model is brighter
     # at the top, so the most concentrated excess may lie there).
     where = {"mid_gamma_bump": "mostly at drive levels",
-             "gamma_gradient": "(readings brighter than the extended model towards the left, "
-                               "darker towards the right;"}[effect]
+             # Since issue 29 the uniformity map may move within its own uncertainty per
+             # position, which takes part of the gradient: the excess is at a position.
+             "gamma_gradient": "mostly at screen position ("}[effect]
     assert where in diag.remaining["where"]
     assert diag.remaining["where"] in diag.summary
 
@@ -163,8 +164,8 @@ def test_a_faint_black_offset_beside_a_warm_up_is_named_with_it(tmp_path):
     was tested on half of them and lost to a 0.1 % nonuniformity (verdict 'warmup_drift +
     nonuniformity' for this lab, seed 8, found by trying seeds 0-9); cross-fitted, every
     reading is held out once and the offset is named. (It was 0.025 cd/m^2: since issue 29
-    the calibration's own error counts, and its black level is known to 0.0076 cd/m^2 (SD),
-    so 0.025 is at the edge of what a check can tell from the calibration's error.)"""
+    the calibration may move within its own uncertainty, and its black level fitted from noisy
+    readings may be off by about that much, so 0.025 is no longer told from it.)"""
     rng = _lab(tmp_path, 8)
     real = bench_display.with_effect(bench_display.with_effect(DISPLAY, "black_offset", 0.05),
                                      "warmup_drift", 0.04)
