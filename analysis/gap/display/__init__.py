@@ -79,6 +79,7 @@ import numpy as np
 
 from analysis.gap.display.candidates import (
     DISPLAY_CANDIDATES,
+    DISPLAY_MIN_GAIN,
     DISPLAY_MIN_SHARE,
     display_identifiability,
 )
@@ -100,6 +101,7 @@ from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
 
 __all__ = [
     "DISPLAY_CANDIDATES",
+    "DISPLAY_MIN_GAIN",
     "DISPLAY_MIN_SHARE",
     "display_ceiling",
     "display_floor",
@@ -131,7 +133,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
                                ceiling=display_ceiling, where=display_where,
                                unit_ids=display_unit_ids)
     return LayerPlan(
-        functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
+        functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
+                                     min_gain=DISPLAY_MIN_GAIN),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text, loss_info=display_loss_info(data),
         not_identifiable=display_identifiability(data))

@@ -19,6 +19,11 @@ from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
 #: An attribution must remove >= 80 % of the held-out gap: the calibration was itself estimated
 #: from noisy readings, so a small gap remains that no display effect explains.
 DISPLAY_MIN_SHARE = 0.8
+#: A candidate, a greedy step or a remaining gap counts only from 0.05 nats per reading: a
+#: systematic misfit of about a third of the noise SD on every reading (a clean display
+#: checked against a calibration left gaps of 0.02-0.04 nats per reading, "significant" with a
+#: CI reaching 0, in 4 of 20 checks with a meter floor).
+DISPLAY_MIN_GAIN = 0.05
 _TAUS_S = np.geomspace(20.0, 5000.0, 40)
 _BITS = (4, 5, 6, 7, 8, 9, 10)
 #: A DAC step is visible when its non-smooth part adds up to this many squared noise SDs
