@@ -30,7 +30,7 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
     diag = diagnose_losses(layer, list(plan.candidates) or catalogue(layer), plan.functions,
                            plan.settings, rng=rng, seed=seed, train=plan.train, test=plan.test,
                            folds=plan.folds, loss_info=plan.loss_info, split=plan.split,
-                           warnings=plan.warnings)
+                           warnings=plan.warnings, not_identifiable=plan.not_identifiable)
     if plan.sizes is not None:
         diag = replace(diag, **plan.sizes(diag))
     return diag, plan.localise(diag, rng)

@@ -73,7 +73,7 @@ def which_layer(diags: dict[str, Diagnosis], tolerance: float = TOLERANCE_NATS) 
     # estimation error of its own simulation (a calibration or fit from noisy data), which
     # nats per unit weigh very differently between layers (a photometer reading holds far
     # more information than a slider setting); it is reported beside the verdict.
-    explained = [n for n in carrying if diags[n].verdict != "unexplained"]
+    explained = [n for n in carrying if diags[n].steps and diags[n].verdict != "unexplained"]
     pool = explained or carrying
     top = max(pool, key=lambda n: gaps[n][0])
     d = diags[top]

@@ -15,6 +15,7 @@ import math
 from pathlib import Path
 
 from analysis.gap.engine import Diagnosis, GapError
+from analysis.gap.engine.steps import NO_GAP, no_gap
 from analysis.gap.params_table import format_sig, param_rows
 from analysis.gap.report_figures import write_figures
 from labfiles import atomic_open, atomic_write_text, write_new_file
@@ -50,12 +51,9 @@ img{display:block;max-width:100%;height:auto;margin:.3em 0 1em}
 def no_significant_gap(d: Diagnosis) -> bool:
     """True when nothing was attributed, the floor is sound, and either (with a ceiling) the
     simulation falls short of the ceiling by nothing significant, or (without) the held-out
-    gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none)."""
-    if d.steps or d.floor_status != "ok":
-        return False
-    if d.remaining is not None:  # with a ceiling: the simulation does as well as it
-        return not d.remaining.get("significant")
-    return bool(d.gap_before_ci) and d.gap_before_ci[0] <= max(d.min_gain, 0.0)
+    gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none): the engine's
+    :func:`analysis.gap.engine.steps.no_gap`, which sets the verdict."""
+    return no_gap(d.steps, d.floor_status, d.remaining, d.gap_before_ci, d.min_gain)
 
 
 def verdict_text(d: Diagnosis) -> str:
@@ -63,7 +61,7 @@ def verdict_text(d: Diagnosis) -> str:
     chosen effect in bold), how the data were held out, and the warnings. The gap against the
     ceiling in numbers is :func:`remaining_html`'s table."""
     text = html.escape(d.summary or d.verdict)
-    if d.steps and d.verdict != "unexplained":
+    if d.steps and d.verdict not in ("unexplained", NO_GAP):
         text = text.replace(html.escape(d.steps[0]["added"].replace("_", " ")),
                             f"<b>{html.escape(d.steps[0]['added'].replace('_', ' '))}</b>", 1)
     text = f"<p>{text}</p>"

@@ -25,6 +25,16 @@ drift_repeats       warm-up drift between the repeats (repeats measured in passe
                     power-on): the floor must not absorb the drift
 in_sample           the calibration's own readings passed as REAL: the diagnosis must notice
                     and use the held-out validation readings (nothing to find)
+floor_zeros         nothing, but the photometer reads 0 below its floor (0.5 cd/m^2: every
+                    black patch reads exactly 0, in the calibration and the check alike)
+refit_clean         nothing, but the calibration is fitted from its own noisy readings, one
+                    pass, and checked with three (its estimation error is no gap)
+gain_change         the white level changed since the calibration (2-6 %, either sign)
+condition           a screen load: the light above black dims with the bright share of the
+                    screen (column ``bright_area``), measured in blocks of rising area, so it
+                    is confounded with time (never a warm-up; flagged as beyond the catalogue)
+few_levels          a coarser DAC (2 bits lost), checked at 5 levels only: the step cannot
+                    show, so quantisation must not be named (and is said not identifiable)
 ==================  ==========================================================================
 
 The diagnosis is never imported by the generator; the benchmark driver calls
@@ -41,6 +51,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.gap.engine.steps import NO_GAP
 from analysis.gapbench.scoring import (
     balanced_draw,
     per_case,
@@ -68,7 +79,10 @@ __all__ = [
 ]
 
 CASES = ("none", "single", "co_occurring", "out_of_catalogue", "out_with_catalogue",
-         "drift_repeats", "in_sample")
+         "drift_repeats", "in_sample", "floor_zeros", "refit_clean", "gain_change", "condition",
+         "few_levels")
+#: Cases where nothing (identifiable) is to be named.
+_NULL_CASES = ("none", "in_sample", "floor_zeros", "refit_clean", "few_levels")
 #: Out-of-catalogue effects of :class:`GOGDisplay` and their moderate strengths.
 OUT_OF_CATALOGUE = {"mid_gamma_bump": 0.04, "gamma_gradient": 0.1}
 #: The issue's targets (as for the first benchmark), plus verdict agreement across seeds.
@@ -109,6 +123,9 @@ class GOGDisplay:
     digits            -        significant digits the photometer reports
     mid_gamma_bump    -        out of catalogue: above-black light x (1 + b sin(pi d)^2)
     gamma_gradient    -        out of catalogue: gamma + this x (a position x level interaction)
+    load_dimming      -        out of catalogue: above-black light x (1 - this x area), area
+                               the bright share of the screen (a condition of the reading)
+    meter_floor_cd_m2 cd/m^2   the photometer reads 0 below this (its floor)
     ================  =======  ====================================================
     """
 
@@ -128,9 +145,12 @@ class GOGDisplay:
     digits: int = 4
     mid_gamma_bump: float = 0.0
     gamma_gradient: float = 0.0
+    load_dimming: float = 0.0
+    meter_floor_cd_m2: float = 0.0
 
-    def luminance(self, drive, x_norm, y_norm, t_s) -> np.ndarray:
-        """Noiseless luminance, cd/m^2 (``t_s`` = inf: warmed up)."""
+    def luminance(self, drive, x_norm, y_norm, t_s, area=0.0) -> np.ndarray:
+        """Noiseless luminance, cd/m^2 (``t_s`` = inf: warmed up; ``area``: the bright share
+        of the rest of the screen)."""
         d = np.asarray(drive, float)
         x, y = np.asarray(x_norm, float), np.asarray(y_norm, float)
         steps = 2 ** int(self.dac_bits) - 1
@@ -141,16 +161,18 @@ class GOGDisplay:
         above = above / (1 + self.vignetting * (x**2 + y**2)) ** 2 * (1 + self.gradient_x * x)
         above = above * (1 - self.warmup_frac * np.exp(-np.asarray(t_s, float)
                                                          / self.warmup_tau_s))
+        above = above * (1 - self.load_dimming * np.asarray(area, float))
         return self.black_cd_m2 + self.ambient_cd_m2 + above
 
-    def read(self, drive, x_norm, y_norm, t_s, rng: np.random.Generator) -> np.ndarray:
-        """What the photometer reports, cd/m^2."""
-        lum = self.luminance(drive, x_norm, y_norm, t_s)
+    def read(self, drive, x_norm, y_norm, t_s, rng: np.random.Generator,
+             area=0.0) -> np.ndarray:
+        """What the photometer reports, cd/m^2 (0 below its floor)."""
+        lum = self.luminance(drive, x_norm, y_norm, t_s, area)
         sd = np.sqrt(self.floor_cd_m2**2 + self.shot_cd_m2 * lum + (self.rel_noise * lum) ** 2)
         out = np.maximum(lum + sd * rng.standard_normal(lum.shape), 1e-4)
         mag = np.floor(np.log10(out))
         scale = 10.0 ** (self.digits - 1 - mag)
-        return np.round(out * scale) / scale
+        return np.where(out < self.meter_floor_cd_m2, 0.0, np.round(out * scale) / scale)
 
     def extended_power(self) -> dict:
         """The centre's warm transfer function as ``extended_power`` parameters (exact for the
@@ -199,7 +221,8 @@ def measure(display: GOGDisplay, schedule: pd.DataFrame, rng: np.random.Generato
     """Readings (calibration.READINGS_COLUMNS) of the schedule, one every 2.5 s from
     ``start_s`` s after power-on."""
     t = start_s + _READING_S * np.arange(len(schedule))
-    lum = display.read(schedule["level"], schedule["x_norm"], schedule["y_norm"], t, rng)
+    area = schedule.get("bright_area", 0.0)
+    lum = display.read(schedule["level"], schedule["x_norm"], schedule["y_norm"], t, rng, area)
     out = schedule.copy()
     out["calibration_id"] = calibration_id
     out["timestamp_utc"] = [(_T0 + pd.Timedelta(seconds=float(s))).strftime(
@@ -207,8 +230,9 @@ def measure(display: GOGDisplay, schedule: pd.DataFrame, rng: np.random.Generato
     out["device"] = device
     out["luminance_cd_m2"] = lum
     out["raw_reply"] = [f"0,{v:.5g}" for v in lum]
+    extra = ["bright_area"] if "bright_area" in schedule else []
     return out[["calibration_id", "timestamp_utc", "device", "x_norm", "y_norm", "level",
-                "repeat", "luminance_cd_m2", "raw_reply"]]
+                "repeat", "luminance_cd_m2", "raw_reply", *extra]]
 
 
 def measure_warmup(display: GOGDisplay, rng: np.random.Generator, *, calibration_id: str,
@@ -284,15 +308,20 @@ def write_check_folder(folder, display: GOGDisplay, rng: np.random.Generator, *,
                        calibration: Path, checked_id: str = "lab-cal", repeats: int = 2,
                        order: str = "shuffled", warmup: bool = True,
                        start_s: float = 1800.0, positions: int = 3,
-                       n_levels: int = 9) -> Path:
+                       n_levels: int = 9, n_other: int = 5, areas=None) -> Path:
     """A check run's folder as ``python -m calibration check`` writes it: ``readings.csv`` (a
     few levels at a few positions, the check's own calibration_id), ``warmup.csv`` (white at
-    the centre from power-on) and ``check.json``. Returns the folder."""
+    the centre from power-on) and ``check.json``. ``areas``: measure the patches once per
+    bright share of the screen, in blocks in this order (column ``bright_area``, a lab's
+    condition). Returns the folder."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     check_id = f"{checked_id}-check-20260309T0800Z"
-    sched = display_schedule(rng, positions=positions, n_levels=n_levels, n_other=5,
+    sched = display_schedule(rng, positions=positions, n_levels=n_levels, n_other=n_other,
                              repeats=repeats, order=order)
+    if areas is not None:
+        sched = pd.concat([sched.assign(bright_area=float(a)) for a in areas],
+                          ignore_index=True)
     read = measure(display, sched, rng, calibration_id=check_id, start_s=start_s)
     _write_csv(read, folder / "readings.csv")
     summary = {}
@@ -326,6 +355,8 @@ _GOG_EFFECTS = {
     "quantisation": lambda d, s: replace(d, dac_bits=round(d.dac_bits - s)),
     "mid_gamma_bump": lambda d, s: replace(d, mid_gamma_bump=s),
     "gamma_gradient": lambda d, s: replace(d, gamma_gradient=s),
+    "gain_change": lambda d, s: replace(d, white_cd_m2=d.white_cd_m2 * (1 + s)),
+    "load_dimming": lambda d, s: replace(d, load_dimming=s),
 }
 
 
@@ -349,7 +380,9 @@ def _case_plan(case: str, rng: np.random.Generator, cat: dict) -> dict:
     """What a case injects: effects {name: strength} and how the check run is measured."""
     names = sorted(cat)
     plan = {"effects": {}, "order": "shuffled", "warmup": True, "start_s": 1800.0,
-            "in_sample": False}
+            "in_sample": False, "fit": "truth", "meter_floor": 0.0, "areas": None,
+            "repeats": 2, "n_levels": 17 if case == "drift_repeats" else 9, "n_other": 5,
+            "cal_repeats": 3}
 
     def draw(name, lo=0.5, hi=1.5):
         base = cat[name].default_strength if name in cat else OUT_OF_CATALOGUE[name]
@@ -372,6 +405,17 @@ def _case_plan(case: str, rng: np.random.Generator, cat: dict) -> dict:
                  "order": "passes"}
     elif case == "in_sample":
         plan |= {"effects": {"black_offset": float(rng.uniform(1.0, 2.0))}, "in_sample": True}
+    elif case == "floor_zeros":
+        plan["meter_floor"] = 0.5
+    elif case == "refit_clean":  # a quick calibration (one pass), a thorough check (3 passes)
+        plan |= {"fit": "fitted", "cal_repeats": 1, "repeats": 3}
+    elif case == "gain_change":
+        plan["effects"] = {"gain_change": float(rng.uniform(0.02, 0.06) * rng.choice([-1, 1]))}
+    elif case == "condition":
+        plan |= {"effects": {"load_dimming": float(rng.uniform(0.05, 0.15))},
+                 "areas": (0.1, 0.4, 0.7, 1.0), "repeats": 1}
+    elif case == "few_levels":
+        plan |= {"effects": {"quantisation": 2.0}, "n_levels": 5, "n_other": 3}
     elif case != "none":
         raise ValueError(f"case {case!r}: use one of {CASES}")
     if "warmup_drift" in plan["effects"]:
@@ -402,21 +446,23 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
 
     cat = _catalogue()
     plan = _case_plan(case, rng, cat)
-    base = GOGDisplay()
+    base = GOGDisplay(meter_floor_cd_m2=plan["meter_floor"])
     real = base
     for name, s in plan["effects"].items():
         real = with_effect(real, name, s)
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         cal_display = real if plan["in_sample"] else base
-        write_calibration_folder(tmp / "cal", cal_display, rng)
+        write_calibration_folder(tmp / "cal", cal_display, rng, fit=plan["fit"],
+                                 repeats=plan["cal_repeats"])
         if plan["in_sample"]:
             target = tmp / "cal"
         else:
             target = write_check_folder(tmp / "check", real, rng, calibration=tmp / "cal",
                                         order=plan["order"], warmup=plan["warmup"],
-                                        start_s=plan["start_s"],
-                                        n_levels=17 if case == "drift_repeats" else 9)
+                                        start_s=plan["start_s"], repeats=plan["repeats"],
+                                        n_levels=plan["n_levels"], n_other=plan["n_other"],
+                                        areas=plan["areas"])
         diags = []
         for _ in range(seeds):
             with warnings.catch_warnings():
@@ -424,11 +470,11 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
                 diags.append(diagnose("display", target, tmp / "cal", None,
                                       seed=int(rng.integers(2**31)), n_boot=n_boot)[0])
         diag = diags[0]
-        single = case == "single" or case == "drift_repeats"
+        single = case in ("single", "drift_repeats", "gain_change")
         true_shrink = _true_shrink(diag, target, real) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
     outside = [e for e in plan["effects"] if e not in cat]
-    named = [] if diag.verdict == "unexplained" else diag.verdict.split(" + ")
+    named = [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + ")
     rem = diag.remaining or {}
     return {"layer": "display", "case": case, "effects": plan["effects"],
             "inside": inside, "outside": outside, "verdict": diag.verdict,
@@ -439,7 +485,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
             "true_shrink": true_shrink, "noise_rel": diag.loss_info["noise_rel"],
             "source_kind": diag.loss_info["source"]["kind"],
             "in_sample_rows": diag.loss_info["source"]["in_sample_rows"],
-            "seed_verdicts": [d.verdict for d in diags]}
+            "seed_verdicts": [d.verdict for d in diags],
+            "not_identifiable": sorted(diag.not_identifiable)}
 
 
 def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
@@ -469,7 +516,15 @@ def _right(r: dict) -> bool:
     if case in ("none", "in_sample"):
         ok = r["top"] == "unexplained"
         return ok and (case == "none" or r["source_kind"] == "validation")
-    if case in ("single", "drift_repeats"):
+    if case in ("floor_zeros", "refit_clean"):  # no significant gap, nothing named
+        return not r["named"] and not r["remaining_flagged"]
+    if case == "few_levels":  # the step cannot show: never named, said not identifiable
+        return ("quantisation" not in r["named"]
+                and "quantisation" in r.get("not_identifiable", ()))
+    if case == "condition":  # never a warm-up; the gap beyond the catalogue flagged
+        return ("warmup_drift" not in r["named"]
+                and (r["remaining_flagged"] or r["verdict"] == "unexplained"))
+    if case in ("single", "drift_repeats", "gain_change"):
         return r["top"] == r["inside"][0]
     if case == "co_occurring":
         return set(r["inside"]) <= set(r["named"])
@@ -482,23 +537,30 @@ def _right(r: dict) -> bool:
 def score_display_cases(records: list[dict]) -> dict:
     """Scores of :func:`run_display_cases` against :data:`DISPLAY_TARGETS`.
 
-    top1: catalogue effect alone (incl. drift between repeats) named first; false_attribution:
-    anything named when nothing changed (incl. the in-sample case, which must also switch to
-    the held-out validation readings); unexplained_out: out-of-catalogue effects, alone or on
-    top of a catalogue effect, never given a catalogue name and their gap flagged;
+    top1: catalogue effect alone (incl. drift between repeats and a gain change) named first;
+    false_attribution: anything named when nothing changed (incl. the in-sample case, which
+    must also switch to the held-out validation readings; floor zeros and a refitted
+    calibration: also nothing flagged; few levels: quantisation named or not said to be
+    unidentifiable); unexplained_out: out-of-catalogue effects (a screen load confounded with
+    time included: never a warm-up), alone or on top of a catalogue effect, never given a
+    catalogue name and their gap flagged; no_gap_clean: verdict no_significant_gap on the
+    clean display (none, floor zeros, refitted calibration);
     co_occurring: both effects named; shrink_error: median |predicted - true| / true over
     single effects named right; seed_agreement: share of (case, seed) verdicts equal to the
     first seed's.
     """
     def rate(cases, ok):
         return _rate(records, cases, ok)
-    top1, n_in = rate(("single", "drift_repeats"), _right)
-    false_attr, n_none = rate(("none", "in_sample"), lambda r: not _right(r))
-    unexpl, n_out = rate(("out_of_catalogue", "out_with_catalogue"), _right)
+    top1, n_in = rate(("single", "drift_repeats", "gain_change"), _right)
+    false_attr, n_none = rate(_NULL_CASES, lambda r: not _right(r))
+    unexpl, n_out = rate(("out_of_catalogue", "out_with_catalogue", "condition"), _right)
+    clean, n_clean = rate(("none", "floor_zeros", "refit_clean"),
+                          lambda r: r["verdict"] == NO_GAP)
     both, n_co = rate(("co_occurring",), _right)
-    errs = shrink_errors(records, ("single", "drift_repeats"), _right)
+    errs = shrink_errors(records, ("single", "drift_repeats", "gain_change"), _right)
     return {"top1": top1, "n_in": n_in, "false_attribution": false_attr, "n_none": n_none,
             "unexplained_out": unexpl, "n_out": n_out, "co_occurring": both, "n_co": n_co,
+            "no_gap_clean": clean, "n_clean": n_clean,
             "shrink_error": float(np.median(errs)) if errs else float("nan"),
             "seed_agreement": seed_agreement(records),
             "per_case": per_case(records, _right), "records": records}
@@ -520,6 +582,9 @@ def format_display_scores(s: dict) -> str:
              s["unexplained_out"] >= t["unexplained_out"]),
         line("co-occurring effects both named", s["co_occurring"], s["n_co"],
              f">= {t['top1']}", s["co_occurring"] >= t["top1"]),
+        line("clean display (none, floor zeros, refitted calibration): verdict "
+             "no_significant_gap", s.get("no_gap_clean", float("nan")), s.get("n_clean", 0),
+             f">= {t['top1']}", s.get("no_gap_clean", 0.0) >= t["top1"]),
         line("shrinkage error (median)", s["shrink_error"], s["n_in"],
              f"<= {t['shrink_error']}", s["shrink_error"] <= t["shrink_error"]),
         line("verdict agreement across seeds", s["seed_agreement"], n_all,

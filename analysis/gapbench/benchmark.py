@@ -35,6 +35,7 @@ from analysis.gap import (
 )
 from analysis.gap import effect as _effect
 from analysis.gap import strengths as _strengths
+from analysis.gap.engine.steps import NO_GAP
 from analysis.gapbench import inject
 from analysis.gapbench.scoring import balanced_draw, render_true_shrink
 from analysis.gapbench.scoring import rate as _rate
@@ -119,7 +120,8 @@ def _layer(layer: str):
 
 
 def _top(diag) -> str:
-    return "unexplained" if diag.verdict == "unexplained" else diag.verdict.split(" + ")[0]
+    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP)
+            else diag.verdict.split(" + ")[0])
 
 
 def _says_unexplained(diag) -> bool:

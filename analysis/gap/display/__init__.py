@@ -23,6 +23,7 @@ at the screen centre, its above-black part scaled by the calibration's uniformit
 candidate             term (parameters fitted on the training readings)
 ====================  ====================================================================
 black_offset          offset += c (cd/m^2): extra black level or reflected ambient light
+gain_change           gain *= 1 + k: the white level changed since the calibration
 nonuniformity         gain *= 1 + f (x^2 + y^2) / 2 + g x + h y
 warmup_drift          gain *= 1 - w exp(-t / tau), t = s since the first reading, tau at most
                       3 records long (a slower drift is nearly a constant gain)
@@ -30,8 +31,13 @@ quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma 
 ====================  ====================================================================
 
 Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's noise
-``sd^2 = a^2 + (b L)^2``. The noise is measured from pairs of consecutive repeats of the same
-patch (and the check's warm-up series), with slow changes of the display between the two
+``sd^2 = a^2 + (b L)^2``, the calibration's gamma parameters moved within their own
+uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
+fitted from noisy readings is no gap in itself); a reading at or below the
+meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
+(:func:`display_identifiability`) are left out of the ranking and named in the words. The noise is measured from pairs of consecutive repeats of the same
+patch (and the check's warm-up series; without any, the calibration's noise or the documented
+meter model, named in ``loss_info``), with slow changes of the display between the two
 readings of a pair modelled as a smooth function of time (:func:`fit_noise_drift`), so a
 warm-up between repeats is not counted as noise. The floor (the loss of a model right up to
 noise) is ``0.5 log(2 pi sd^2) + 0.5`` per reading. The ceiling (:func:`display_ceiling`) is a
@@ -71,13 +77,19 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.display.candidates import DISPLAY_CANDIDATES, DISPLAY_MIN_SHARE
+from analysis.gap.display.candidates import (
+    DISPLAY_CANDIDATES,
+    DISPLAY_MIN_GAIN,
+    DISPLAY_MIN_SHARE,
+    display_identifiability,
+)
 from analysis.gap.display.ceiling import display_ceiling, display_floor
 from analysis.gap.display.data import load_display
 from analysis.gap.display.model import (
     display_folds,
     display_frame,
     display_loss,
+    display_loss_given,
     display_loss_info,
     display_nll,
     display_unit_ids,
@@ -89,12 +101,15 @@ from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
 
 __all__ = [
     "DISPLAY_CANDIDATES",
+    "DISPLAY_MIN_GAIN",
     "DISPLAY_MIN_SHARE",
     "display_ceiling",
     "display_floor",
     "display_folds",
     "display_frame",
+    "display_identifiability",
     "display_loss",
+    "display_loss_given",
     "display_loss_info",
     "display_nll",
     "display_unit_ids",
@@ -114,10 +129,12 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
     data = display_frame(readings, cal)
     folds, text = display_folds(data, rng)
-    functions = LayerFunctions(loss=lambda _train: display_loss, floor=display_floor,
+    functions = LayerFunctions(loss=display_loss_given, floor=display_floor,
                                ceiling=display_ceiling, where=display_where,
                                unit_ids=display_unit_ids)
     return LayerPlan(
-        functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE),
+        functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
+                                     min_gain=DISPLAY_MIN_GAIN),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, loss_info=display_loss_info(data))
+        folds=folds, split=text, loss_info=display_loss_info(data),
+        not_identifiable=display_identifiability(data))

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.gap.display.data import _times
 from analysis.gap.display.model import _bspline, display_nll
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
@@ -20,8 +19,14 @@ _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
 
 
 def display_floor(data: pd.DataFrame) -> np.ndarray:
-    """Expected NLL of a model right up to the photometer's noise."""
-    return 0.5 * np.log(2 * np.pi * data["sd"].to_numpy(float) ** 2) + 0.5
+    """Expected NLL of a model right up to the photometer's noise; 0 for a censored reading
+    (a model far below the floor predicts it with certainty)."""
+    sd2 = data["sd"].to_numpy(float) ** 2
+    expected = data["var_expected"].to_numpy(float) if "var_expected" in data else sd2
+    floor = 0.5 * np.log(2 * np.pi * sd2) + 0.5 * expected / sd2
+    if "censored" in data:
+        floor[data["censored"].to_numpy(bool)] = 0.0
+    return floor
 
 
 # --- the ceiling: a penalised smooth of level, position and time ------------------------------
@@ -32,12 +37,14 @@ def _ceiling_design(data: pd.DataFrame, span: dict):
     Blocks: a constant; a cubic spline in drive (8 interior knots), additive and times the
     predicted above-black light ``a``; per screen position a constant, ``a`` and
     ``a ln(drive)`` (an exponent change there); a line in time and a cubic spline in time (3
-    interior knots) times ``a`` (a drift of the light). Each block has its own smoothing
-    parameter: "level" and "time" blocks a second-difference penalty, "pos" blocks a ridge.
+    interior knots) times ``a`` (a drift of the light); with the file's condition columns a
+    gain per combination of conditions (a load that dims the screen). Each block has its own
+    smoothing parameter: "level" and "time" blocks a second-difference penalty, "pos" and
+    "cond" blocks a ridge.
     """
     lv = data["level"].to_numpy(float)
     a = np.maximum(data["mu0"].to_numpy(float) - data["lmin"].to_numpy(float), 0.0)
-    t = data["t_s_abs"].to_numpy(float)
+    t = data["t_s"].to_numpy(float)
     bl = _bspline(lv, 0.0, 1.0, 8)
     bt = _bspline(t, span["t_lo"], span["t_hi"], 3)
     pos = np.array([span["pos"].index(p) if p in span["pos"] else -1
@@ -45,13 +52,24 @@ def _ceiling_design(data: pd.DataFrame, span: dict):
     onehot = (pos[:, None] == np.arange(len(span["pos"]))[None, :]).astype(float)
     shape = a * np.log(np.maximum(lv, 1e-3))
     line = (t - span["t_lo"]) / max(span["t_hi"] - span["t_lo"], 1.0)
-    return [(np.ones((len(data), 1)), None), (line[:, None], None),
-            (bl[:, 1:], "level"), (bl * a[:, None], "level"),
-            (onehot, "pos"), (onehot * a[:, None], "pos"), (onehot * shape[:, None], "pos"),
-            (bt[:, 1:] * a[:, None], "time")]
+    blocks = [(np.ones((len(data), 1)), None), (line[:, None], None),
+              (bl[:, 1:], "level"), (bl * a[:, None], "level"),
+              (onehot, "pos"), (onehot * a[:, None], "pos"), (onehot * shape[:, None], "pos"),
+              (bt[:, 1:] * a[:, None], "time")]
+    if span["cond"]:
+        combo = [span["cond"].index(c) if c in span["cond"] else -1 for c in _combos(data)]
+        hot = (np.array(combo)[:, None] == np.arange(len(span["cond"]))[None, :]).astype(float)
+        blocks.append((hot * a[:, None], "cond"))
+    return blocks
 
 
-_PENALTY_KINDS = ("level", "pos", "time")
+def _combos(data: pd.DataFrame) -> list:
+    """Each reading's combination of the file's condition values (empty tuples without)."""
+    cols = data.attrs.get("conditions", [])
+    return list(zip(*(data[c].astype(str) for c in cols))) if cols else [()] * len(data)
+
+
+_PENALTY_KINDS = ("level", "pos", "time", "cond")
 
 
 def _penalties(blocks, xtwx_diag) -> dict:
@@ -109,19 +127,19 @@ def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
         Gaussian NLL (nats) of each held-out reading under the fitted smooth.
     """
     both = pd.concat([train, test])
-    t_all = _times(both)
-    t0 = t_all.min()
-    span = {"t_lo": 0.0, "t_hi": float((t_all.max() - t0).total_seconds()),
-            "pos": sorted(set(zip(np.round(both["x_norm"], 4), np.round(both["y_norm"], 4))))}
+    both.attrs = train.attrs
+    span = {"t_lo": 0.0, "t_hi": float(both["t_s"].max()),
+            "pos": sorted(set(zip(np.round(both["x_norm"], 4), np.round(both["y_norm"], 4)))),
+            "cond": sorted(set(_combos(both))) if train.attrs.get("conditions") else []}
 
     def design(d):
-        d = d.assign(t_s_abs=(_times(d) - t0).dt.total_seconds().to_numpy(float))
         blocks = _ceiling_design(d, span)
         return np.concatenate([b[0] for b in blocks], axis=1), blocks
     x_tr, blocks = design(train)
     x_te, _ = design(test)
     r = (train["L"] - train["mu0"]).to_numpy(float)
-    w = 1 / train["sd"].to_numpy(float) ** 2
+    # A censored reading says only "at most the floor": the smooth is fitted without it.
+    w = 1 / train["sd"].to_numpy(float) ** 2 * ~train["censored"].to_numpy(bool)
     pens = _penalties(blocks, np.einsum("ij,i,ij->j", x_tr, w, x_tr))
     cells = train["cell"].to_numpy()
     uniq = np.unique(cells)
@@ -141,7 +159,7 @@ def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
     # Coordinate descent over the grid, from the smoothest model: two sweeps.
     lams = dict.fromkeys(_PENALTY_KINDS, float(_CEIL_LAMBDAS[-1]))
     for _ in range(2):
-        for kind in _PENALTY_KINDS:
+        for kind in [k for k in _PENALTY_KINDS if pens[k].any()]:
             errs = [cv_error(lams | {kind: float(v)}) for v in _CEIL_LAMBDAS]
             lams[kind] = float(_CEIL_LAMBDAS[int(np.argmin(errs))])
     pen = sum(lams[k] * pens[k] for k in _PENALTY_KINDS)

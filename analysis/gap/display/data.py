@@ -4,12 +4,16 @@ and the calibration (SIM), kept out of sample.
 The readings a calibration was fitted from cannot show its gap (the fit absorbed any offset or
 gain change), so :func:`load_display` drops them, or stands in the calibration's held-out
 validation readings, or refuses with the fix; it also gathers the readings the photometer's
-noise is measured from. :func:`_times` parses and checks the readings' timestamps for the
-layer's time models.
+noise is measured from. :func:`_seconds` gives each reading's time for the layer's time
+models: from its ISO 8601 timestamps or, in a file without any (another lab's table), from the
+measurement order (a ``measurement_order`` column, else the rows' order), which then names no
+seconds. A lab's file keeps its extra columns (surround grey, size of a bright region...):
+:func:`_conditions` reads them beside the readings.
 """
 
 from __future__ import annotations
 
+import csv
 import json
 import warnings
 from pathlib import Path
@@ -19,6 +23,7 @@ import pandas as pd
 
 from analysis.gap.engine import GapError
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
+from calibration.readings import read_readings
 from labfiles import LabFileError, read_csv_frame, read_text
 
 _MIN_READINGS = 8
@@ -39,13 +44,23 @@ def _find(path: Path, name: str) -> Path:
     return path
 
 
+#: Columns of a readings file that are neither readings nor conditions.
+_NOT_CONDITIONS = (*READINGS_COLUMNS, "target_fraction", "measurement_order", "level_0_1")
+#: A condition column has at least 2 and at most this many distinct values.
+_MAX_CONDITION_VALUES = 24
+
+
 def _read_any(path: Path) -> pd.DataFrame:
-    """Readings from ``readings.csv`` / ``warmup.csv`` (READINGS_COLUMNS exactly) or from
-    ``validation.csv`` (READINGS_COLUMNS plus target_fraction)."""
+    """Readings from ``readings.csv`` / ``warmup.csv`` (READINGS_COLUMNS exactly), from
+    ``validation.csv`` (READINGS_COLUMNS plus target_fraction) or from another tool's file
+    (level and luminance_cd_m2 at least: :func:`calibration.readings.read_readings`), with
+    the file's condition columns and measurement order kept (:func:`_conditions`)."""
     try:
-        return load_readings(path)
+        frame = load_readings(path)
     except CalibrationError:
-        pass
+        frame = None
+    if frame is not None:
+        return _with_extras(frame, path)
     try:
         frame = read_csv_frame(path, dtype={"raw_reply": str, "calibration_id": str},
                                keep_default_na=False, on_bad_lines="skip")
@@ -61,6 +76,56 @@ def _read_any(path: Path) -> pd.DataFrame:
     frame = frame.dropna(subset=["x_norm", "y_norm", "level", "repeat", "luminance_cd_m2"])
     frame["repeat"] = frame["repeat"].astype(int)
     return frame.reset_index(drop=True)
+
+
+def _with_extras(frame: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """``frame`` (the usable readings of ``path``) with the file's ``measurement_order`` and
+    condition columns (:func:`_conditions`), where every row of the file was usable (so the
+    rows align); ``frame.attrs["conditions"]`` names the condition columns."""
+    header = _header(path)
+    extra = [c for c in header if c not in READINGS_COLUMNS and c != "target_fraction"]
+    if not extra:
+        return frame
+    table = read_readings(path)
+    if table.n_dropped or table.n_duplicates or len(table.frame) != len(frame):
+        warnings.warn(f"{path}: some rows were not usable, so its columns {extra} are not "
+                      "used as conditions (fix the rows the calibration notes name)",
+                      stacklevel=3)
+        return frame
+    with open(path, encoding="utf-8-sig", newline="") as fh:
+        raw = pd.DataFrame(list(csv.DictReader(fh)))
+    frame = frame.copy()
+    if "measurement_order" in raw:
+        frame["measurement_order"] = pd.to_numeric(raw["measurement_order"],
+                                                   errors="coerce").to_numpy()
+    conds = _conditions(raw)
+    for c in conds:
+        frame[c] = conds[c].to_numpy()
+    frame.attrs["conditions"] = list(conds.columns)
+    return frame
+
+
+def _conditions(raw: pd.DataFrame) -> pd.DataFrame:
+    """The condition columns of a file's rows ``raw``: columns other than the readings'
+    (:data:`_NOT_CONDITIONS`) with 2 to :data:`_MAX_CONDITION_VALUES` distinct values, each
+    kept once (a column that splits the rows as an earlier one does is dropped: a bias
+    region's height beside its width); numbers as floats, else text."""
+    out = {}
+    seen = []
+    for c in raw.columns:
+        if c in _NOT_CONDITIONS or c is None:
+            continue
+        v = raw[c].astype(str).str.strip()
+        num = pd.to_numeric(v, errors="coerce")
+        col = num if not num.isna().any() else v
+        codes = pd.factorize(col)[0]
+        if not 2 <= codes.max() + 1 <= _MAX_CONDITION_VALUES:
+            continue
+        if any(np.array_equal(codes, s) for s in seen):
+            continue
+        seen.append(codes)
+        out[c] = col
+    return pd.DataFrame(out)
 
 def load_display(real_path, sim_path):
     """Read the readings to diagnose (REAL) and the calibration (SIM), out of sample.
@@ -78,7 +143,8 @@ def load_display(real_path, sim_path):
     (readings, calibration)
         ``readings.attrs["display_source"]`` says what was diagnosed (``real``, ``kind``:
         check / readings / validation, ``in_sample_rows``, ``notes``) and
-        ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from.
+        ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from,
+        ``readings.attrs["calibration_rows"]`` the calibration's own readings (or None).
 
     Raises
     ------
@@ -116,6 +182,7 @@ def load_display(real_path, sim_path):
     readings = readings.copy()
     readings.attrs["display_source"] = source
     readings.attrs["noise_frames"] = noise_frames
+    readings.attrs["calibration_rows"] = fitted_rows
     return readings, cal
 
 
@@ -237,9 +304,10 @@ def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
 
 def _header(path: Path) -> list[str]:
     try:
-        return read_text(path).split("\n", 1)[0].strip().split(",")
+        first = read_text(path).split("\n", 1)[0]
     except LabFileError as exc:
         raise GapError(str(exc)) from None
+    return next(csv.reader([first]), [])
 
 
 def _row_keys_list(frame: pd.DataFrame) -> list:
@@ -264,6 +332,30 @@ def _read_check(path: Path) -> dict:
 
 def _has_pairs(frame: pd.DataFrame) -> bool:
     return bool(frame.groupby(["x_norm", "y_norm", "level"]).size().max() >= 2)
+
+
+def _timed(frame: pd.DataFrame) -> bool:
+    """Whether any reading carries a timestamp (a file without any is measured in order)."""
+    return bool(frame["timestamp_utc"].astype(str).str.strip().ne("").any())
+
+
+def _seconds(frame: pd.DataFrame) -> np.ndarray:
+    """Each reading's time since the frame's first, s: from ``timestamp_utc``; in a file
+    without any timestamp, the measurement order (``measurement_order``, else the rows'
+    order) counted from 0, one unit per reading (no seconds: :func:`_timed` is False).
+
+    Raises
+    ------
+    GapError
+        If some readings have a timestamp and others none or a malformed one.
+    """
+    if not _timed(frame):
+        order = (frame["measurement_order"].to_numpy(float) if "measurement_order" in frame
+                 else np.arange(len(frame), dtype=float))
+        order = np.where(np.isfinite(order), order, np.arange(len(frame), dtype=float))
+        return pd.Series(order).rank(method="first").to_numpy(float) - 1.0
+    t = _times(frame)
+    return (t - t.min()).dt.total_seconds().to_numpy(float)
 
 
 def _times(frame: pd.DataFrame) -> pd.Series:

@@ -16,9 +16,11 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 from scipy.interpolate import BSpline
+from scipy.special import log_ndtr
 
-from analysis.gap.display.data import _has_pairs, _times
+from analysis.gap.display.data import _has_pairs, _seconds, _timed
 from analysis.gap.engine import GapError, candidate, split_held_out
+from calibration.noise import FLOOR_SD_MULTIPLE, default_noise
 
 #: Interior knots of the time spline the noise fit may use for drift (None: no drift).
 _DRIFT_KNOTS = (None, 0, 1, 2, 4, 8)
@@ -26,13 +28,16 @@ _DRIFT_KNOTS = (None, 0, 1, 2, 4, 8)
 
 # --- the noise floor: pairs of repeats, drift modelled in time -----------------------------
 
-def _pairs(frame: pd.DataFrame, t0) -> tuple[np.ndarray, ...]:
-    """Consecutive readings of each patch (x, y, level), in time: (L1, L2, t1, t2) with t in
-    s since ``t0``."""
-    f = frame.assign(_t=(_times(frame) - t0).dt.total_seconds().to_numpy(float))
-    f = f.sort_values("_t", kind="stable")
+def _pairs(frame: pd.DataFrame, floor: float = 0.0) -> tuple[np.ndarray, ...]:
+    """Consecutive readings of each patch (x, y, level and the file's conditions), in time:
+    (L1, L2, t1, t2) with t since the frame's first reading (:func:`_seconds`). Pairs with a
+    reading at or below the meter's ``floor`` (cd/m^2; a zero at least) are left out: the
+    meter's floor, not its noise, makes them agree."""
+    f = frame.assign(_t=_seconds(frame)).sort_values("_t", kind="stable")
     out = [[], [], [], []]
-    for _, grp in f.groupby(["x_norm", "y_norm", "level"], sort=False):
+    keys = ["x_norm", "y_norm", "level", *frame.attrs.get("conditions", [])]
+    for _, grp in f.groupby(keys, sort=False):
+        grp = grp[grp["luminance_cd_m2"].to_numpy(float) > max(floor, 0.0)]
         if len(grp) < 2:
             continue
         lum, t = grp["luminance_cd_m2"].to_numpy(float), grp["_t"].to_numpy(float)
@@ -51,7 +56,7 @@ def _bspline(x, lo: float, hi: float, n_interior: int, degree: int = 3) -> np.nd
                                  degree).toarray()
 
 
-def fit_noise_drift(frames, *, t0=None) -> dict:
+def fit_noise_drift(frames, *, floor: float = 0.0) -> dict:
     """Photometer noise from pairs of consecutive repeats, with the display's drift in time.
 
     Each pair ``(L1 at t1, L2 at t2)`` of the same patch differs by noise and by whatever the
@@ -67,9 +72,10 @@ def fit_noise_drift(frames, *, t0=None) -> dict:
     Parameters
     ----------
     frames : sequence of DataFrame
-        Readings (READINGS_COLUMNS), e.g. a check's readings and its warm-up series.
-    t0 : pandas.Timestamp, optional
-        Time origin (default: the earliest reading).
+        Readings (READINGS_COLUMNS), e.g. a check's readings and its warm-up series; each
+        file's time counts from its own first reading.
+    floor : float
+        The meter's floor, cd/m^2: pairs with a reading at or below it are left out.
 
     Returns
     -------
@@ -84,9 +90,7 @@ def fit_noise_drift(frames, *, t0=None) -> dict:
         With fewer than 4 pairs of repeated readings.
     """
     frames = [f for f in frames if f is not None and len(f)]
-    if t0 is None:
-        t0 = min(_times(f).min() for f in frames)
-    parts = [p for p in (_pairs(f, t0) for f in frames) if p[0].size]
+    parts = [p for p in (_pairs(f, floor) for f in frames) if p[0].size]
     if sum(p[0].size for p in parts) < 4:
         raise GapError("the display diagnosis needs repeated readings of the same patch "
                        "(same x_norm, y_norm, level; >= 2 repeats) to measure the photometer's "
@@ -153,17 +157,23 @@ def _fit_pairs(d, s2, x) -> dict:
 def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     """Readings with the plain simulation's prediction and the noise model's SD.
 
-    Columns added: ``t_s`` (s since the first reading), ``L`` (cd/m^2), ``lmin``, ``rel``
-    (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (noise SD,
-    cd/m^2), ``cell`` (patch name ``x,y,level``). ``attrs["noise"]``: :func:`fit_noise_drift`
-    on ``readings.attrs["noise_frames"]`` (default: the readings themselves).
+    Columns added: ``t_s`` (time since the first reading: s, or the measurement order where
+    the file has no timestamps, ``attrs["timed"]`` False), ``L`` (cd/m^2), ``lmin``, ``rel``
+    (calibration uniformity at the patch), ``mu0`` (plain prediction, cd/m^2), ``sd`` (SD of a
+    reading, cd/m^2: noise and the calibration model's misfit, :func:`_reading_sd`),
+    ``censored``
+    (at or below the meter's floor, ``attrs["floor"]``), ``cell`` (patch name ``x,y,level``).
+    ``attrs["noise"]``: the photometer's noise (:func:`_noise`); ``attrs["conditions"]``: the
+    file's condition columns (kept); ``attrs["cal_jac"]``, ``attrs["cal_prec"]``: the
+    calibration's own uncertainty (:func:`calibration_jacobian`), rows in this frame's order.
     """
     noise_frames = readings.attrs.get("noise_frames") or [readings]
     source = readings.attrs.get("display_source", {})
+    conditions = list(readings.attrs.get("conditions", []))
+    cal_rows = readings.attrs.get("calibration_rows")
     out = readings.copy().reset_index(drop=True)
     out.attrs = {}
-    t = _times(out)
-    out["t_s"] = (t - t.min()).dt.total_seconds().to_numpy(float)
+    out["t_s"] = _seconds(out)
     out["L"] = out["luminance_cd_m2"].to_numpy(float)
     out["lmin"] = float(cal.min_luminance_cd_m2)
     x, y = out["x_norm"].to_numpy(float), out["y_norm"].to_numpy(float)
@@ -173,19 +183,199 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     else:
         out["rel"] = 1.0
     out["cell"] = [f"{a:+.3f},{b:+.3f},{c:.4f}" for a, b, c in zip(x, y, out["level"])]
-    out.attrs["cal"] = cal
-    out.attrs["display_source"] = source
+    out.attrs |= {"cal": cal, "display_source": source, "timed": _timed(out),
+                  "conditions": conditions}
     out["mu0"] = _mean(out, [])
-    noise = fit_noise_drift(noise_frames)
+    noise = _noise(noise_frames, cal, out["L"].to_numpy(float))
     out.attrs["noise"] = noise
-    out["sd"] = np.sqrt(noise["abs"] ** 2 + (noise["rel"] * out["L"]) ** 2)
+    out.attrs["floor"] = floor = max(noise["floor_cd_m2"], _foot(out), 0.0)
+    out["censored"] = out["L"].to_numpy(float) <= floor
+    lof = lack_of_fit_sd(cal, out["mu0"].to_numpy(float), noise["rel"])
+    out["sd"], out["var_expected"] = _reading_sd(out, noise, lof)
+    jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"])
+    if jac is not None:
+        jac = jac * out["rel"].to_numpy(float)[:, None]
+        pos_jac, pos_prec = _map_jacobian(out, cal, cal_rows, noise["rel"])
+        jac = np.c_[jac, pos_jac]
+        prec = np.block([[prec, np.zeros((prec.shape[0], pos_prec.size))],
+                         [np.zeros((pos_prec.size, prec.shape[0])), np.diag(pos_prec)]])
+    out.attrs["cal_jac"], out.attrs["cal_prec"] = jac, prec
     return out
+
+
+def _map_jacobian(data: pd.DataFrame, cal, rows, noise_rel: float):
+    """The uniformity map's own uncertainty: per measured position off the centre, a column
+    of the above-black light there (a relative gain of the map) and its precision, ``n`` bright
+    readings pooled there and ``n0`` at the centre: ``1 / (b^2 (1 / n + 1 / n0))`` with ``b``
+    the calibration's relative noise (the photometer's ``noise_rel`` where that was only the
+    default). No columns without a map or the calibration's readings."""
+    fit = cal.chosen_fit
+    none = np.zeros((len(data), 0)), np.zeros(0)
+    if cal.uniformity is None or rows is None or not len(rows):
+        return none
+    b = float(fit.noise["rel"]) if fit is not None and fit.noise.get("source") == "repeats" \
+        else float(noise_rel)
+    bright = rows[rows["level"].to_numpy(float) >= cal.uniformity.min_level]
+    count = bright.groupby([bright["x_norm"].round(4), bright["y_norm"].round(4)]).size()
+    n0 = float(count.get((0.0, 0.0), 0))
+    pos = list(zip(data["x_norm"].round(4), data["y_norm"].round(4)))
+    cells = sorted({p for p in pos if p != (0.0, 0.0) and p in count.index})
+    if n0 <= 0 or not cells:
+        return none
+    above = np.maximum(data["mu0"].to_numpy(float) - data["lmin"].to_numpy(float), 0.0)
+    cols = np.array([[float(p == c) for c in cells] for p in pos]) * above[:, None]
+    prec = np.array([1 / (b**2 * (1 / float(count[c]) + 1 / n0)) for c in cells])
+    return cols, prec
+
+
+def _noise(frames, cal, lum: np.ndarray) -> dict:
+    """The photometer's noise (:func:`fit_noise_drift` fields plus ``source``, in words, and
+    ``floor_cd_m2``, the meter's floor): from pairs of repeats where there are any, else the
+    noise the calibration measured from its own repeats, else the documented meter model
+    (:func:`calibration.noise.default_noise`: 0.1 % of the brightest reading plus 0.5 %)."""
+    fit = cal.chosen_fit
+    recorded = dict(fit.noise) if fit is not None and fit.noise else {}
+    cal_floor = float(recorded.get("floor_cd_m2", 0.0))
+    try:
+        n = fit_noise_drift(frames, floor=cal_floor)
+        n["source"] = f"{n['n_pairs']} pairs of repeated readings"
+    except GapError:
+        if recorded.get("source") == "repeats":
+            a, b = float(recorded["abs_cd_m2"]), float(recorded["rel"])
+            src = ("the calibration's repeated readings (no repeats here: the noise the "
+                   "calibration measured with its photometer)")
+        else:
+            d = default_noise(lum)
+            a, b = d.abs_cd_m2, d.rel
+            src = ("the documented meter model (no repeats here or in the calibration: "
+                   "calibration.noise.default_noise, 0.1 % of the brightest reading + 0.5 %)")
+        n = {"abs": a, "rel": b, "n_pairs": 0, "drift_knots": None, "drift_pct": 0.0,
+             "drift_abs_cd_m2": 0.0, "source": src}
+    n["floor_cd_m2"] = max(cal_floor, FLOOR_SD_MULTIPLE * n["abs"])
+    return n
+
+
+def _foot(data: pd.DataFrame) -> float:
+    """The meter's floor as the readings show it, cd/m^2: where some read 0 (or less), the
+    lowest positive reading (a zero says only "below the floor", and no reading above the
+    floor was reported as 0, so the floor is at most that); else a constant foot, the lowest
+    reading where the two lowest drive levels or more read exactly it (a meter at its floor
+    reports the same value whatever lies below); else 0."""
+    lum, level = data["L"].to_numpy(float), data["level"].to_numpy(float)
+    if (lum <= 0).any() and (lum > 0).any():
+        return float(lum[lum > 0].min())
+    low = lum.min(initial=0.0)
+    at = np.unique(level[lum == low])
+    below = np.unique(level[level <= at.max()]) if at.size else at
+    return float(low) if at.size >= 2 and at.size == below.size else 0.0
+
+
+def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.ndarray]:
+    """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
+    ``a^2 + (b L)^2`` (L at least the floor) and the calibration model's own misfit ``lof``
+    (:func:`lack_of_fit_sd`); and its square (the floor's expected squared deviation)."""
+    lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
+    var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2 + np.asarray(lof, float) ** 2
+    return np.sqrt(var), var
+
+
+def calibration_jacobian(cal, drive, noise_rel: float | None = None):
+    """The calibration's own uncertainty, for the null: ``(J, P)`` with ``J`` (n, p) the
+    derivative of its predicted luminance at ``drive`` (cd/m^2 per unit of each gamma
+    parameter) and ``P`` (p, p) the precision of its parameters, the Fisher information of the
+    readings it was fitted from (uncensored, under its recorded noise, or a relative noise
+    ``noise_rel`` where that noise was only the documented default). ``(None, None)`` where
+    the fit's readings were not recorded."""
+    from calibration import gamma_luminance
+    from calibration.noise import NoiseModel
+
+    fit = cal.chosen_fit
+    if fit is None or len(fit.levels) < 3:
+        return None, None
+    x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
+    keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
+    noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
+    if noise.source != "repeats" and noise_rel is not None:
+        noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
+    sd = noise.sd(y[keep])
+    params = {k: float(v) for k, v in cal.gamma_params.items()}
+
+    def grad(at):
+        cols = []
+        for k, v in params.items():
+            h = 1e-4 * max(abs(v), 1e-2)
+            up = gamma_luminance(at, model=cal.gamma_model, params=params | {k: v + h})
+            down = gamma_luminance(at, model=cal.gamma_model, params=params | {k: v - h})
+            cols.append((np.asarray(up, float) - np.asarray(down, float)) / (2 * h))
+        return np.stack(cols, axis=-1)
+    jac_cal, jac = grad(x[keep]) / sd[:, None], grad(np.asarray(drive, float))
+    if not (np.all(np.isfinite(jac_cal)) and np.all(np.isfinite(jac))):
+        return None, None
+    # A misfit of the model (more residual than noise) is not a parameter error: it is the
+    # reading's lack_of_fit_sd, not a looser prior here.
+    return jac, jac_cal.T @ jac_cal
+
+
+def lack_of_fit_sd(cal, lum, noise_rel: float | None = None) -> np.ndarray:
+    """SD (cd/m^2) of the calibration model's own misfit at luminance ``lum``: where its
+    gamma fit left more residual than its noise explains (reduced chi-square ``s`` above 1),
+    its noise SD at ``lum`` times ``sqrt(s - 1)`` (the calibration's residuals: a model that
+    misses its own readings by that much misses a repeat pass by as much, and that is no
+    change of the display). Zero where the fit fits or was not recorded."""
+    from calibration import gamma_luminance
+    from calibration.noise import NoiseModel
+
+    lum = np.asarray(lum, float)
+    fit = cal.chosen_fit
+    if fit is None or len(fit.levels) < 3:
+        return np.zeros(lum.shape)
+    x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
+    keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
+    noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
+    if noise.source != "repeats" and noise_rel is not None:
+        noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
+    mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model,
+                                    params=cal.gamma_params), float)
+    dof = max(int(keep.sum()) - len(cal.gamma_params), 1)
+    excess = float(np.sum(((y[keep] - mu) / noise.sd(y[keep])) ** 2)) / dof - 1.0
+    return noise.sd(lum) * np.sqrt(max(excess, 0.0))
+
+
+def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:
+    """The calibration's gamma parameters and uniformity map moved within their uncertainty to
+    fit ``train`` beside the ``fitted`` candidates (linearised, maximum a posteriori: a ridge
+    with the calibration's precision as prior; :func:`calibration_jacobian`,
+    :func:`_map_jacobian`): what a calibration fitted from noisy readings may be off by, which
+    is no gap."""
+    jac, prec = train.attrs.get("cal_jac"), train.attrs.get("cal_prec")
+    if jac is None:
+        return None
+    j = jac[train.index.to_numpy()]
+    r = train["L"].to_numpy(float) - _mean(train, fitted)
+    w = 1 / train["sd"].to_numpy(float) ** 2 * ~train["censored"].to_numpy(bool)
+    return np.linalg.lstsq((j.T * w) @ j + prec, (j.T * w) @ r, rcond=None)[0]
+
+
+def display_loss_given(train: pd.DataFrame):
+    """The engine's loss for a fold trained on ``train``: ``loss(data, fitted)``, the NLL of
+    the simulation extended by ``fitted``, its calibration moved within its uncertainty to fit
+    ``train`` (:func:`_calibration_shift`)."""
+    def loss(data: pd.DataFrame, fitted: list) -> np.ndarray:
+        mean = _mean(data, fitted)
+        delta = _calibration_shift(train, fitted)
+        if delta is not None:
+            mean = mean + data.attrs["cal_jac"][data.index.to_numpy()] @ delta
+        return display_nll(data, mean)
+    return loss
 
 
 def display_loss_info(data: pd.DataFrame) -> dict:
     """The noise model, the drift between repeats and what was diagnosed (for the report)."""
     n = data.attrs["noise"]
     return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"], "noise_pairs": n["n_pairs"],
+            "noise_source": n["source"], "floor_cd_m2": data.attrs["floor"],
+            "censored_readings": int(data["censored"].sum()),
+            "timed": bool(data.attrs["timed"]), "conditions": data.attrs["conditions"],
             "drift_between_repeats_pct": n["drift_pct"],
             "drift_between_repeats_cd_m2": n["drift_abs_cd_m2"],
             "source": data.attrs.get("display_source", {})}
@@ -207,9 +397,16 @@ def _mean(data: pd.DataFrame, fitted: list) -> np.ndarray:
 
 
 def display_nll(data: pd.DataFrame, mean: np.ndarray) -> np.ndarray:
-    """Per-reading Gaussian NLL (nats) of predictions ``mean`` (cd/m^2) under the noise model."""
+    """Per-reading NLL (nats) of predictions ``mean`` (cd/m^2): Gaussian under the reading's
+    SD; a reading at or below the meter's floor is censored, ``-log P(L <= floor)`` (it says
+    only "no more than the floor", as in the calibration's fit), so a zero is never exact."""
     sd = data["sd"].to_numpy(float)
-    return 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((data["L"].to_numpy(float) - mean) / sd) ** 2
+    nll = 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((data["L"].to_numpy(float) - mean) / sd) ** 2
+    cens = data["censored"].to_numpy(bool) if "censored" in data else np.zeros(len(data), bool)
+    if cens.any():
+        z = (data.attrs["floor"] - np.asarray(mean, float)[cens]) / sd[cens]
+        nll[cens] = -log_ndtr(z)
+    return nll
 
 
 def display_loss(data: pd.DataFrame, fitted: list) -> np.ndarray:

@@ -11,21 +11,68 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from analysis.gap.display.candidates import _CONFOUNDED_R2, _time_explained_by_conditions
 from analysis.gap.display.model import _mean, display_loss
-
-_WHERE_AXES = ("drive level", "screen position", "time in the run")
 
 
 def _where_cells(test: pd.DataFrame) -> dict[str, list[str]]:
-    """Each held-out reading's cell on the three axes the words use: drive level in five bands,
-    screen position, and third of the run's time span."""
+    """Each held-out reading's cell on the axes the words use: drive level in five bands,
+    screen position and third of the run's time span (the file's conditions:
+    :func:`_following`)."""
     t = test["t_s"].to_numpy(float)
     span = max(float(t.max() - t.min()), 1e-9)
     third = np.clip(((t - t.min()) / span * 3).astype(int), 0, 2)
     names = ("the first third", "the middle third", "the last third")
-    return {"drive level": [f"drive levels {b}" for b in _fifths(test["level"])],
-            "screen position": [f"screen position {p}" for p in _positions(test)],
-            "time in the run": [f"{names[k]} of the run" for k in third]}
+    cells = {"drive level": [f"drive levels {b}" for b in _fifths(test["level"])],
+             "screen position": [f"screen position {p}" for p in _positions(test)]}
+    return cells | {"time in the run": [f"{names[k]} of the run" for k in third]}
+
+
+#: A condition is named where it explains at least this share of the variance of the
+#: readings' relative residuals (adjusted R^2).
+_CONDITION_R2 = 0.3
+
+
+def _following(data: pd.DataFrame, conditions: list) -> str:
+    """'following <condition> (<R2> % of the residuals' variance, darker as it rises)' for
+    the condition column that explains the most of the variance of the readings' relative
+    residuals from the extended model (adjusted R^2 of their means per value, at least
+    :data:`_CONDITION_R2`); '' where none does. A change that follows a condition measured in
+    blocks is named by the condition, not by the time in the run."""
+    best = (0.0, "")
+    data = data[np.isfinite(data["resid"].to_numpy(float))]
+    r = data["resid"].to_numpy(float)
+    tot = float(np.sum((r - r.mean()) ** 2))
+    for c in conditions:
+        groups = data.groupby(f"_v_{c}")["resid"]
+        k = groups.ngroups
+        if tot <= 0 or k < 2 or len(r) <= k:
+            continue
+        within = float(np.sum((r - groups.transform("mean").to_numpy(float)) ** 2))
+        adj = 1 - (within / (len(r) - k)) / (tot / (len(r) - 1))
+        if adj > best[0]:
+            best = (adj, c)
+    if best[0] < _CONDITION_R2:
+        return ""
+    return (f"following {best[1]} ({100 * best[0]:.0f} % of the variance of the readings' "
+            f"residuals{_trend(data, best[1])})")
+
+
+def _trend(data: pd.DataFrame, axis: str) -> str:
+    """', darker as <condition> rises' (or brighter) where the readings' mean residual
+    (noise SDs) from the extended model falls (rises) monotonically over 3 or more numeric
+    values of a condition (Spearman |rho| >= 0.8); else ''."""
+    col = f"_v_{axis}"
+    if col not in data or not pd.api.types.is_numeric_dtype(data[col]):
+        return ""
+    means = data.groupby(col)["resid"].mean()
+    if means.size < 3:
+        return ""
+    rho = float(pd.Series(means.index, dtype=float).corr(pd.Series(means.to_numpy()),
+                                                          method="spearman"))
+    if not np.isfinite(rho) or abs(rho) < 0.8:
+        return ""
+    return f", {'brighter' if rho > 0 else 'darker'} as {axis} rises"
 
 
 def _fifths(frac) -> list[str]:
@@ -57,16 +104,25 @@ def display_where(fits: list) -> str:
     """
     rows = []
     for _train, test, fitted, ceiling_loss in fits:
-        rows.append(pd.DataFrame(_where_cells(test) | {
+        mu = _mean(test, list(fitted))
+        conds = {f"_v_{c}": test[c].to_numpy() for c in test.attrs.get("conditions", [])}
+        resid = (test["L"].to_numpy(float) - mu) / test["sd"].to_numpy(float)
+        resid[test["censored"].to_numpy(bool)] = np.nan
+        rows.append(pd.DataFrame(_where_cells(test) | conds | {
+            "resid": resid,
             "excess": display_loss(test, list(fitted)) - np.asarray(ceiling_loss, float),
-            "brighter": test["L"].to_numpy(float) > _mean(test, list(fitted)),
+            "brighter": test["L"].to_numpy(float) > mu,
             "x": test["x_norm"].to_numpy(float), "y": test["y_norm"].to_numpy(float)}))
     if not rows:
         return ""
     data = pd.concat(rows, ignore_index=True)
     data["pos_excess"] = data["excess"].clip(lower=0.0)
     ranked = []
-    for axis in _WHERE_AXES:
+    follow = _following(data, fits[0][1].attrs.get("conditions", []))
+    axes = [a for a in _where_cells(fits[0][1]) if a in data]
+    if follow and _time_explained_by_conditions(fits[0][1])[0] >= _CONFOUNDED_R2:
+        axes.remove("time in the run")  # the run's time is the conditions' blocks
+    for axis in axes:
         net = data.groupby(axis)["excess"].sum()
         total = float(net.clip(lower=0.0).sum())
         if net.size < 2 or total <= 0:
@@ -75,7 +131,7 @@ def display_where(fits: list) -> str:
         share = float(max(net[cell], 0.0)) / total
         ranked.append((share * len(data) / int((data[axis] == cell).sum()), axis, cell, share))
     if not ranked:
-        return ""
+        return follow
     ranked.sort(key=lambda r: r[0], reverse=True)
     words = []
     for rank, (lift, axis, cell, share) in enumerate(ranked[:2]):
@@ -83,7 +139,7 @@ def display_where(fits: list) -> str:
             break
         words.append(f"at {cell} (readings {_side(data[data[axis] == cell])}; "
                      f"{100 * share:.0f} % of the excess)")
-    return "mostly " + ", and ".join(words)
+    return (f"{follow}; " if follow else "") + "mostly " + ", and ".join(words)
 
 
 def _side(cell: pd.DataFrame) -> str:

@@ -42,6 +42,8 @@ class LayerPlan:
     sizes      ``sizes(diag) -> dict``: :class:`Diagnosis` fields measured once the chosen
                effects are known (the render layer's ``misfit_pct_before`` / ``_after``),
                or None
+    not_identifiable  ``{effect: reason}``: catalogue effects the data cannot identify (left
+               out of the ranking, named in the words)
     ========== =========================================================================
     """
 
@@ -56,3 +58,4 @@ class LayerPlan:
     warnings: tuple = field(default_factory=tuple)
     candidates: tuple = ()
     sizes: Callable[[Diagnosis], dict] | None = None
+    not_identifiable: dict = field(default_factory=dict)

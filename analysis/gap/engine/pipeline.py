@@ -19,6 +19,7 @@ from analysis.gap.engine.steps import (
     combine_greedily,
     explained_shares,
     measure_gap,
+    no_gap,
     remaining_gap,
     score_candidates,
     verdict_of,
@@ -45,6 +46,7 @@ def diagnose_losses(
     loss_info: dict | None = None,
     split: str = "",
     warnings: Sequence[str] = (),
+    not_identifiable: dict | None = None,
 ) -> Diagnosis:
     """Rank candidates, combine greedily, measure the held-out gap before and after, and test
     what remains against a flexible ceiling.
@@ -70,6 +72,10 @@ def diagnose_losses(
     loss_info, split, warnings
         Recorded as given: parameters of the loss itself (e.g. the noise model), how units
         were held out in words, warnings about the inputs (shown in the report).
+    not_identifiable : dict or None
+        ``{candidate name: reason}``: effects the layer found not identifiable from the data
+        given (e.g. a DAC step with levels too coarse to show it); they are left out of the
+        ranking and the combination, recorded and named in the words.
 
     Returns
     -------
@@ -83,6 +89,8 @@ def diagnose_losses(
     """
     if not candidates:
         raise GapError(f"layer {layer!r}: empty candidate catalogue; pass at least one candidate")
+    skip = dict(not_identifiable or {})
+    candidates = [c for c in candidates if c.name not in skip]
     cv = cross_fit(layer, functions.loss, functions.unit_ids, train, test, folds)
     base = cv.losses(cv.nothing_chosen())
     floor = cv.per_unit([functions.floor(te) for _, te, _ in cv.folds])
@@ -94,20 +102,28 @@ def diagnose_losses(
     remaining, ceil = (remaining_gap(cv, combination, paired, functions, settings)
                        if functions.ceiling is not None else (None, None))
     share, ceiling_share = explained_shares(gap, base, combination.loss, ceil)
+    return _record(layer, ranking, combination, gap, remaining, share, ceiling_share, settings,
+                   seed=seed, heldout=tuple(str(u) for u in cv.units) if cv.units is not None
+                   else (), loss_info=loss_info, split=split, warnings=tuple(warnings),
+                   not_identifiable=skip)
+
+
+def _record(layer, ranking, combination, gap, remaining, share, ceiling_share, settings,
+            **recorded) -> Diagnosis:
+    """The Diagnosis with its verdict (:func:`verdict_of`; :data:`NO_GAP` where
+    :func:`no_gap`) and its words."""
+    none = no_gap(combination.steps, gap.floor_status, remaining, gap.gap_before_ci,
+                  settings.min_gain)
     return with_summary(Diagnosis(
         layer=layer,
         ranking=tuple(asdict(s) for s in ranking),
         steps=tuple(combination.steps),
-        verdict=verdict_of(combination.steps, share, settings.min_share),
-        seed=seed,
-        heldout=tuple(str(u) for u in cv.units) if cv.units is not None else (),
+        verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none),
         explained_share=share,
         min_share=float(settings.min_share),
         min_gain=float(settings.min_gain),
-        loss_info=loss_info,
         remaining=remaining,
         ceiling_share=ceiling_share,
-        split=split,
-        warnings=tuple(warnings),
+        **recorded,
         **asdict(gap),
     ))

@@ -66,6 +66,9 @@ class Candidate:
     params         dict of str -> ParamDoc      how each key ``fit`` returns reads in reports
                                                 (name, unit); key ``"*"``: every key is what
                                                 the value is for (e.g. per response)
+    words          ``words(params) -> str``     the fitted effect in plain words for the
+                   or None                      summary ("the display is 27 % brighter than
+                                                its calibration at every level")
     ============== ============================ ===============================================
     """
 
@@ -78,6 +81,7 @@ class Candidate:
     units: str = ""
     truth: Callable | None = None
     params: dict = field(default_factory=dict, compare=False, hash=False)
+    words: Callable | None = field(default=None, compare=False, hash=False)
 
 
 _REGISTRY: dict[str, dict[str, Candidate]] = {}

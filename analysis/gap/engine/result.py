@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
@@ -31,8 +31,10 @@ class Diagnosis:
     """Ranking, greedy steps, before/after gap and the remaining gap (loss units: mean NLL per
     held-out unit).
 
-    ``verdict`` names the chosen candidates (``a + b``) or is ``'unexplained'``; ``summary`` is
-    the plain-language sentence. ``remaining`` (with a ceiling) holds the chosen model's
+    ``verdict`` names the chosen candidates (``a + b``), or is ``'no_significant_gap'`` (nothing
+    chosen and no significant gap: what the words then say) or ``'unexplained'``; ``summary``
+    is the plain-language sentence. ``not_identifiable`` maps effects the data given cannot
+    identify (left out of the ranking) to the reason, in words. ``remaining`` (with a ceiling) holds the chosen model's
     held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
     in a layer with a practical tolerance also ``size`` (the misfit in the data's units),
     ``tolerance``, ``size_unit``, ``size_source`` and ``within_tolerance`` (significant in
@@ -77,6 +79,7 @@ class Diagnosis:
     warnings: tuple = ()
     misfit_pct_before: float = float("nan")
     misfit_pct_after: float = float("nan")
+    not_identifiable: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:

@@ -26,9 +26,26 @@ from analysis.gap.engine.result import CandidateScore, jsonable
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import PairedTest, holm
 
-__all__ = ["Combination", "GapMeasures", "apply_tolerance", "backfit", "combine_greedily",
-           "explained_shares", "mean_params", "measure_gap", "remaining_gap",
-           "score_candidates", "verdict_of"]
+__all__ = [
+    "NO_GAP",
+    "Combination",
+    "GapMeasures",
+    "apply_tolerance",
+    "backfit",
+    "combine_greedily",
+    "explained_shares",
+    "mean_params",
+    "measure_gap",
+    "no_gap",
+    "remaining_gap",
+    "score_candidates",
+    "verdict_of",
+]
+
+#: The verdict of a diagnosis that finds no significant gap (nothing attributed, the floor
+#: sound, nothing significant beyond the ceiling or, without one, no gap above tolerance): the
+#: JSON's ``verdict`` says what the words say.
+NO_GAP = "no_significant_gap"
 
 
 def with_added(chosen: list[list], name: str, params: list) -> list[list]:
@@ -293,8 +310,24 @@ def explained_shares(gap: GapMeasures, base: np.ndarray, current: np.ndarray,
     return share, ceiling_share
 
 
-def verdict_of(steps: list, share: float, min_share: float) -> str:
-    """The chosen candidates' names (``a + b``), or ``'unexplained'`` when none was chosen or
-    they explain less than ``min_share`` of the gap (a NaN share does not refuse them)."""
+def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
+           min_gain: float) -> bool:
+    """True when there is no significant gap: nothing attributed, the floor sound, and either
+    (with a ceiling, ``remaining``) the simulation falls short of the ceiling by nothing
+    significant, or (without) the held-out gap's 95 % CI reaches the tolerance ``min_gain``
+    (0 if none)."""
+    if steps or floor_status != "ok":
+        return False
+    if remaining is not None:
+        return not remaining.get("significant")
+    return bool(gap_before_ci) and gap_before_ci[0] <= max(min_gain, 0.0)
+
+
+def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False) -> str:
+    """The chosen candidates' names (``a + b``); :data:`NO_GAP` when ``no_gap`` (nothing
+    chosen and no significant gap: :func:`no_gap`); else ``'unexplained'`` (none chosen, or
+    they explain less than ``min_share`` of the gap; a NaN share does not refuse them)."""
     explained = bool(steps) and (share >= min_share if np.isfinite(share) else True)
+    if not steps and no_gap:
+        return NO_GAP
     return " + ".join(s["added"] for s in steps) if explained else "unexplained"

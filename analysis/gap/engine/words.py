@@ -8,7 +8,10 @@ from dataclasses import replace
 
 import numpy as np
 
+from analysis.gap.engine.errors import GapError
+from analysis.gap.engine.registry import candidate
 from analysis.gap.engine.result import Diagnosis
+from analysis.gap.engine.steps import NO_GAP
 
 __all__ = ["summarise", "with_summary"]
 
@@ -18,7 +21,29 @@ def _names(steps) -> str:
 
 
 def summarise(d: Diagnosis) -> str:
-    """The verdict in one or two plain sentences (no markup)."""
+    """The verdict in one or two plain sentences (no markup), then one per effect the data
+    cannot identify."""
+    text = _verdict_words(d)
+    if d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
+        for st in d.steps:
+            said = _effect_words(d.layer, st)
+            text += f" {st['added'].replace('_', ' ').capitalize()}: {said}." if said else ""
+    for name, why in (d.not_identifiable or {}).items():
+        text += f" {name.replace('_', ' ').capitalize()}: not identifiable from these readings ({why})."
+    return text
+
+
+def _effect_words(layer: str, step: dict) -> str:
+    """The chosen effect in plain words (its candidate's ``words``), or ''."""
+    try:
+        cand = candidate(layer, step["added"])
+    except GapError:
+        return ""
+    return cand.words(step["params"]) if cand.words is not None else ""
+
+
+def _verdict_words(d: Diagnosis) -> str:
+    """The verdict's own sentence(s)."""
     if d.floor_status == "misestimated":
         return _floor_words(d)
     rem = d.remaining or {}

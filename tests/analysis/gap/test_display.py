@@ -32,7 +32,7 @@ def test_black_offset_recovered(tmp_path):
     assert diag.steps[0]["params"]["c"] == pytest.approx(0.05, abs=0.01)
 
 
-@pytest.mark.parametrize("effect,verdict", [("none", "unexplained"),
+@pytest.mark.parametrize("effect,verdict", [("none", "no_significant_gap"),
                                             ("gamma_change", "unexplained")])
 def test_nothing_or_out_of_catalogue_is_unexplained(tmp_path, effect, verdict):
     diag, _ = _diag(tmp_path, effect, strengths("display").get(effect, 0.0), 8)
@@ -51,11 +51,17 @@ def test_cli_display_report(tmp_path, capsys):
     assert "warmup_drift" in capsys.readouterr().out
 
 
-def test_display_needs_repeats(tmp_path):
+def test_display_without_repeats_takes_the_noise_from_the_calibration_and_says_so(tmp_path):
+    """Readings without repeats (issue 29): the photometer's noise is the one the calibration
+    measured from its own repeats (was: refused, 'needs repeated readings'), named in the
+    record; a clean display then shows no significant gap."""
     rng = np.random.default_rng(1)
     inject.write_calibration(rng, tmp_path / "cal")
     inject.write_readings(inject.simulate_readings(rng, repeats=1), tmp_path / "r")
-    with pytest.raises(GapError, match="repeat"):
-        diagnose("display", tmp_path / "r", tmp_path / "cal", load_design(), seed=0)
+    diag, _ = diagnose("display", tmp_path / "r", tmp_path / "cal", load_design(), seed=0,
+                       n_boot=200)
+    assert diag.loss_info["noise_source"].startswith("the calibration's repeated readings")
+    assert diag.loss_info["noise_pairs"] == 0
+    assert diag.verdict == "no_significant_gap", diag.summary
     with pytest.raises(GapError, match="calibration.json"):
         diagnose("display", tmp_path / "r", tmp_path / "nothing", load_design(), seed=0)

@@ -135,10 +135,12 @@ def test_out_of_catalogue_display_effect_leaves_a_gap_above_the_ceiling(tmp_path
     diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
     assert diag.verdict == "unexplained"
     assert diag.remaining["ci"][0] > 0 and diag.remaining["gap"] > 1
-    where = {"mid_gamma_bump": "at drive levels 0.6-0.8 (readings brighter than the extended "
-                               "model;",
-             "gamma_gradient": "(readings brighter than the extended model towards the left, "
-                               "darker towards the right;"}[effect]
+    # The bump: at some drive levels (beside a gain change, the extended model is brighter
+    # at the top, so the most concentrated excess may lie there).
+    where = {"mid_gamma_bump": "mostly at drive levels",
+             # Since issue 29 the uniformity map may move within its own uncertainty per
+             # position, which takes part of the gradient: the excess is at a position.
+             "gamma_gradient": "mostly at screen position ("}[effect]
     assert where in diag.remaining["where"]
     assert diag.remaining["where"] in diag.summary
 
@@ -152,17 +154,20 @@ def test_nothing_remains_above_the_ceiling_when_the_catalogue_explains_it(tmp_pa
     _check(tmp_path, rng, display, warmup=effect != "warmup_drift",
            start_s=30.0 if effect == "warmup_drift" else 1800.0)
     diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
-    assert diag.verdict.split(" + ")[0] == ("unexplained" if effect == "none" else effect)
+    assert diag.verdict.split(" + ")[0] == ("no_significant_gap" if effect == "none"
+                                            else effect)
     assert diag.remaining["ci"][0] <= 0
 
 
 def test_a_faint_black_offset_beside_a_warm_up_is_named_with_it(tmp_path):
-    """0.025 cd/m^2 of extra black light shows only in the darkest patches. With one split it
+    """0.05 cd/m^2 of extra black light shows only in the darkest patches. With one split it
     was tested on half of them and lost to a 0.1 % nonuniformity (verdict 'warmup_drift +
     nonuniformity' for this lab, seed 8, found by trying seeds 0-9); cross-fitted, every
-    reading is held out once and the offset is named."""
+    reading is held out once and the offset is named. (It was 0.025 cd/m^2: since issue 29
+    the calibration may move within its own uncertainty, and its black level fitted from noisy
+    readings may be off by about that much, so 0.025 is no longer told from it.)"""
     rng = _lab(tmp_path, 8)
-    real = bench_display.with_effect(bench_display.with_effect(DISPLAY, "black_offset", 0.025),
+    real = bench_display.with_effect(bench_display.with_effect(DISPLAY, "black_offset", 0.05),
                                      "warmup_drift", 0.04)
     check = _check(tmp_path, rng, real, warmup=False, start_s=30.0)
     diag, _ = diagnose("display", check, tmp_path / "cal", None, seed=1, n_boot=300)
@@ -173,7 +178,8 @@ def test_a_faint_black_offset_beside_a_warm_up_is_named_with_it(tmp_path):
 
 def test_display_candidates_are_registered_objects():
     names = [c.name for c in catalogue("display")]
-    assert names == ["black_offset", "nonuniformity", "warmup_drift", "quantisation"]
+    assert names == ["black_offset", "gain_change", "nonuniformity", "warmup_drift",
+                     "quantisation"]
     for c in catalogue("display"):
         assert c.apply and c.inject and c.truth and c.default_strength > 0 and c.units
     with pytest.raises(GapError, match="unknown candidate 'gain' for layer 'display'"):

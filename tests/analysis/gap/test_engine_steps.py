@@ -184,6 +184,9 @@ def test_verdict_is_unexplained_without_steps_or_below_the_minimum_share():
     assert verdict_of(steps, 0.4, 0.5) == "unexplained"
     assert verdict_of(steps, float("nan"), 0.5) == "a + b"
     assert verdict_of([], 1.0, 0.0) == "unexplained"
+    # Nothing chosen and no significant gap: the verdict says so (as the words do).
+    assert verdict_of([], float("nan"), 0.0, no_gap=True) == "no_significant_gap"
+    assert verdict_of(steps, 0.6, 0.5, no_gap=True) == "a + b"
 
 
 def test_summary_says_what_is_explained_and_what_remains_within_the_tolerance():

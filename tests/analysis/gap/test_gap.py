@@ -56,9 +56,10 @@ def test_crosstalk_slope_recovered():
 
 def test_nothing_injected_is_no_significant_gap():
     diag, _ = _diag("none", 0.0, 11)
-    assert diag.verdict == "unexplained" and not diag.steps
+    assert diag.verdict == "no_significant_gap" and not diag.steps
     assert not diag.unexplained_remains
     assert diag.summary.startswith("No significant gap")
+    assert diag.to_dict()["verdict"] == "no_significant_gap"
 
 
 def test_out_of_catalogue_is_unexplained():
