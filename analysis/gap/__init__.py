@@ -44,6 +44,7 @@ from analysis.gap.engine import (
     register_out_of_catalogue,
     strengths,
 )
+from analysis.gap.engine.steps import NO_GAP
 from analysis.gap.layers import parse_layer_paths, which_layer
 from analysis.gap.observer import (
     OBSERVER_CANDIDATES,
@@ -61,6 +62,7 @@ from analysis.gap.report import write_multi_report, write_report
 
 __all__ = [
     "LAYERS",
+    "NO_GAP",
     "OBSERVER_CANDIDATES",
     "Candidate",
     "CandidateScore",

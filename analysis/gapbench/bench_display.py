@@ -51,7 +51,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.engine.steps import NO_GAP
+from analysis.gap import NO_GAP
 from analysis.gapbench.scoring import (
     balanced_draw,
     per_case,

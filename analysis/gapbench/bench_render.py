@@ -55,8 +55,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import fftconvolve
 
-from analysis.gap import catalogue, diagnose, effect, out_of_catalogue
-from analysis.gap.engine.steps import NO_GAP
+from analysis.gap import NO_GAP, catalogue, diagnose, effect, out_of_catalogue
 from analysis.gapbench import inject
 from analysis.gapbench.scoring import (
     balanced_draw,

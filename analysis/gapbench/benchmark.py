@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap import (
+    NO_GAP,
     OutOfCatalogue,
     candidate,
     catalogue,
@@ -35,7 +36,6 @@ from analysis.gap import (
 )
 from analysis.gap import effect as _effect
 from analysis.gap import strengths as _strengths
-from analysis.gap.engine.steps import NO_GAP
 from analysis.gapbench import inject
 from analysis.gapbench.scoring import balanced_draw, render_true_shrink
 from analysis.gapbench.scoring import rate as _rate
