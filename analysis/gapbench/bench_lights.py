@@ -45,7 +45,8 @@ def _one_case(work: Path, case: str, strength: float, seed: int, *, size: int,
     from stimuli.glossfit.lightfit import fit_lights
 
     effects = {"broad_lobe": strength} if case == "lights_broad" else {}
-    s, fit = work / f"{case}_{seed}" / "set", work / f"{case}_{seed}" / "fit"
+    case_dir = work / f"{case}_{strength:g}_{seed}"
+    s, fit = case_dir / "set", case_dir / "fit"
     write_light_set_with(s, effects, seed=seed, size=size, n_lights=n_lights, spp=spp)
     half = n_lights // 2
     fit_lights(s, fit, f"1-{half}", spp=4, seed=seed)
