@@ -19,6 +19,14 @@ Scores: ``top1`` (broad cases), ``false_attribution`` (none cases), ``c_error`` 
 c_true| / c_true over the broad cases named right: the fitted lobe's albedo, not the gap's
 shrinkage of :data:`analysis.gapbench.bench_render.RENDER_TARGETS`), the held-out misfit before
 and after (% RMS). ``python -m analysis.gapbench.bench_lights OUT`` runs them.
+
+Measured (the defaults: 32 px, 8 lights, 4 spp, seeds 1 and 2, s = 0.1, 0.15, 0.2; 28 s CPU):
+top1 6/6 (1.0), false attribution 0/2 (held-out misfit 1.65 and 1.64 %, nothing named), c error
+0.36 (median). At s = 0.1 and 0.15 broad_lobe alone, alpha2 0.6 (truth 0.5), c 0.145-0.148
+(truth 0.111) and 0.238-0.241 (0.176): the wider lobe takes more albedo; misfit 3.73-3.76 ->
+2.04-2.20 % and 5.13-5.31 -> 2.31-3.08 %. At s = 0.2 broad_lobe first, alpha2 0.1, c
+0.11-0.13 (truth 0.25), then clearcoat, veiling_glare and fresnel: the narrow second lobe and
+the coat split the broad lobe's light; 5.70-5.82 -> 2.92-3.21 %.
 """
 
 from __future__ import annotations
