@@ -20,7 +20,8 @@ SETUP = PhotoSetup(camera_distance_cm=27.5, sphere_radius_cm=2.0, fov_deg=16.0,
 def test_a_lighting_held_out_of_a_panorama_set(tmp_path, capsys):
     """Ward spheres photographed in a room and in the room turned and dimmed: fitted in one,
     the fit predicts the other's photos about as well as its own (a prediction in the wrong
-    room does not even register), and the diagnosis reports the held-out misfit."""
+    room does not even register), the diagnosis reports the held-out misfit and names
+    nothing."""
     from analysis.gap.render.ceiling import misfit_pct
     from analysis.gap.render.data import load_render
 
@@ -39,6 +40,7 @@ def test_a_lighting_held_out_of_a_panorama_set(tmp_path, capsys):
                      "--sim", str(fit), "--out", str(out)]) == 0
     d = json.loads((out / "diagnosis.json").read_text())
     assert "held-out lighting lamp" in d["split"]
+    assert not d["steps"]  # the fit's own model: nothing named
     before, after = d["misfit_pct_before"], d["misfit_pct_after"]
     in_sample = misfit_pct(load_render(fit), [])
     assert math.isfinite(before) and after <= before + 1e-9
