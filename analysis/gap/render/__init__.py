@@ -218,12 +218,21 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
                 "misfit_pct_after": misfit_pct(test, chosen(diag))}
     return LayerPlan(functions, settings, localise=localise, train=train, test=test,
                      split=split, candidates=candidates, sizes=sizes,
-                     loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
-                                               for lv in train.levels + test.levels}})
+                     loss_info={"noise_a2_b": _noise_by_name(train, test)})
 
 
 #: At most this many levels (held-out lights) drawn in the report's residual maps.
 _MAX_MAPS = 8
+
+
+def _noise_by_name(train: RenderData, test: RenderData) -> dict:
+    """Each level's noise model (a2, b) by name; a held-out lighting's levels, named as the
+    fit's, as ``NAME (held out)``."""
+    out = {lv["name"]: lv["noise"] for lv in train.levels}
+    for lv in test.levels:
+        seen = lv["name"] in out and lv["noise"] is not out[lv["name"]]
+        out[f"{lv['name']} (held out)" if seen else lv["name"]] = lv["noise"]
+    return out
 
 
 def is_light_fit(folder) -> bool:

@@ -41,6 +41,8 @@ def test_a_lighting_held_out_of_a_panorama_set(tmp_path, capsys):
     d = json.loads((out / "diagnosis.json").read_text())
     assert "held-out lighting lamp" in d["split"]
     assert not d["steps"]  # the fit's own model: nothing named
+    assert set(d["loss_info"]["noise_a2_b"]) == {"gloss_050", "gloss_100", "gloss_050 (held out)",
+                                                 "gloss_100 (held out)"}
     before, after = d["misfit_pct_before"], d["misfit_pct_after"]
     in_sample = misfit_pct(load_render(fit), [])
     assert math.isfinite(before) and after <= before + 1e-9
