@@ -34,8 +34,8 @@ def _diagnose(args, design) -> int:
         opts |= {"study": args.study, "participants": args.participants}
     if args.lights:
         if args.layer != "render":
-            raise GapError("--lights holds out photos of a directional-light set: use it with "
-                           "--layer render")
+            raise GapError("--lights holds out photos of a directional-light set, or a "
+                           "lighting of a panorama set: use it with --layer render")
         opts["lights"] = args.lights
     if args.layer == "all":
         from analysis.gap.layers import parse_layer_paths, which_layer
@@ -97,7 +97,8 @@ def main(argv=None) -> int:
     d.add_argument("--lights", default=None,
                    help="render layer, directional-light sets: the lights held out, e.g. 25-48 "
                         "(REAL the photo set, SIM the fit of other lights: python -m stimuli "
-                        "fit-gloss SET --lights 1-24 --out FIT)")
+                        "fit-gloss SET --lights 1-24 --out FIT); panorama sets in several "
+                        "lightings: the lighting held out, e.g. lamp (SIM fitted another)")
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0,
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")

@@ -54,15 +54,16 @@ def _n_images(args) -> int:
 
 def _cmd_fit(args) -> int:
     from stimuli.glossfit.fit import fit_gloss
+    from stimuli.glossfit.lightings import lighting_names
     from stimuli.glossfit.lightset import is_light_set
     from stimuli.glossfit.methods import FitSettings
 
     if is_light_set(args.photo_set):
         return _cmd_fit_lights(args)
-    if args.lights:
-        print(f"error: --lights: {args.photo_set} is a panorama photo set (no "
-              "light_directions.txt); leave --lights out, or pass a directional-light set",
-              file=sys.stderr)
+    if args.lights and not lighting_names(args.photo_set):
+        print(f"error: --lights: {args.photo_set} is a panorama photo set of one lighting (no "
+              "light_directions.txt, no lightings/); leave --lights out, or pass a "
+              "directional-light set", file=sys.stderr)
         return 1
     if not args.spp_given:
         args.spp = 36
@@ -74,6 +75,7 @@ def _cmd_fit(args) -> int:
         run = fit_gloss(args.photo_set, args.out, design.gloss.physical_pct, settings=settings,
                         resolution_px=args.resolution, spp=args.spp, seed=args.seed,
                         max_highlight_offset_px=args.max_highlight_offset,
+                        lighting=args.lights,
                         progress=lambda line: print(line, flush=True))
     except (ValueError, FileExistsError) as exc:
         print(f"error: {exc}", file=sys.stderr)
@@ -140,7 +142,9 @@ def register(subparsers) -> None:
     p.add_argument("--lights", default=None,
                    help="directional-light sets: the lights to fit, counted from 1, e.g. 1-24 "
                         "(default: all); the others can be held out (python -m analysis gap "
-                        "diagnose --layer render --real SET --lights 25-48 --sim OUT)")
+                        "diagnose --layer render --real SET --lights 25-48 --sim OUT); panorama "
+                        "sets in several lightings (lightings/NAME/): the lighting to fit, "
+                        "e.g. day (hold another out the same way)")
     p.add_argument("--min-cos", type=float, default=0.1,
                    help="directional-light sets: fit pixels with n.l above this (default 0.1)")
     p.add_argument("--out", required=True, help="new output folder")

@@ -160,7 +160,8 @@ def fit_level(photo: np.ndarray, clipped: np.ndarray, photo_set: PhotoSet, scene
 
 def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[float, ...], *,
               settings: FitSettings | None = None, resolution_px: int = 64, spp: int = 36,
-              seed: int = 0, max_highlight_offset_px: float = 3.0, progress=None) -> FitRun:
+              seed: int = 0, max_highlight_offset_px: float = 3.0, progress=None,
+              lighting: str | None = None) -> FitRun:
     """Fit Ward parameters to a photo set and write the output folder.
 
     Parameters
@@ -183,6 +184,9 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
         Registration is flagged when photo and render highlights are further apart (fit px).
     progress : callable(str), optional
         Called with a line per level.
+    lighting : str, optional
+        A set photographed in several lightings (:mod:`stimuli.glossfit.lightings`): the one
+        fitted; fit.json records it, so the others can be held out.
 
     Returns
     -------
@@ -202,7 +206,7 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
     if taken:
         raise FileExistsError(f"{out} already holds a fit's output ({', '.join(taken)}); give a "
                               f"new output folder (nothing is overwritten)")
-    photo_set = load_photo_set(photo_set_dir, gloss_pct)
+    photo_set = load_photo_set(photo_set_dir, gloss_pct, lighting=lighting)
     (out / "residuals").mkdir(parents=True, exist_ok=True)
     (out / "figures").mkdir(exist_ok=True)
     warnings = list(photo_set.warnings)
@@ -269,6 +273,10 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
             "missing_pct": photo_set.missing_pct, "summary": summary, "warnings": warnings,
             "levels": details,
             "versions": _versions()}
+    if lighting is not None:
+        from stimuli.glossfit.lightings import lighting_names
+
+        info |= {"lighting": lighting, "lightings": lighting_names(photo_set_dir)}
     write_json(out / "fit.json", info)
     write_report(out / "report.html", info, rows,
                  [] if table is None else table.to_dict("records"))

@@ -276,7 +276,7 @@ def _check_finite(image: np.ndarray, path: Path) -> None:
 
 
 def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
-                   max_clipped_fraction: float = 0.05) -> PhotoSet:
+                   max_clipped_fraction: float = 0.05, lighting: str | None = None) -> PhotoSet:
     """Load and validate a photo set.
 
     Parameters
@@ -288,6 +288,9 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
     max_clipped_fraction : float
         A photo with more clipped pixels than this share (0-1) is an error; fewer is a warning
         and those pixels are left out of the fit.
+    lighting : str, optional
+        A set photographed in several lightings (``lightings/NAME/envmap.exr`` and
+        ``lightings/NAME/photos/``, :mod:`stimuli.glossfit.lightings`): the one to load.
 
     Returns
     -------
@@ -304,7 +307,10 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
     if not folder.is_dir():
         raise GlossFitError(f"photo set {folder} is not a folder")
     setup = load_setup(folder / "setup.toml")
-    env_path = folder / "envmap.exr"
+    from stimuli.glossfit.lightings import lighting_folder
+
+    base = lighting_folder(folder, lighting)
+    env_path = base / "envmap.exr"
     if not env_path.is_file():
         raise GlossFitError(f"{env_path} not found; a photo set needs the room's lat-long "
                             f"panorama as envmap.exr")
@@ -317,7 +323,7 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
     if float(envmap.max()) <= 0:
         raise GlossFitError(f"{env_path} is black; it cannot light the sphere")
 
-    photo_dir = folder / "photos"
+    photo_dir = base / "photos"
     if not photo_dir.is_dir():
         raise GlossFitError(f"{photo_dir} not found; put the photos in photos/gloss_XXX.exr")
     expected = {photo_name(p): float(p) for p in gloss_pct}

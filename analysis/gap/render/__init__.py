@@ -83,7 +83,9 @@ train, lights it never saw test (``data.load_lights``); one material, so one pai
 for all lights (``model._shared_scaled_fit``); the ceiling a cross-fitted smooth of each
 held-out photo (``ceiling.light_ceiling``); the broad_lobe candidate (a second Ward lobe,
 ``model.ward_lobe``), registered as catalogue ``render_lights`` as its form needs each photo's
-light; the held-out misfit in % (``ceiling.misfit_pct``) in diagnosis.json.
+light; the held-out misfit in % (``ceiling.misfit_pct``) in diagnosis.json. A panorama set in
+several lightings (``--lights NAME``, ``data.load_lighting``): the fit's lighting trains, the
+held-out lighting's photos test, with the whole catalogue and the same ceiling and sizes.
 candidates.py  one registered Candidate per effect (its term, fit and injector), in the order
                their terms apply
 =============  ===============================================================================
@@ -117,6 +119,7 @@ from analysis.gap.render.data import (
     NPZ_ARRAYS,
     NPZ_MASKS,
     RenderData,
+    load_lighting,
     load_lights,
     load_render,
 )
@@ -159,13 +162,22 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
     folder, usually the same; SIM None: REAL's), or loaded residual files, split once into
     training and held-out blocks drawn from ``rng``. A directional-light fit
     (:mod:`analysis.gap.render.lights`): with ``lights`` (e.g. ``"25-48"``) REAL is the photo
-    set and those lights, which the fit never saw, are held out. A remaining gap counts only
+    set and those lights, which the fit never saw, are held out. A panorama fit of one
+    lighting of several (:mod:`stimuli.glossfit.lightings`): ``lights`` names the lighting
+    held out. A remaining gap counts only
     from the design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is
     None)."""
+    from stimuli.glossfit.lightings import is_lighting_fit
+
     paths = isinstance(real, (str, Path))
-    light_mode = lights is not None or (paths and is_light_fit(sim if sim is not None else real))
+    fit_dir = sim if sim is not None else real
+    light_mode = lights is not None or (paths and is_light_fit(fit_dir))
     candidates, split, ceiling = (), "", render_ceiling
-    if light_mode:
+    if lights is not None and paths and is_lighting_fit(fit_dir):
+        # A panorama set photographed in several lightings: one held out (the whole catalogue).
+        train, test, split = load_lighting(real, fit_dir, lights)
+        ceiling, shown = light_ceiling, test
+    elif light_mode:
         train, test, split = load_lights(real, sim, lights)
         candidates = (tuple(c for c in catalogue("render") if c.name in LIGHT_CANDIDATES)
                       + tuple(catalogue("render_lights")))
@@ -206,12 +218,21 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
                 "misfit_pct_after": misfit_pct(test, chosen(diag))}
     return LayerPlan(functions, settings, localise=localise, train=train, test=test,
                      split=split, candidates=candidates, sizes=sizes,
-                     loss_info={"noise_a2_b": {lv["name"]: lv["noise"]
-                                               for lv in train.levels + test.levels}})
+                     loss_info={"noise_a2_b": _noise_by_name(train, test)})
 
 
 #: At most this many levels (held-out lights) drawn in the report's residual maps.
 _MAX_MAPS = 8
+
+
+def _noise_by_name(train: RenderData, test: RenderData) -> dict:
+    """Each level's noise model (a2, b) by name; a held-out lighting's levels, named as the
+    fit's, as ``NAME (held out)``."""
+    out = {lv["name"]: lv["noise"] for lv in train.levels}
+    for lv in test.levels:
+        seen = lv["name"] in out and lv["noise"] is not out[lv["name"]]
+        out[f"{lv['name']} (held out)" if seen else lv["name"]] = lv["noise"]
+    return out
 
 
 def is_light_fit(folder) -> bool:

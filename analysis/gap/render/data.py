@@ -21,7 +21,15 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
-from analysis.gap.render.model import _fill, noise_model, noise_sd, ward_lobe
+from analysis.gap.render.model import (
+    _coat_t,
+    _fill,
+    _sharpness,
+    _unit_at_centre,
+    noise_model,
+    noise_sd,
+    ward_lobe,
+)
 from studydesign import rec709_luminance
 
 NPZ_ARRAYS = ("photo", "render", "diffuse", "specular")
@@ -33,7 +41,6 @@ _BLOCK = 4
 #: not reflect, so the half vectors that do tilt towards the camera and the rise saturates.
 _FRESNEL_CAPS = (0.0, 0.15, 0.3)
 _COAT_PATHS = {"surround": 1.0, "view": 2.0}  # passes through the coat at the view angle
-_COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
 #: The coat's key light (see _fit_shading): a round lamp of half-angle up to 40 deg, drawn as
 #: this many directions.
 _KEY_MAX_RAD, _KEY_SAMPLES = 0.7, 48
@@ -94,8 +101,33 @@ def load_render(real_path, sim_path=None) -> RenderData:
         with np.load(f) as a, np.load(g) as b:
             levels.append(make_level(f.stem, {k: a[k] for k in a.files},
                                      {k: b[k] for k in b.files}, distance))
-    # The long tail's wings may borrow the lobe of any less glossy level (see _wider_lobe),
-    # brought onto this level's sphere.
+    return _across_levels(levels)
+
+
+def load_lighting(real, sim, lighting: str) -> tuple[RenderData, RenderData, str]:
+    """(train, test, split in words) of a panorama fit of one lighting (SIM) with REAL's
+    photos in another, ``lighting``, held out (:mod:`stimuli.glossfit.lightings`): train =
+    SIM's fitted pixels, test = the held-out photos against the fitted levels rendered in
+    that lighting's panorama, by the same level names (per-level terms carry over)."""
+    from stimuli.glossfit.lightings import predict_lighting
+    from stimuli.glossfit.photoset import GlossFitError
+
+    try:
+        held = predict_lighting(sim, real, lighting)
+    except (GlossFitError, ValueError, OSError) as exc:
+        raise GapError(str(exc)) from None
+    distance = _camera_distance(Path(sim))
+    test = [make_level(name, a, a, distance) for name, a in held.items()]
+    for lv in test:
+        lv["train"] = np.zeros_like(lv["fit"])
+    fitted = json.loads((Path(sim) / "fit.json").read_text())["lighting"]
+    return load_render(sim, sim), _across_levels(test), f"held-out lighting {lighting} (fit: {fitted})"
+
+
+def _across_levels(levels: list[dict]) -> RenderData:
+    """The levels with what each takes from the others: the long tail's wings may borrow the
+    lobe of any less glossy level (see _wider_lobe), brought onto this level's sphere; the
+    coat's mirror entry from the glossiest level's view of the room."""
     sharp = {lv["name"]: _sharpness(lv) for lv in levels}
     for lv in levels:
         lv["wider"] = {o["name"]: _aligned_lobe(o, lv) for o in levels
@@ -413,21 +445,6 @@ def _coat_lights(D: np.ndarray, S: np.ndarray, t_view: np.ndarray, y: np.ndarray
     return _unit_at_centre(factor, r2, cover > 0)
 
 
-def _unit_at_centre(factor: np.ndarray, r2: np.ndarray, on: np.ndarray) -> np.ndarray:
-    """A coat factor scaled to mean 1 within 0.3 radii of the sphere's centre (``r2``: squared
-    distance from it in radii; ``on``: the pixels the sphere covers), where the coat's entry
-    and exit losses are smallest and its amplitude is read."""
-    centre = (r2 < 0.3**2) & on
-    return factor / max(float(factor[centre].mean()), 1e-12) if centre.any() else factor
-
-
-def _sharpness(lv: dict) -> float:
-    """How sharply a level's specular render images the surround: its peak over its mean on
-    the sphere (the glossiest level's lobe blurs the reflected room least)."""
-    s = lv["S"][lv["regions"]["highlight"] | lv["regions"]["body"]]
-    return float(s.max() / max(s.mean(), 1e-12)) if s.size else 0.0
-
-
 def _mirror_light(lv: dict) -> tuple[np.ndarray, np.ndarray]:
     """The surround as the level's specular render shows it: each pixel's mirror direction r
     = 2 (n.v) n - v (the gloss fit's camera, :func:`_sphere_view`) and the light from it,
@@ -480,20 +497,3 @@ def _coat_mirror(light: tuple[np.ndarray, np.ndarray], lv: dict) -> np.ndarray:
         return lv["coat"]["surround"]
     factor = lv["coat"]["surround"] * np.clip(e_t / np.maximum(e, 0.05 * peak), 0.0, 2.0)
     return _unit_at_centre(factor, r2, on)
-
-
-def _fresnel_coat(cos_i, eta: float = _COAT_IOR):
-    """Unpolarised Fresnel reflectance of a dielectric coat of index ``eta`` in air (exact;
-    e.g. Walter et al. 2007, eq. 22). Schlick's approximation misses the transmission's fall
-    at grazing angles by several per cent, which a coat over thousands of pixels shows."""
-    c = np.clip(cos_i, 1e-6, 1.0)
-    g = np.sqrt(eta**2 - 1 + c**2)
-    return 0.5 * ((g - c) / (g + c)) ** 2 * (1 + ((c * (g + c) - 1) / (c * (g - c) + 1)) ** 2)
-
-
-def _coat_t(cos_t, paths: float = 1.0):
-    """Transmission of a clear coat (exact Fresnel, IOR 1.5: F0 = 0.04) relative to normal
-    view, on ``paths`` passes at the view angle: 1 when the light enters from a diffuse
-    surround (its own transmission, averaged over the directions, goes into rho_d), 2 when it
-    enters along the view (a light at the camera)."""
-    return ((1 - _fresnel_coat(cos_t)) / (1 - _fresnel_coat(1.0))) ** paths
