@@ -236,10 +236,16 @@ def observer_folds(data: pd.DataFrame, k: int = 5) -> tuple[list, str]:
         fold = (rank.to_numpy(int) - 1) % kk
         text = (f"{kk}-fold by trial within each session ({len(parts)} participant(s); >= 4 "
                 "allow held-out participants)")
+    return split_folds(data, fold, kk), text
+
+
+def split_folds(data: pd.DataFrame, fold: np.ndarray, k: int) -> list:
+    """``[(train, test), ...]``: row ``i`` of ``data`` is held out in fold ``fold[i]`` (0 to
+    ``k - 1``); each part keeps ``data.attrs``."""
     folds = []
-    for f in range(kk):
+    for f in range(k):
         m = fold == f
         tr, te = data[~m].copy(), data[m].copy()
         tr.attrs, te.attrs = dict(data.attrs), dict(data.attrs)
         folds.append((tr, te))
-    return folds, text
+    return folds

@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap.engine import GapError
+from analysis.gap.observer.data import split_folds
 from analysis.gap.observer.rating.model import RatingBase
 
 __all__ = ["check_rating_sim", "load_rating_sim", "rating_folds", "rating_frame",
@@ -126,13 +127,7 @@ def rating_folds(data: pd.DataFrame, k: int = 5) -> tuple[list, str]:
         rank = data.groupby("participant").cumcount().to_numpy(int)
         fold = rank % kk
         text = f"{kk}-fold by trial within each participant"
-    folds = []
-    for f in range(kk):
-        m = fold == f
-        tr, te = data[~m].copy(), data[m].copy()
-        tr.attrs, te.attrs = dict(data.attrs), dict(data.attrs)
-        folds.append((tr, te))
-    return folds, text
+    return split_folds(data, fold, kk), text
 
 
 def rating_unit_ids(test: pd.DataFrame) -> np.ndarray:
