@@ -486,7 +486,9 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
             "source_kind": diag.loss_info["source"]["kind"],
             "in_sample_rows": diag.loss_info["source"]["in_sample_rows"],
             "seed_verdicts": [d.verdict for d in diags],
-            "not_identifiable": sorted(diag.not_identifiable)}
+            "not_identifiable": sorted(diag.not_identifiable),
+            "visible_bits": list(diag.loss_info.get("quantisation_visible_bits", [])),
+            "true_bits": int(real.dac_bits)}
 
 
 def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
@@ -510,6 +512,14 @@ def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
     return records
 
 
+def _unseen_dac(r: dict) -> bool:
+    """A coarser DAC the diagnosis said these levels cannot show: its resolution finer than
+    every one whose step would be visible (``quantisation_visible_bits``, with a note in the
+    diagnosis's warnings), so its gap is unexplained or too small, not quantisation."""
+    return ("quantisation" in r["inside"] and bool(r.get("visible_bits"))
+            and r.get("true_bits", 0) > max(r["visible_bits"]))
+
+
 def _right(r: dict) -> bool:
     """The verdict a scientist should get for the case."""
     case = r["case"]
@@ -525,9 +535,12 @@ def _right(r: dict) -> bool:
         return ("warmup_drift" not in r["named"]
                 and (r["remaining_flagged"] or r["verdict"] == "unexplained"))
     if case in ("single", "drift_repeats", "gain_change"):
+        if _unseen_dac(r):  # said not identifiable: anything but another effect's name
+            return not set(r["named"]) - {"quantisation"}
         return r["top"] == r["inside"][0]
     if case == "co_occurring":
-        return set(r["inside"]) <= set(r["named"])
+        need = set(r["inside"]) - ({"quantisation"} if _unseen_dac(r) else set())
+        return need <= set(r["named"])
     # Out of catalogue (alone or on top of a catalogue effect): nothing else named, and the
     # gap the catalogue leaves is flagged (or nothing is attributed at all).
     extra = set(r["named"]) - set(r["inside"])
