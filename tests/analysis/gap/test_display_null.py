@@ -43,24 +43,20 @@ def test_shot_noise_of_the_photometer_is_measured_from_pairs():
 
 
 def test_a_calibration_that_fits_its_readings_adds_no_misfit_to_the_null(tmp_path):
-    """A calibration with the display's own transfer function, its residuals only noise: no
-    lack-of-fit SD in 19 of 20 calibrations (a chi-square above dof by chance is not counted;
-    counting it loosened the SD of every reading and a clean check then read below its
-    floor); a real misfit (a mid-range gamma bump of 6 % the model lacks) keeps one."""
-    true_sd = {"abs": DISPLAY.floor_cd_m2, "shot": DISPLAY.shot_cd_m2,
-               "rel": DISPLAY.rel_noise}
-    zero = 0
-    for seed in range(20):
+    """A calibration fitted to readings its model fits, residuals only noise: no lack-of-fit
+    SD in at least 17 of 20 calibrations (a chi-square above its dof by chance is not counted:
+    counted, it loosened the SD of every reading in about half of them, and a clean check then
+    read below its floor); a real misfit (a mid-range gamma bump of 6 % the model lacks)
+    keeps one."""
+    def lof(display, seed, where):
         folder = bench_display.write_calibration_folder(
-            tmp_path / f"c{seed}", DISPLAY, np.random.default_rng(seed), n_validation=0)
-        cal = load_calibration(folder / "calibration.json")
-        zero += not lack_of_fit_sd(cal, np.array([1.0, 40.0]), measured=true_sd).any()
-    assert zero >= 19
-    bumped = bench_display.write_calibration_folder(
-        tmp_path / "bump", replace(DISPLAY, mid_gamma_bump=0.06), np.random.default_rng(0),
-        n_validation=0, fit="fitted")
-    cal = load_calibration(bumped / "calibration.json")
-    assert lack_of_fit_sd(cal, np.array([40.0]), measured=true_sd)[0] > 0
+            tmp_path / where, display, np.random.default_rng(seed), n_validation=0,
+            fit="fitted")
+        return lack_of_fit_sd(load_calibration(folder / "calibration.json"),
+                              np.array([1.0, 40.0]))
+    zero = sum(not lof(DISPLAY, seed, f"c{seed}").any() for seed in range(20))
+    assert zero >= 17
+    assert lof(replace(DISPLAY, mid_gamma_bump=0.06), 0, "bump")[1] > 0
 
 
 def _frame(tmp_path, display, seed=1):
@@ -75,14 +71,18 @@ def _frame(tmp_path, display, seed=1):
 def test_a_warm_up_beside_a_gain_change_is_fitted_with_that_gain(tmp_path):
     """A display 5 % brighter, warming up by 4 % (tau 450 s) from 30 s before the check: the
     gain fitted alone takes the warm-up's mean deficit; the warm-up fitted beside it re-fits
-    that gain and recovers its deficit at the first reading (within 30 %); with the gain held
-    it came back at about half. A brighter display without a warm-up gives no deficit, and
-    without a chosen gain change the warm-up never fits a constant gain."""
+    that gain and recovers the rise over the record (what its readings identify; w and tau
+    trade off) within 25 %; with the gain held it came back 44 % short (tau 54 s). A
+    brighter display without a warm-up gives no deficit, and without a chosen gain change
+    the warm-up never fits a constant gain."""
     both = replace(DISPLAY, white_cd_m2=DISPLAY.white_cd_m2 * 1.05, warmup_frac=0.04)
     data = _frame(tmp_path / "a", both)
     gain = ("gain_change", candidate("display", "gain_change").fit(data, []))
     warm = candidate("display", "warmup_drift").fit(data, [gain])
-    assert warm["w"] == pytest.approx(0.04 * np.exp(-30 / 450), rel=0.3)
+    span = float(data["t_s"].max())
+    rise = warm["w"] * (1 - np.exp(-span / warm["tau_s"]))
+    true_rise = 0.04 * (np.exp(-30 / 450) - np.exp(-(30 + span) / 450))
+    assert rise == pytest.approx(true_rise, rel=0.25)
     alone = candidate("display", "warmup_drift").fit(data, [])
     assert alone["k"] == 0.0
     brighter = _frame(tmp_path / "b", replace(DISPLAY, white_cd_m2=DISPLAY.white_cd_m2 * 1.05))
@@ -102,3 +102,17 @@ def test_a_dac_too_fine_for_the_levels_is_said_so(tmp_path):
     assert bench_display._right(rec)
     assert not bench_display._right(rec | {"named": ["gain_change"], "top": "gain_change"})
     assert not bench_display._right(rec | {"true_bits": 6})
+
+
+def test_a_floor_measured_from_pairs_is_called_mis_estimated_only_beyond_its_own_error():
+    """A held-out loss 0.1 nats below the floor on 100 units with a CI of about +-0.03: the
+    floor is mis-estimated with an exact floor, not with one measured from 200 pairs of
+    repeats (0.5 sqrt(2 / 200) = 0.05 nats)."""
+    from analysis.gap.engine.steps import measure_gap
+
+    rng = np.random.default_rng(0)
+    floor = np.zeros(100)
+    loss = -0.1 + 0.15 * rng.standard_normal(100)
+    idx = rng.integers(0, 100, (500, 100))
+    assert measure_gap(loss, loss, floor, idx).floor_status == "misestimated"
+    assert measure_gap(loss, loss, floor, idx, 0.05).floor_status == "ok"
