@@ -434,7 +434,8 @@ def _true_shrink(diag, folder: Path, display: GOGDisplay) -> float:
     truth = display.luminance(sub["level"], sub["x_norm"], sub["y_norm"], t)
     lum = sub["luminance_cd_m2"].to_numpy(float)
     info = diag.loss_info
-    sd = np.sqrt(info["noise_abs_cd_m2"] ** 2 + (info["noise_rel"] * lum) ** 2)
+    sd = np.sqrt(info["noise_abs_cd_m2"] ** 2 + info.get("noise_shot_cd_m2", 0.0)
+                 * np.maximum(lum, 0.0) + (info["noise_rel"] * lum) ** 2)
     nll = 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((lum - truth) / sd) ** 2
     return float(diag.loss_before - nll.mean())
 

@@ -409,7 +409,8 @@ def display_loss_given(train: pd.DataFrame):
 def display_loss_info(data: pd.DataFrame) -> dict:
     """The noise model, the drift between repeats and what was diagnosed (for the report)."""
     n = data.attrs["noise"]
-    return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"], "noise_pairs": n["n_pairs"],
+    return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"],
+            "noise_shot_cd_m2": n.get("shot", 0.0), "noise_pairs": n["n_pairs"],
             "noise_source": n["source"], "floor_cd_m2": data.attrs["floor"],
             "censored_readings": int(data["censored"].sum()),
             "timed": bool(data.attrs["timed"]), "conditions": data.attrs["conditions"],
