@@ -434,7 +434,8 @@ def _true_shrink(diag, folder: Path, display: GOGDisplay) -> float:
     truth = display.luminance(sub["level"], sub["x_norm"], sub["y_norm"], t)
     lum = sub["luminance_cd_m2"].to_numpy(float)
     info = diag.loss_info
-    sd = np.sqrt(info["noise_abs_cd_m2"] ** 2 + (info["noise_rel"] * lum) ** 2)
+    sd = np.sqrt(info["noise_abs_cd_m2"] ** 2 + info.get("noise_shot_cd_m2", 0.0)
+                 * np.maximum(lum, 0.0) + (info["noise_rel"] * lum) ** 2)
     nll = 0.5 * np.log(2 * np.pi * sd**2) + 0.5 * ((lum - truth) / sd) ** 2
     return float(diag.loss_before - nll.mean())
 
@@ -486,7 +487,9 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
             "source_kind": diag.loss_info["source"]["kind"],
             "in_sample_rows": diag.loss_info["source"]["in_sample_rows"],
             "seed_verdicts": [d.verdict for d in diags],
-            "not_identifiable": sorted(diag.not_identifiable)}
+            "not_identifiable": sorted(diag.not_identifiable),
+            "visible_bits": list(diag.loss_info.get("quantisation_visible_bits", [])),
+            "true_bits": int(real.dac_bits)}
 
 
 def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
@@ -510,6 +513,14 @@ def run_display_cases(design=None, *, trials: int, seed: int, n_boot: int = 300,
     return records
 
 
+def _unseen_dac(r: dict) -> bool:
+    """A coarser DAC the diagnosis said these levels cannot show: its resolution finer than
+    every one whose step would be visible (``quantisation_visible_bits``, with a note in the
+    diagnosis's warnings), so its gap is unexplained or too small, not quantisation."""
+    return ("quantisation" in r["inside"] and bool(r.get("visible_bits"))
+            and r.get("true_bits", 0) > max(r["visible_bits"]))
+
+
 def _right(r: dict) -> bool:
     """The verdict a scientist should get for the case."""
     case = r["case"]
@@ -525,9 +536,12 @@ def _right(r: dict) -> bool:
         return ("warmup_drift" not in r["named"]
                 and (r["remaining_flagged"] or r["verdict"] == "unexplained"))
     if case in ("single", "drift_repeats", "gain_change"):
+        if _unseen_dac(r):  # said not identifiable: anything but another effect's name
+            return not set(r["named"]) - {"quantisation"}
         return r["top"] == r["inside"][0]
     if case == "co_occurring":
-        return set(r["inside"]) <= set(r["named"])
+        need = set(r["inside"]) - ({"quantisation"} if _unseen_dac(r) else set())
+        return need <= set(r["named"])
     # Out of catalogue (alone or on top of a catalogue effect): nothing else named, and the
     # gap the catalogue leaves is flagged (or nothing is attributed at all).
     extra = set(r["named"]) - set(r["inside"])

@@ -31,8 +31,8 @@ quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma 
 ====================  ====================================================================
 
 Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's noise
-``sd^2 = a^2 + (b L)^2``, the calibration's gamma parameters moved within their own
-uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
+``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it), the calibration's
+gamma parameters moved within their own uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
 fitted from noisy readings is no gap in itself); a reading at or below the
 meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
 (:func:`display_identifiability`) are left out of the ranking and named in the words. The noise is measured from pairs of consecutive repeats of the same
@@ -82,6 +82,7 @@ from analysis.gap.display.candidates import (
     DISPLAY_MIN_GAIN,
     DISPLAY_MIN_SHARE,
     display_identifiability,
+    quantisation_resolution,
 )
 from analysis.gap.display.ceiling import display_ceiling, display_floor
 from analysis.gap.display.data import load_display
@@ -118,6 +119,7 @@ __all__ = [
     "load_display",
     "localise_display",
     "plan",
+    "quantisation_resolution",
     "split_display",
 ]
 
@@ -129,12 +131,19 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
     data = display_frame(readings, cal)
     folds, text = display_folds(data, rng)
+    bits, note = quantisation_resolution(data)
     functions = LayerFunctions(loss=display_loss_given, floor=display_floor,
                                ceiling=display_ceiling, where=display_where,
                                unit_ids=display_unit_ids)
+    # The noise variance measured from n pairs is known to a relative SD of sqrt(2 / n) (a
+    # chi-square's), so the floor, 0.5 log(2 pi sd^2) + 0.5 per reading, to 0.5 sqrt(2 / n)
+    # nats: the floor is called mis-estimated only beyond that (an assumed noise: 0).
+    pairs = data.attrs["noise"]["n_pairs"]
+    floor_sd = 0.5 * float(np.sqrt(2.0 / pairs)) if pairs else 0.0
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
-                                     min_gain=DISPLAY_MIN_GAIN),
+                                     min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, loss_info=display_loss_info(data),
-        not_identifiable=display_identifiability(data))
+        folds=folds, split=text,
+        loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},
+        warnings=(note,) if note else (), not_identifiable=display_identifiability(data))

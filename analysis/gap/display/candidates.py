@@ -90,25 +90,36 @@ def _fit_nonuniformity(train, chosen):
 
 def _apply_warmup(data, terms, p):
     t = data["t_s"].to_numpy(float)
-    return terms | {"gain": terms["gain"] * (1 - p["w"] * np.exp(-t / p["tau_s"]))}
+    return terms | {"gain": terms["gain"] * (1 + p.get("k", 0.0))
+                    * (1 - p["w"] * np.exp(-t / p["tau_s"]))}
 
 
 def _fit_warmup(train, chosen):
+    """Deficit ``w`` and time constant ``tau_s`` of a warm-up; beside a chosen gain change also
+    a re-fit of that gain ``k`` with them (a gain fitted alone has taken the warm-up's mean
+    deficit, so the warm-up, fitted with that gain held, would show only a part of itself).
+    Without a gain change ``k`` stays 0: the warm-up is never chosen for a constant gain."""
     res0 = train["L"].to_numpy(float) - _mean(train, chosen)
     base = [c for c in chosen if c[0] != "warmup_drift"]
     mu, above = _above(train, base)
     res = train["L"].to_numpy(float) - mu
     w = _weights(train)
     t = train["t_s"].to_numpy(float)
-    best = (np.sum(w * res0**2), {"w": 0.0, "tau_s": float(_TAUS_S[0])})
+    joint = any(n == "gain_change" for n, _ in base)
+    best = (np.sum(w * res0**2), {"w": 0.0, "tau_s": float(_TAUS_S[0]), "k": 0.0})
     # A drift must decay within the record: a longer time constant is a constant gain.
     for tau in _TAUS_S[_TAUS_S <= max(_TAU_RECORDS * t.max(), _TAUS_S[0])]:
         col = -above * np.exp(-t / tau)
-        a = float(_wls(res, col, w)[0])
-        a = min(max(a, 0.0), 0.9)
-        sse = float(np.sum(w * (res - a * col) ** 2))
+        if joint:
+            k, a = (float(v) for v in _wls(res, np.c_[above, col], w))
+            if not 0.0 <= a <= 0.9:  # at a bound: the gain alone, given that deficit
+                a = min(max(a, 0.0), 0.9)
+                k = float(_wls(res - a * col, above, w)[0])
+        else:
+            k, a = 0.0, min(max(float(_wls(res, col, w)[0]), 0.0), 0.9)
+        sse = float(np.sum(w * (res - k * above - a * col) ** 2))
         if sse < best[0]:
-            best = (sse, {"w": a, "tau_s": float(tau)})
+            best = (sse, {"w": a, "tau_s": float(tau), "k": k})
     return best[1]
 
 
@@ -177,6 +188,21 @@ def display_identifiability(data) -> dict:
     if np.unique(np.c_[data["x_norm"], data["y_norm"]], axis=0).shape[0] < 3:
         out["nonuniformity"] = "fewer than 3 screen positions were measured"
     return out
+
+
+def quantisation_resolution(data) -> tuple[list[int], str]:
+    """(the DAC resolutions of :data:`_BITS` whose step these readings would show
+    (:func:`_step_visible`), a note in words where some but not all would): a DAC finer than
+    the finest visible one rounds as smoothly as a small change of gamma at these levels, so a
+    gap it leaves is unexplained, not quantisation."""
+    bits = [b for b in _BITS if _step_visible(data, b)]
+    if not bits or len(bits) == len(_BITS):
+        return bits, ""
+    return bits, (f"quantisation: at these drive levels only a DAC of {max(bits)} bits or "
+                  f"fewer would show a step; a {max(bits) + 1}-{max(_BITS)}-bit DAC's rounding "
+                  "is as smooth as a small change of gamma, so a gap it leaves reads as "
+                  "unexplained (measure adjacent levels, e.g. 8 consecutive DAC codes at "
+                  "mid-grey, to test a finer DAC)")
 
 
 def _time_explained_by_conditions(data) -> tuple[float, list]:
@@ -249,7 +275,9 @@ register("display", Candidate(
     default_strength=0.03, units="fractional deficit at switch-on",
     truth=lambda s: {"w": float(s), "tau_s": 600.0},
     params={"w": ParamDoc("luminance deficit at switch-on", "fraction"),
-            "tau_s": ParamDoc("warm-up time constant", "s")}))
+            "tau_s": ParamDoc("warm-up time constant", "s"),
+            "k": ParamDoc("the chosen gain change re-fitted with the warm-up (0 without one)",
+                          "fraction")}))
 register("display", Candidate(
     "quantisation", _fit_quantisation, "coarser DAC than the calibration assumes",
     apply=_apply_quantisation, inject=_change(bits=lambda v, s: round(v - s)),

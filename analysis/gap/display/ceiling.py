@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from scipy import linalg
 
 from analysis.gap.display.model import _bspline, display_nll
 
@@ -95,7 +96,12 @@ def _penalties(blocks, xtwx_diag) -> dict:
 def _solve(x, r, w, pen):
     xtw = x.T * w
     # Least squares, not solve: with few readings the penalised system can be singular.
-    return np.linalg.lstsq(xtw @ x + pen, xtw @ r, rcond=None)[0]
+    try:
+        return np.linalg.lstsq(xtw @ x + pen, xtw @ r, rcond=None)[0]
+    except np.linalg.LinAlgError:
+        # LAPACK's SVD can fail to converge on a badly scaled system (seen once in 30 refitted
+        # clean displays); a complete orthogonal factorisation needs no SVD.
+        return linalg.lstsq(xtw @ x + pen, xtw @ r, lapack_driver="gelsy")[0]
 
 
 def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,

@@ -5,8 +5,8 @@ The plain simulation (what stimuli assume about the display) is the calibration'
 at the screen centre, its above-black part scaled by the calibration's uniformity map; each
 fitted candidate (:mod:`analysis.gap.display.candidates`) changes its drive, gain or offset
 (:func:`_mean`). The loss per reading is the Gaussian NLL under the photometer's noise
-``sd^2 = a^2 + (b L)^2``, measured from pairs of consecutive repeats with the display's drift
-between them modelled in time (:func:`fit_noise_drift`). :func:`display_frame` builds the
+``sd^2 = a^2 + s L + (b L)^2``, measured from pairs of consecutive repeats with the display's
+drift between them modelled in time (:func:`fit_noise_drift`). :func:`display_frame` builds the
 frame the engine works on; :func:`display_folds` cross-fits its two halves.
 """
 
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy import optimize
+from scipy import optimize, stats
 from scipy.interpolate import BSpline
 from scipy.special import log_ndtr
 
@@ -62,12 +62,15 @@ def fit_noise_drift(frames, *, floor: float = 0.0) -> dict:
     Each pair ``(L1 at t1, L2 at t2)`` of the same patch differs by noise and by whatever the
     display did between t1 and t2::
 
-        L2 - L1 = Lbar (g(t2) - g(t1)) + (c(t2) - c(t1)) + e,  var e = 2 a^2 + b^2 (L1^2 + L2^2)
+        L2 - L1 = Lbar (g(t2) - g(t1)) + (c(t2) - c(t1)) + e,
+        var e = 2 a^2 + s (L1 + L2) + b^2 (L1^2 + L2^2)
 
     with ``g`` (relative, e.g. warm-up) and ``c`` (cd/m^2, e.g. room light) cubic splines in
     time. ``a``, ``b`` and the splines are fitted by maximum likelihood (splines by weighted
     least squares inside); the splines' knots (none, or 0-8 interior) are chosen by BIC, so a
-    drift between repeats is modelled in time instead of being counted as noise.
+    drift between repeats is modelled in time instead of being counted as noise; then the
+    photometer's shot noise ``s`` (variance proportional to the light) is added where BIC
+    prefers it.
 
     Parameters
     ----------
@@ -80,7 +83,8 @@ def fit_noise_drift(frames, *, floor: float = 0.0) -> dict:
     Returns
     -------
     dict
-        ``abs`` (a, cd/m^2), ``rel`` (b, fraction), ``n_pairs``, ``drift_knots`` (None: no
+        ``abs`` (a, cd/m^2), ``rel`` (b, fraction), ``shot`` (s, cd/m^2: the variance's
+        part ``s L``, 0 where BIC keeps it out), ``n_pairs``, ``drift_knots`` (None: no
         drift), ``drift_pct`` (range of the fitted relative drift g over the record, %),
         ``drift_abs_cd_m2`` (range of c).
 
@@ -119,24 +123,40 @@ def fit_noise_drift(frames, *, floor: float = 0.0) -> dict:
         fit = _fit_pairs(d, s2, x)
         bic = 2 * fit["nll"] + (x.shape[1] + 2) * np.log(d.size)
         if best is None or bic < best[0]:
-            best = (bic, knots, fit)
-    _, knots, fit = best
-    out = {"abs": fit["a"], "rel": fit["b"], "n_pairs": int(d.size), "drift_knots": knots,
-           "drift_pct": 0.0, "drift_abs_cd_m2": 0.0}
+            best = (bic, knots, fit, x)
+    _, knots, fit, _x = best
+    # Shot noise (variance proportional to the light) where it fits better by BIC: a meter
+    # whose noise is neither constant nor proportional would else have an SD too large at
+    # black and white to cover the mid-range (a floor too high there: no gap read as less).
+    shot = _fit_pairs(d, s2, best[3], np.maximum(l1, 0.0) + np.maximum(l2, 0.0))
+    if 2 * shot["nll"] + (best[3].shape[1] + 3) * np.log(d.size) < best[0]:
+        fit = shot
+    out = {"abs": fit["a"], "rel": fit["b"], "shot": fit["s"], "n_pairs": int(d.size),
+           "drift_knots": knots, "drift_pct": 0.0, "drift_abs_cd_m2": 0.0}
     if knots is not None:
-        k, at = knots + 3, 0
-        for lo, hi in spans:
-            basis = _bspline(np.linspace(lo, hi, 200), lo, hi, knots)[:, 1:]
-            g, c = basis @ fit["beta"][at:at + k], basis @ fit["beta"][at + k:at + 2 * k]
-            out["drift_pct"] = max(out["drift_pct"], float(100 * np.ptp(g)))
-            out["drift_abs_cd_m2"] = max(out["drift_abs_cd_m2"], float(np.ptp(c)))
-            at += 2 * k
+        out["drift_pct"], out["drift_abs_cd_m2"] = _drift_ranges(fit["beta"], spans, knots)
     return out
 
 
-def _fit_pairs(d, s2, x) -> dict:
+def _drift_ranges(beta, spans, knots: int) -> tuple[float, float]:
+    """Largest range over the files' records of the fitted relative drift g (%) and of the
+    absolute drift c (cd/m^2)."""
+    k, at, pct, absolute = knots + 3, 0, 0.0, 0.0
+    for lo, hi in spans:
+        basis = _bspline(np.linspace(lo, hi, 200), lo, hi, knots)[:, 1:]
+        g, c = basis @ beta[at:at + k], basis @ beta[at + k:at + 2 * k]
+        pct, absolute = max(pct, float(100 * np.ptp(g))), max(absolute, float(np.ptp(c)))
+        at += 2 * k
+    return pct, absolute
+
+
+def _fit_pairs(d, s2, x, shot_sum=None) -> dict:
+    """ML fit of the pairs' noise (``a``, ``b``; with ``shot_sum`` = L1 + L2 also the shot
+    noise ``s``, variance ``s L``) and drift coefficients ``beta`` on the columns ``x``."""
     def profile(p):
         var = 2 * np.exp(2 * p[0]) + np.exp(2 * p[1]) * s2
+        if shot_sum is not None:
+            var = var + np.exp(p[2]) * shot_sum
         if x.shape[1]:
             sw = 1 / np.sqrt(var)
             beta, *_ = np.linalg.lstsq(x * sw[:, None], d * sw, rcond=1e-10)
@@ -144,11 +164,12 @@ def _fit_pairs(d, s2, x) -> dict:
         else:
             beta, r = np.zeros(0), d
         return 0.5 * np.sum(np.log(var) + r**2 / var), beta
-    res = optimize.minimize(lambda p: profile(p)[0], x0=[np.log(0.01), np.log(0.003)],
-                            method="Nelder-Mead",
+    x0 = [np.log(0.01), np.log(0.003)] + ([np.log(1e-5)] if shot_sum is not None else [])
+    res = optimize.minimize(lambda p: profile(p)[0], x0=x0, method="Nelder-Mead",
                             options={"xatol": 1e-4, "fatol": 1e-6, "maxiter": 2000})
     nll, beta = profile(res.x)
-    return {"a": float(np.exp(res.x[0])), "b": float(np.exp(res.x[1])), "nll": float(nll),
+    return {"a": float(np.exp(res.x[0])), "b": float(np.exp(res.x[1])),
+            "s": float(np.exp(res.x[2])) if shot_sum is not None else 0.0, "nll": float(nll),
             "beta": beta}
 
 
@@ -192,10 +213,12 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     out["censored"] = out["L"].to_numpy(float) <= floor
     lof = lack_of_fit_sd(cal, out["mu0"].to_numpy(float), noise["rel"])
     out["sd"], out["var_expected"] = _reading_sd(out, noise, lof)
-    jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"])
+    jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"],
+                                     noise.get("shot", 0.0))
     if jac is not None:
         jac = jac * out["rel"].to_numpy(float)[:, None]
-        pos_jac, pos_prec = _map_jacobian(out, cal, cal_rows, noise["rel"])
+        pos_jac, pos_prec = _map_jacobian(out, cal, cal_rows, noise["rel"],
+                                          noise.get("shot", 0.0))
         jac = np.c_[jac, pos_jac]
         prec = np.block([[prec, np.zeros((prec.shape[0], pos_prec.size))],
                          [np.zeros((pos_prec.size, prec.shape[0])), np.diag(pos_prec)]])
@@ -203,19 +226,21 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     return out
 
 
-def _map_jacobian(data: pd.DataFrame, cal, rows, noise_rel: float):
+def _map_jacobian(data: pd.DataFrame, cal, rows, noise_rel: float, shot: float = 0.0):
     """The uniformity map's own uncertainty: per measured position off the centre, a column
     of the above-black light there (a relative gain of the map) and its precision, ``n`` bright
     readings pooled there and ``n0`` at the centre: ``1 / (b^2 (1 / n + 1 / n0))`` with ``b``
-    the calibration's relative noise (the photometer's ``noise_rel`` where that was only the
-    default). No columns without a map or the calibration's readings."""
+    the calibration's relative noise (where that was only the default, the photometer's:
+    ``noise_rel`` and its shot noise ``shot`` at the bright readings' median light). No
+    columns without a map or the calibration's readings."""
     fit = cal.chosen_fit
     none = np.zeros((len(data), 0)), np.zeros(0)
     if cal.uniformity is None or rows is None or not len(rows):
         return none
-    b = float(fit.noise["rel"]) if fit is not None and fit.noise.get("source") == "repeats" \
-        else float(noise_rel)
     bright = rows[rows["level"].to_numpy(float) >= cal.uniformity.min_level]
+    lum = float(np.median(bright["luminance_cd_m2"])) if len(bright) else 0.0
+    b = float(fit.noise["rel"]) if fit is not None and fit.noise.get("source") == "repeats" \
+        else float(np.sqrt(noise_rel**2 + (shot / lum if lum > 0 else 0.0)))
     count = bright.groupby([bright["x_norm"].round(4), bright["y_norm"].round(4)]).size()
     n0 = float(count.get((0.0, 0.0), 0))
     pos = list(zip(data["x_norm"].round(4), data["y_norm"].round(4)))
@@ -249,7 +274,7 @@ def _noise(frames, cal, lum: np.ndarray) -> dict:
             a, b = d.abs_cd_m2, d.rel
             src = ("the documented meter model (no repeats here or in the calibration: "
                    "calibration.noise.default_noise, 0.1 % of the brightest reading + 0.5 %)")
-        n = {"abs": a, "rel": b, "n_pairs": 0, "drift_knots": None, "drift_pct": 0.0,
+        n = {"abs": a, "rel": b, "shot": 0.0, "n_pairs": 0, "drift_knots": None, "drift_pct": 0.0,
              "drift_abs_cd_m2": 0.0, "source": src}
     n["floor_cd_m2"] = max(cal_floor, FLOOR_SD_MULTIPLE * n["abs"])
     return n
@@ -272,20 +297,21 @@ def _foot(data: pd.DataFrame) -> float:
 
 def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.ndarray]:
     """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
-    ``a^2 + (b L)^2`` (L at least the floor) and the calibration model's own misfit ``lof``
+    ``a^2 + s L + (b L)^2`` (L at least the floor) and the calibration model's own misfit ``lof``
     (:func:`lack_of_fit_sd`); and its square (the floor's expected squared deviation)."""
     lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
-    var = noise["abs"] ** 2 + (noise["rel"] * lum) ** 2 + np.asarray(lof, float) ** 2
+    var = (noise["abs"] ** 2 + noise.get("shot", 0.0) * lum + (noise["rel"] * lum) ** 2
+           + np.asarray(lof, float) ** 2)
     return np.sqrt(var), var
 
 
-def calibration_jacobian(cal, drive, noise_rel: float | None = None):
+def calibration_jacobian(cal, drive, noise_rel: float | None = None, shot: float = 0.0):
     """The calibration's own uncertainty, for the null: ``(J, P)`` with ``J`` (n, p) the
     derivative of its predicted luminance at ``drive`` (cd/m^2 per unit of each gamma
     parameter) and ``P`` (p, p) the precision of its parameters, the Fisher information of the
     readings it was fitted from (uncensored, under its recorded noise, or a relative noise
-    ``noise_rel`` where that noise was only the documented default). ``(None, None)`` where
-    the fit's readings were not recorded."""
+    ``noise_rel`` and shot noise ``shot``, the photometer's, where that noise was only the
+    documented default). ``(None, None)`` where the fit's readings were not recorded."""
     from calibration import gamma_luminance
     from calibration.noise import NoiseModel
 
@@ -295,9 +321,10 @@ def calibration_jacobian(cal, drive, noise_rel: float | None = None):
     x, y = np.asarray(fit.levels, float), np.asarray(fit.luminance_cd_m2, float)
     keep = ~np.asarray(fit.censored, bool) if len(fit.censored) == x.size else y > 0
     noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
-    if noise.source != "repeats" and noise_rel is not None:
+    given = noise.source != "repeats" and noise_rel is not None
+    if given:
         noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
-    sd = noise.sd(y[keep])
+    sd = np.sqrt(noise.sd(y[keep]) ** 2 + (shot * np.maximum(y[keep], 0.0) if given else 0.0))
     params = {k: float(v) for k, v in cal.gamma_params.items()}
 
     def grad(at):
@@ -321,7 +348,10 @@ def lack_of_fit_sd(cal, lum, noise_rel: float | None = None) -> np.ndarray:
     gamma fit left more residual than its noise explains (reduced chi-square ``s`` above 1),
     its noise SD at ``lum`` times ``sqrt(s - 1)`` (the calibration's residuals: a model that
     misses its own readings by that much misses a repeat pass by as much, and that is no
-    change of the display). Zero where the fit fits or was not recorded."""
+    change of the display); ``s`` counts only beyond its 95th percentile under noise alone.
+    Zero where the fit fits or was not recorded. The noise is the one the calibration was
+    fitted under (its readings' weights: under another, a fit weighted otherwise misses them
+    by more than that noise although its model fits)."""
     from calibration import gamma_luminance
     from calibration.noise import NoiseModel
 
@@ -334,11 +364,18 @@ def lack_of_fit_sd(cal, lum, noise_rel: float | None = None) -> np.ndarray:
     noise = NoiseModel.from_dict(fit.noise) if fit.noise else default_noise(y)
     if noise.source != "repeats" and noise_rel is not None:
         noise = NoiseModel(noise.abs_cd_m2, float(noise_rel), noise.floor_cd_m2, "given")
+    sd = noise.sd
     mu = np.asarray(gamma_luminance(x[keep], model=cal.gamma_model,
                                     params=cal.gamma_params), float)
     dof = max(int(keep.sum()) - len(cal.gamma_params), 1)
-    excess = float(np.sum(((y[keep] - mu) / noise.sd(y[keep])) ** 2)) / dof - 1.0
-    return noise.sd(lum) * np.sqrt(max(excess, 0.0))
+    chi2 = float(np.sum(((y[keep] - mu) / sd(y[keep])) ** 2))
+    # Only the misfit the residuals show beyond what noise gives in 95 % of fits (the chi-square
+    # above its 95th percentile): a reduced chi-square a little above 1 by chance (its SD is
+    # sqrt(2 / dof), 0.2 with 50 readings) is noise, and counting it would loosen every
+    # reading's SD (a clean check then reads below its floor); a model that misses its
+    # readings by several noise SDs keeps nearly all of its misfit.
+    excess = (chi2 - stats.chi2.ppf(0.95, dof)) / dof
+    return sd(lum) * np.sqrt(max(excess, 0.0))
 
 
 def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:
@@ -372,7 +409,8 @@ def display_loss_given(train: pd.DataFrame):
 def display_loss_info(data: pd.DataFrame) -> dict:
     """The noise model, the drift between repeats and what was diagnosed (for the report)."""
     n = data.attrs["noise"]
-    return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"], "noise_pairs": n["n_pairs"],
+    return {"noise_abs_cd_m2": n["abs"], "noise_rel": n["rel"],
+            "noise_shot_cd_m2": n.get("shot", 0.0), "noise_pairs": n["n_pairs"],
             "noise_source": n["source"], "floor_cd_m2": data.attrs["floor"],
             "censored_readings": int(data["censored"].sum()),
             "timed": bool(data.attrs["timed"]), "conditions": data.attrs["conditions"],

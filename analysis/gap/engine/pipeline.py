@@ -98,7 +98,7 @@ def diagnose_losses(
                         cluster_codes(cv, functions.cluster_of))
     ranking = score_candidates(candidates, cv, base, paired, settings)
     combination = combine_greedily(candidates, cv, base, paired, settings)
-    gap = measure_gap(base, combination.loss, floor, paired.idx)
+    gap = measure_gap(base, combination.loss, floor, paired.idx, settings.floor_sd)
     remaining, ceil = (remaining_gap(cv, combination, paired, functions, settings)
                        if functions.ceiling is not None else (None, None))
     share, ceiling_share = explained_shares(gap, base, combination.loss, ceil)

@@ -130,6 +130,9 @@ class DiagnosisSettings:
                                       luminance")
     size_source  str          ""      where the tolerance is set (e.g. "the design's [gap]
                                       render_tolerance_pct"), for the summary
+    floor_sd     float        0.0     SD (>= 0) of the floor's mean from its own estimation
+                                      (e.g. a noise measured from n pairs of repeats): a gap is
+                                      called below the floor only beyond it and its CI
     ============ ============ ======= ===========================================================
 
     Raises
@@ -147,6 +150,7 @@ class DiagnosisSettings:
     min_size: float = 0.0
     size_unit: str = ""
     size_source: str = ""
+    floor_sd: float = 0.0
 
     def __post_init__(self):
         _check_real("alpha", self.alpha, 0.0, 1.0, "in (0, 1)", open_low=True, open_high=True)
@@ -157,6 +161,7 @@ class DiagnosisSettings:
         _check_real("min_gain", self.min_gain, -math.inf, math.inf, "a finite number")
         _check_int("refit_rounds", self.refit_rounds, 0)
         _check_real("min_size", self.min_size, 0.0, math.inf, ">= 0 and finite")
+        _check_real("floor_sd", self.floor_sd, 0.0, math.inf, ">= 0 and finite")
         for name in ("size_unit", "size_source"):
             if not isinstance(getattr(self, name), str):
                 raise GapError(f"DiagnosisSettings: {name} must be a string; got "

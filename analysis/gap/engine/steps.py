@@ -211,9 +211,11 @@ class GapMeasures:
 
 
 def measure_gap(base: np.ndarray, current: np.ndarray, floor: np.ndarray,
-                idx: np.ndarray) -> GapMeasures:
+                idx: np.ndarray, floor_sd: float = 0.0) -> GapMeasures:
     """Step 3: the gap before (``base - floor``) and after (``current - floor``), per-unit
-    arrays of shape (n_units,), with CIs from the bootstrap resamples ``idx``."""
+    arrays of shape (n_units,), with CIs from the bootstrap resamples ``idx``. The floor is
+    called mis-estimated where a gap's CI, widened by the floor's own uncertainty ``floor_sd``
+    (independent of the units' sampling, added in quadrature), lies wholly below zero."""
     gap_b, gap_a = base - floor, current - floor
     gb, ga = float(gap_b.mean()), float(gap_a.mean())
     gb_ci = tuple(float(x) for x in np.percentile(gap_b[idx].mean(axis=1), [2.5, 97.5]))
@@ -222,7 +224,9 @@ def measure_gap(base: np.ndarray, current: np.ndarray, floor: np.ndarray,
     shrink_b = d[idx].mean(axis=1)
     gap_b_boot = gap_b[idx].mean(axis=1)
     pct_b = 100 * np.clip(shrink_b / np.maximum(gap_b_boot, 1e-12), 0.0, 1.0)
-    floor_bad = (gb_ci and gb_ci[1] < 0) or (ga_ci and ga_ci[1] < 0)
+    def below(g, ci):
+        return bool(ci) and g + np.hypot(ci[1] - g, 1.96 * floor_sd) < 0
+    floor_bad = below(gb, gb_ci) or below(ga, ga_ci)
     return GapMeasures(
         gap_before=gb,
         gap_after=ga,

@@ -139,9 +139,12 @@ def test_out_of_catalogue_display_effect_leaves_a_gap_above_the_ceiling(tmp_path
     # at the top, so the most concentrated excess may lie there).
     where = {"mid_gamma_bump": "mostly at drive levels",
              # Since issue 29 the uniformity map may move within its own uncertainty per
-             # position, which takes part of the gradient: the excess is at a position.
-             "gamma_gradient": "mostly at screen position ("}[effect]
-    assert where in diag.remaining["where"]
+             # position, which takes part of the gradient: the excess is at a position, or
+             # at mid levels, brighter on the left and darker on the right.
+             "gamma_gradient": ("mostly at screen position (",
+                                "towards the left, darker towards the right")}[effect]
+    assert any(w in diag.remaining["where"] for w in (where if isinstance(where, tuple)
+                                                     else (where,)))
     assert diag.remaining["where"] in diag.summary
 
 
@@ -165,12 +168,14 @@ def test_a_faint_black_offset_beside_a_warm_up_is_named_with_it(tmp_path):
     nonuniformity' for this lab, seed 8, found by trying seeds 0-9); cross-fitted, every
     reading is held out once and the offset is named. (It was 0.025 cd/m^2: since issue 29
     the calibration may move within its own uncertainty, and its black level fitted from noisy
-    readings may be off by about that much, so 0.025 is no longer told from it.)"""
+    readings may be off by about that much, so 0.025 is no longer told from it. Its step's p,
+    about 0.01 against 0.05 / 4, is resolved with 2000 bootstrap resamples, the default: with
+    300 it moved between 2 and 4 of 301 as the noise model changed.)"""
     rng = _lab(tmp_path, 8)
     real = bench_display.with_effect(bench_display.with_effect(DISPLAY, "black_offset", 0.05),
                                      "warmup_drift", 0.04)
     check = _check(tmp_path, rng, real, warmup=False, start_s=30.0)
-    diag, _ = diagnose("display", check, tmp_path / "cal", None, seed=1, n_boot=300)
+    diag, _ = diagnose("display", check, tmp_path / "cal", None, seed=1, n_boot=2000)
     assert set(diag.verdict.split(" + ")) == {"warmup_drift", "black_offset"}
     assert len(diag.heldout) == len(load_readings(check / "readings.csv"))
     assert "cross-fitted" in diag.split
