@@ -31,6 +31,8 @@ import pandas as pd
 from scipy import optimize
 from scipy.special import expit, logit, ndtr
 
+from labfiles import LabFileError, read_toml
+
 __all__ = ["RATING_PARAMS", "fit_rating_observers", "load_rating_observers",
            "rating_levels", "rating_nll", "rating_probs", "simulate_ratings",
            "write_rating_observers"]
@@ -235,9 +237,8 @@ def load_rating_observers(path) -> dict:
     """
     path = Path(path)
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
-    except (OSError, tomllib.TOMLDecodeError) as exc:
+        raw = read_toml(path)
+    except (OSError, LabFileError, tomllib.TOMLDecodeError) as exc:
         raise ValueError(f"cannot read {path} ({exc}); write it with python -m experiment "
                          "fit-observer PILOT_DIR --study PILOT_DIR/study.toml --out "
                          "observers.toml") from exc

@@ -33,6 +33,7 @@ one ``[columns]`` names, and the repair is said; otherwise it is refused with th
 from __future__ import annotations
 
 import csv
+import io
 import math
 import tomllib
 from dataclasses import dataclass
@@ -40,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from labfiles import LabFileError, read_text, read_toml
 
 __all__ = ["Study", "StudyError", "load_study", "read_lab_csv", "read_study_trials"]
 
@@ -114,12 +117,13 @@ def load_study(path) -> Study:
     if path.is_dir():
         path = path / "study.toml"
     try:
-        with open(path, "rb") as fh:
-            raw = tomllib.load(fh)
+        raw = read_toml(path)  # a BOM, CRLF or UTF-16 (Notepad) as the project's own files
     except FileNotFoundError as exc:
         raise StudyError(f"{path} does not exist; describe the study in a study.toml beside "
                          "its trial files (protocol.md, 'Another lab's study')") from exc
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+    except LabFileError as exc:
+        raise StudyError(str(exc)) from None
+    except tomllib.TOMLDecodeError as exc:
         raise StudyError(f"{path} is not valid TOML ({exc}); fix the line it names") from exc
     cols = _need(raw, "columns", "the file", path)
     columns = {k: str(_need(cols, k, "[columns]", path)) for k in _REQUIRED_COLUMNS}
@@ -187,8 +191,11 @@ def read_lab_csv(path, names=()) -> tuple[pd.DataFrame, list[str]]:
         Rows of differing lengths, a header that cannot be repaired, duplicate names.
     """
     path = Path(path)
-    with open(path, encoding="utf-8-sig", newline="") as fh:
-        rows = [r for r in csv.reader(fh) if any(v.strip() for v in r)]
+    try:  # a BOM, CRLF or UTF-16 decoded as labfiles does for every reader
+        text = read_text(path)
+    except LabFileError as exc:
+        raise StudyError(str(exc)) from None
+    rows = [r for r in csv.reader(io.StringIO(text, newline="")) if any(v.strip() for v in r)]
     if not rows:
         raise StudyError(f"{path} is empty; remove it or move it out of the study's folder")
     notes = []

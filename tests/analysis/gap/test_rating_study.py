@@ -48,6 +48,23 @@ def test_a_psychopy_file_is_read_as_written_and_its_repairs_said(tmp_path):
     assert any("written unquoted" in n and "joined again" in n for n in notes)
 
 
+def test_a_study_re_saved_by_notepad_reads_as_written(tmp_path):
+    """study.toml saved as 'UTF-8 with BOM' and a trial file saved as 'Unicode' (UTF-16) by
+    Notepad read as the files the lab's tool wrote (labfiles' reading, as every reader)."""
+    import codecs
+    import shutil
+
+    study = write_study(tmp_path / "s", np.random.default_rng(3), n_participants=2)
+    copy = Path(shutil.copytree(study.parent, tmp_path / "notepad")) / study.name
+    copy.write_bytes(codecs.BOM_UTF8 + copy.read_bytes())
+    trial = sorted(copy.parent.glob("*_ratings.csv"))[0]
+    trial.write_bytes(codecs.BOM_UTF16_LE + trial.read_bytes().decode("utf-8-sig")
+                      .encode("utf-16-le"))
+    want, _ = read_study_trials(load_study(study))
+    got, _ = read_study_trials(load_study(copy))
+    assert got.drop(columns="file").equals(want.drop(columns="file"))
+
+
 def test_a_split_header_that_names_no_study_column_is_refused_with_the_fix(tmp_path):
     (tmp_path / "p.csv").write_text("stim,size (w, h),rating\na.png,640x480,3\n")
     with pytest.raises(StudyError, match="Quote it in the header line"):
