@@ -5,7 +5,7 @@ Public API
 The names below are what code outside the package uses (the experiment, the stimuli, the gap
 diagnosis, the benchmarks). Everything else is imported from its module: ``calibration.readings``
 (``read_readings``, ``ReadingsTable``, ``REQUIRED_COLUMNS``: another tool's readings file, every
-row accounted for), ``calibration.noise`` (``NoiseModel``, ``fit_noise``: photometer noise
+row accounted for; ``parse_utc``: the one rule for a recorded ISO 8601 time), ``calibration.noise`` (``NoiseModel``, ``fit_noise``: photometer noise
 SD^2 = a^2 + (b L)^2 and the meter's floor), ``calibration.gamma`` (``GAMMA_MODELS``),
 ``calibration.crt`` (``default_crt_path``), ``calibration.uniformity`` (``UniformityMap``),
 ``calibration.ports`` (``available_ports``).

@@ -172,14 +172,40 @@ def _parse_dac_bits(text):
     return bits
 
 
+def _written(what: str, source: str, out, work) -> int:
+    """Run ``work() -> (calibration, paths)`` of ``fit`` or ``import-psychopy`` and print the
+    files it wrote; a lab error, a failed read or write (1) or Ctrl-C (130) is one line.
+
+    ``source`` names what was read (``"the readings"``), ``out`` the folder written."""
+    from calibration.errors import CalibrationError
+    from labfiles import LabFileError
+
+    try:
+        _, paths = work()
+    except (CalibrationError, LabFileError) as exc:
+        print(f"{what} failed: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:
+        print(f"{what} failed: {exc}; check that {source} can be read and --out is writable",
+              file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"\n{what} stopped (Ctrl-C). Every file in {out} is whole (each is written at "
+              f"once); {source} left untouched. Run the same command again to {what}.",
+              file=sys.stderr)
+        return 130
+    for name, path in paths.items():
+        print(f"{name}: {path}")
+    return 0
+
+
 def _cmd_fit(args) -> int:
     from calibration.errors import CalibrationError
     from calibration.readings import parse_level_scale
     from calibration.run import fit_readings_file, load_display_file, refit
-    from labfiles import LabFileError
     from studydesign import load_design
 
-    try:
+    def work():
         if args.readings is None:
             extra = [o for o, v in (("--level-scale", args.level_scale),
                                     ("--position", args.position),
@@ -191,57 +217,33 @@ def _cmd_fit(args) -> int:
             if extra:
                 raise CalibrationError(f"{', '.join(extra)} apply to a readings file: "
                                        "`python -m calibration fit READINGS.csv --out DIR ...`")
-            _, paths = refit(args.out, force_profile=args.force)
-        else:
-            design = load_design(args.design) if args.design else load_design()
-            _, paths = fit_readings_file(
-                args.readings, args.out, design,
-                level_scale=parse_level_scale(args.level_scale or "0-1"),
-                position=_parse_position(args.position) if args.position else None,
-                calibration_id=args.calibration_id,
-                display=load_display_file(args.display) if args.display else None,
-                measured_utc=args.measured_utc,
-                dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2,
-                force_profile=args.force)
-    except (CalibrationError, LabFileError) as exc:
-        print(f"fit failed: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"fit failed: {exc}; check that the files can be read and --out is writable",
-              file=sys.stderr)
-        return 1
-    except KeyboardInterrupt:
-        print(f"\nfit stopped (Ctrl-C). Every file in {args.out} is whole (each is written at "
-              "once); the readings are untouched. Run the same command again to fit.",
-              file=sys.stderr)
-        return 130
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    return 0
+            return refit(args.out, force_profile=args.force)
+        design = load_design(args.design) if args.design else load_design()
+        return fit_readings_file(
+            args.readings, args.out, design,
+            level_scale=parse_level_scale(args.level_scale or "0-1"),
+            position=_parse_position(args.position) if args.position else None,
+            calibration_id=args.calibration_id,
+            display=load_display_file(args.display) if args.display else None,
+            measured_utc=args.measured_utc,
+            dac_bits=_parse_dac_bits(args.dac_bits), floor_cd_m2=args.floor_cd_m2,
+            force_profile=args.force)
+
+    return _written("fit", "the readings", args.out, work)
 
 
 def _cmd_import_psychopy(args) -> int:
-    from calibration.errors import CalibrationError
     from calibration.psychopy_import import import_psychopy_profile
-    from labfiles import LabFileError
     from studydesign import load_design
 
-    try:
+    def work():
         design = load_design(args.design) if args.design else load_design()
-        _, paths = import_psychopy_profile(
+        return import_psychopy_profile(
             args.profile, args.out, design, calib_name=args.psychopy_calibration,
             calibration_id=args.calibration_id, measured_utc=args.measured_utc,
             force_profile=args.force)
-    except (CalibrationError, LabFileError) as exc:
-        print(f"import failed: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        print(f"import failed: {exc}; check that the profile can be read and --out is writable",
-              file=sys.stderr)
-        return 1
-    for name, path in paths.items():
-        print(f"{name}: {path}")
-    return 0
+
+    return _written("import", "the profile", args.out, work)
 
 
 def _cmd_check(args) -> int:

@@ -15,6 +15,13 @@ fit_observer_params, ObserverFitError
     Fit the observers' parameters to a lab's sessions (``python -m experiment fit-observer``);
     imported on first use (scipy).
 
+Study, StudyError, load_study, read_study_trials
+    Another lab's rating study, described by its ``study.toml`` (trial files read as written).
+load_rating_observers, fit_rating_observers, write_rating_observers, rating_levels,
+rating_probs, rating_nll, rating_mean
+    The one-response rating observer fitted to such a study (``fit-observer --study``);
+    imported on first use (scipy).
+
 run_session, SessionRequest, SessionOutcome, TrialResult, PreflightError
     The session app (``python -m experiment run``); imported on first use, so that
     ``import experiment`` stays light (no PsychoPy, no stimuli/calibration packages).
@@ -52,12 +59,16 @@ from experiment.plan import (
     participant_seed,
     plan_path,
 )
+from experiment.study import Study, StudyError, load_study, read_study_trials
 
 _LAZY = {"run_session": "experiment.session", "SessionRequest": "experiment.session",
          "SessionOutcome": "experiment.session", "TrialResult": "experiment.trial",
          "PreflightError": "experiment.checks",
          "fit_observer_params": "experiment.observer_fit",
-         "ObserverFitError": "experiment.observer_fit"}
+         "ObserverFitError": "experiment.observer_fit",
+         **{name: "experiment.rating_observer" for name in (
+             "load_rating_observers", "fit_rating_observers", "write_rating_observers",
+             "rating_levels", "rating_probs", "rating_nll", "rating_mean")}}
 
 
 def __getattr__(name: str):
@@ -80,18 +91,28 @@ __all__ = [
     "SessionOutcome",
     "SessionRequest",
     "SessionWriter",
+    "Study",
+    "StudyError",
     "TrialResult",
     "check_participant_id",
     "fit_observer_params",
+    "fit_rating_observers",
     "load_observer_params",
     "load_or_create_plan",
+    "load_rating_observers",
+    "load_study",
     "make_observer",
     "make_plan",
     "participant_seed",
     "plan_path",
+    "rating_levels",
+    "rating_mean",
+    "rating_nll",
+    "rating_probs",
     "read_run_events",
     "read_session",
     "read_slider_histories",
+    "read_study_trials",
     "run_session",
     "runs_path",
     "session_path",
@@ -99,5 +120,6 @@ __all__ = [
     "simulated_rows",
     "sliders_path",
     "write_observer_params",
+    "write_rating_observers",
     "write_simulated_sessions",
 ]

@@ -10,7 +10,9 @@ sets. Everything else is imported from its module, which is named for what it ho
 (``read_exr``, ``write_exr``, ``SHIPPED_PROBES``), ``stimuli.sets`` (``parse_filters``,
 ``SET_NAMES``), ``stimuli.render`` (``CameraGeometry``), ``stimuli.tonemap`` (``gamma_encode``),
 ``stimuli.geometry`` (``write_mesh``), ``stimuli.contactsheet``, ``stimuli.noise``,
-``stimuli.glossfit``, and ``stimuli.errors`` (``StimuliError`` and its subclasses, all
+``stimuli.glossfit``, ``stimuli.dask_cluster`` (``open_client``, ``finished``,
+``add_cluster_arguments``, ``JobSpec``, ``ClusterError``: Dask workers as labs start them, also
+for ``analysis imagestats``), and ``stimuli.errors`` (``StimuliError`` and its subclasses, all
 ``ValueError``).
 
 setup_mitsuba

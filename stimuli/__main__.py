@@ -271,7 +271,7 @@ def _add_selection(p) -> None:
 
 def _render_variant(text: str) -> str:
     """A Mitsuba variant the stimulus renderer can use (argparse type)."""
-    from studydesign.design import RENDER_VARIANTS
+    from studydesign import RENDER_VARIANTS
 
     if text not in RENDER_VARIANTS:
         hint = (" (scalar variants trace one ray at a time and cannot build the stimulus "

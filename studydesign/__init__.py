@@ -12,6 +12,7 @@ frozen :class:`StudyDesign` loaded from ``design.toml``.
 from studydesign.colour import REC709_Y, rec709_luminance
 from studydesign.design import (
     MODEL_RESPONSES,
+    RENDER_VARIANTS,
     STIMULUS_COLUMNS,
     AnalysisModel,
     AnalysisSpec,
@@ -35,6 +36,7 @@ from studydesign.design import (
 __all__ = [
     "MODEL_RESPONSES",
     "REC709_Y",
+    "RENDER_VARIANTS",
     "STIMULUS_COLUMNS",
     "AnalysisModel",
     "AnalysisSpec",

@@ -50,7 +50,7 @@ def _one_case(work: Path, case: str, strength: float, seed: int, *, size: int,
               n_lights: int, spp: int, n_boot: int) -> dict:
     from analysis.gap import diagnose
     from analysis.gapbench.inject import write_light_set_with
-    from stimuli.glossfit.lightfit import fit_lights
+    from stimuli.glossfit import fit_lights
 
     effects = {"broad_lobe": strength} if case == "lights_broad" else {}
     case_dir = work / f"{case}_{strength:g}_{seed}"

@@ -537,7 +537,7 @@ def write_light_set_with(folder, effects: dict, *, seed: int = 0, size: int = 40
     """A synthetic directional-light set (stimuli.glossfit.lightsynth) of a Ward sphere with
     ``effects`` ``{name: strength}`` drawn by their injectors (the render catalogue's and
     ``render_lights``'), added to the plain photo. Returns the truth, with ``effects``."""
-    from stimuli.glossfit.lightsynth import synth_light_set
+    from stimuli.glossfit import synth_light_set
 
     rng = np.random.default_rng(seed)
 

@@ -9,14 +9,17 @@ and writes the output folder; ``synth_photo_set`` renders test photo sets.
 
 Photos of one sphere under directional lights (DiLiGenT's layout): ``load_light_set``,
 ``fit_lights`` (Ward through Mitsuba renders of each light), ``predict_lights`` (the fitted
-material under lights the fit never saw), ``synth_light_set``.
+material under lights the fit never saw; ``read_light_fit`` reads its fit.json),
+``synth_light_set``. A panorama set photographed in several lightings: ``is_lighting_fit``,
+``predict_lighting`` (the fitted levels rendered in a held-out lighting).
 
 Command lines: ``python -m stimuli fit-gloss`` (``--lights`` for a directional-light set),
 ``python -m stimuli synth-photos`` and ``python -m stimuli synth-lights``.
 """
 
 from stimuli.glossfit.fit import FitRun, fit_gloss, fit_level
-from stimuli.glossfit.lightfit import fit_lights, predict_lights
+from stimuli.glossfit.lightfit import fit_lights, predict_lights, read_light_fit
+from stimuli.glossfit.lightings import is_lighting_fit, predict_lighting
 from stimuli.glossfit.lightset import LightSet, load_light_set, parse_lights
 from stimuli.glossfit.lightsynth import synth_light_set
 from stimuli.glossfit.methods import BasisCache, FitSettings, LevelFit, basis_fit, grid_fit
@@ -57,6 +60,7 @@ __all__ = [
     "fit_lights",
     "gloss_table_from_fits",
     "grid_fit",
+    "is_lighting_fit",
     "line_with_loo",
     "load_light_set",
     "load_photo_set",
@@ -65,7 +69,9 @@ __all__ = [
     "parse_lights",
     "photo_camera",
     "photo_name",
+    "predict_lighting",
     "predict_lights",
+    "read_light_fit",
     "region_masks",
     "register",
     "room_panorama",

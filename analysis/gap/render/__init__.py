@@ -167,7 +167,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
     held out. A remaining gap counts only
     from the design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is
     None)."""
-    from stimuli.glossfit.lightings import is_lighting_fit
+    from stimuli.glossfit import is_lighting_fit
 
     paths = isinstance(real, (str, Path))
     fit_dir = sim if sim is not None else real

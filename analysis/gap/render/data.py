@@ -109,8 +109,7 @@ def load_lighting(real, sim, lighting: str) -> tuple[RenderData, RenderData, str
     photos in another, ``lighting``, held out (:mod:`stimuli.glossfit.lightings`): train =
     SIM's fitted pixels, test = the held-out photos against the fitted levels rendered in
     that lighting's panorama, by the same level names (per-level terms carry over)."""
-    from stimuli.glossfit.lightings import predict_lighting
-    from stimuli.glossfit.photoset import GlossFitError
+    from stimuli.glossfit import GlossFitError, predict_lighting
 
     try:
         held = predict_lighting(sim, real, lighting)
@@ -194,8 +193,7 @@ def load_lights(real, sim, lights=None) -> tuple[RenderData, RenderData, str]:
     ``lights`` against the fitted material rendered there. Without: each fitted light's photo
     split into a checkerboard of 4 x 4 px blocks. GapError: no such fit, a fitted light held
     out, a bad photo set."""
-    from stimuli.glossfit.lightfit import predict_lights, read_light_fit
-    from stimuli.glossfit.photoset import GlossFitError
+    from stimuli.glossfit import GlossFitError, predict_lights, read_light_fit
 
     sim = Path(sim if sim is not None else real)
     try:

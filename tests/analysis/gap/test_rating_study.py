@@ -57,7 +57,7 @@ def test_a_study_re_saved_by_notepad_reads_as_written(tmp_path):
     study = write_study(tmp_path / "s", np.random.default_rng(3), n_participants=2)
     copy = Path(shutil.copytree(study.parent, tmp_path / "notepad")) / study.name
     copy.write_bytes(codecs.BOM_UTF8 + copy.read_bytes())
-    trial = sorted(copy.parent.glob("*_ratings.csv"))[0]
+    trial = min(copy.parent.glob("*_ratings.csv"))
     trial.write_bytes(codecs.BOM_UTF16_LE + trial.read_bytes().decode("utf-8-sig")
                       .encode("utf-16-le"))
     want, _ = read_study_trials(load_study(study))

@@ -100,7 +100,7 @@ def rating_ceiling_loss(train: pd.DataFrame, test: pd.DataFrame, fitted: list,
 def rating_ceiling_floor(train: pd.DataFrame, test: pd.DataFrame, cands: dict) -> np.ndarray:
     """The noise floor per held-out trial: the predictive entropy (nats) of the ceiling built
     on the plain simulation, the expected loss of a model right up to its own noise."""
-    from experiment.rating_observer import rating_probs
+    from experiment import rating_probs
 
     offsets, coef, parts = _fit(train, [], cands)
     sigma = _fit_sigma(train, _corrected(train, [], cands, offsets, coef, parts))

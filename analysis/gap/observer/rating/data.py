@@ -33,7 +33,7 @@ def read_rating_study(real, study_path, participants=None):
         A study or file that cannot be read (the message names the fix), or ``real`` other
         than the study's folder.
     """
-    from experiment.study import StudyError, load_study, read_study_trials
+    from experiment import StudyError, load_study, read_study_trials
 
     try:
         study = load_study(study_path)
@@ -57,7 +57,7 @@ def load_rating_sim(sim) -> tuple[RatingBase, dict]:
     """
     if isinstance(sim, RatingBase):
         return sim, {}
-    from experiment.rating_observer import load_rating_observers
+    from experiment import load_rating_observers
 
     try:
         raw = load_rating_observers(sim)

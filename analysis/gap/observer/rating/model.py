@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 from scipy import optimize
 
-from experiment.rating_observer import rating_levels, rating_mean, rating_nll, rating_probs
+from experiment import rating_levels, rating_mean, rating_nll, rating_probs
 
 __all__ = ["RatingBase", "adapt_rating_base", "rating_expected", "rating_floor",
            "rating_loss", "rating_nll_of", "rating_predict"]
