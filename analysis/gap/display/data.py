@@ -313,9 +313,9 @@ def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
 
 #: Share of a file's readings that must equal the calibration's own (position, level and
 #: luminance as written) for the file to be taken as those readings: a check run's reading
-#: equals one of the calibration's by chance now and then (four significant digits), a
-#: copied file in every row.
-_SAME_CONTENT_SHARE = 0.5
+#: equals one of the calibration's by chance now and then (more often from a meter that
+#: reports few digits, on a stable display), a copied or trimmed file in every row.
+_SAME_CONTENT_SHARE = 0.9
 #: Fewest distinct drive levels: an offset, a gain and a gamma change are told apart by how
 #: the change grows with the drive, which needs three levels (calibration fit needs four).
 _MIN_LEVELS = 3
