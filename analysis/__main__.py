@@ -36,11 +36,14 @@ def _bad_jobs(args) -> bool:
 
 
 def _cmd_units(args) -> int:
-    from analysis.units import matches_to_physical
-    from labfiles import LabFileError, read_csv_frame
+    from analysis.units import matches_to_physical, read_matches_csv
+    from labfiles import LabFileError
 
     try:
-        frame = matches_to_physical(read_csv_frame(args.csv), load_design(args.design))
+        raw, notes = read_matches_csv(args.csv)
+        for note in notes:
+            print(f"note: {note}", file=sys.stderr)
+        frame = matches_to_physical(raw, load_design(args.design))
     except LabFileError as exc:  # names the file itself
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -70,6 +70,36 @@ def format_summary(fit: LmmFit, tests=(), satterthwaite=None) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _refuse_misaligned_header(path) -> None:
+    """Refuse a CSV whose header has another number of fields than every row: a column name
+    holding a comma written unquoted (PsychoPy's "participant ID (two digits, e.g. 01)")
+    splits it in two, and every column after it would be read one place off (``expName``
+    holding the frame rate)."""
+    import csv
+    import io
+    import itertools
+
+    from labfiles import read_text
+
+    rows = [r for r in csv.reader(io.StringIO(read_text(path), newline=""))
+            if any(v.strip() for v in r)]
+    if len(rows) < 2:
+        return
+    header, widths = rows[0], {len(r) for r in rows[1:]}
+    if len(widths) != 1 or len(header) in widths:
+        return
+    width = widths.pop()
+    split = [f"{a},{b}" for a, b in itertools.pairwise(header)
+             if a.count("(") > a.count(")") and b.count(")") > b.count("(")]
+    guess = (f" ({', '.join(repr(n) for n in split)} looks like one name split at its comma)"
+             if split else "")
+    raise LmmError(
+        f"{path}: the header has {len(header)} fields but every row {width}, so every column "
+        f"after the first misplaced one would be read one place off{guess}: a column name "
+        "holding a comma was written unquoted. Quote it in the header line (\"name, with "
+        "comma\") or remove the comma, then fit again")
+
+
 def read_model_data(path, design) -> pd.DataFrame:
     """The data of ``python -m analysis fit``: a session folder or a CSV file.
 
@@ -92,6 +122,7 @@ def read_model_data(path, design) -> pd.DataFrame:
         return model_frame(load_sessions(path, design).frame, design)
     if path.is_file() and path.suffix.lower() == ".csv":
         try:
+            _refuse_misaligned_header(path)
             frame = read_csv_frame(path)
         except LabFileError as exc:
             raise LmmError(str(exc)) from None

@@ -178,6 +178,33 @@ def _grid_row(profile: PsychopyProfile) -> np.ndarray | None:
     return g.reshape(-1, g.shape[-1])[0] if g.ndim == 2 else None
 
 
+#: Per-gun gammas further apart than this (relative) are said: one curve serves all guns.
+_GUN_GAMMA_SPREAD = 0.05
+
+
+def _gun_warnings(profile: PsychopyProfile) -> list[str]:
+    """A warning where the gamma grid's gun rows (R, G, B: rows 1-3) hold gammas that differ:
+    the calibration keeps one curve, the luminance row's (or the readings' lumsPre[0]), for
+    all three guns, which is right for grey (R = G = B) but corrects no gun on its own."""
+    grid = profile.calib.get("gammaGrid")
+    if grid is None:
+        return []
+    g = np.asarray(grid, dtype=float)
+    if g.ndim != 2 or g.shape[0] < 4 or g.shape[1] < 3:
+        return []
+    guns = g[1:4, 2]
+    if not np.all(np.isfinite(guns) & (guns > 0)):
+        return []
+    if guns.max() / guns.min() - 1 <= _GUN_GAMMA_SPREAD:
+        return []
+    lum = g[0, 2]
+    return [(f"{profile.path}: the profile's guns have gammas R {guns[0]:.3g}, G {guns[1]:.3g}, "
+            f"B {guns[2]:.3g} (luminance {lum:.3g}); this calibration keeps one curve, the "
+            "luminance's, for all three guns: grey (R = G = B, as glossdepth's stimuli) is "
+            "linearised, a colour is not per gun. For coloured stimuli, load the profile in "
+            "PsychoPy itself (its gammaGrid per gun)")]
+
+
 def _curve_from_grid(profile: PsychopyProfile) -> tuple[str, dict, int]:
     """(model, params, PsychoPy equation) of the grid's luminance row."""
     row = _grid_row(profile)
@@ -280,6 +307,7 @@ def import_psychopy_profile(source, out_dir, design, *, calib_name: str | None =
     if problem:
         raise CalibrationError(problem)
     geometry, warn = _geometry(profile, design)
+    warn = warn + _gun_warnings(profile)
     source_note = (f"imported from the PsychoPy profile {profile.path.resolve()}, calibration "
                    f"{profile.calib_name!r} (`calibration import-psychopy`)")
     meta = {"calibration_id": cal_id, "device": "unknown", "monitor_name": profile.name,

@@ -425,6 +425,8 @@ def _cmd_fit_study(args) -> int:
                              f"own folder ({study.folder}); pass that folder as DIR")
         frame, notes = read_study_trials(study, args.participants)
         params = fit_rating_observers(frame, study)
+        if notes:  # kept in the file beside the fit they qualify
+            params["fit"]["notes"] = list(notes)
     except (StudyError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

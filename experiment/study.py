@@ -33,6 +33,7 @@ one ``[columns]`` names, and the repair is said; otherwise it is refused with th
 from __future__ import annotations
 
 import csv
+import difflib
 import io
 import math
 import tomllib
@@ -49,6 +50,14 @@ __all__ = ["Study", "StudyError", "load_study", "read_lab_csv", "read_study_tria
 #: The [columns] keys: the required ones, then the optional ones.
 _REQUIRED_COLUMNS = ("participant", "stimulus", "trial", "response")
 _OPTIONAL_COLUMNS = ("rt_s",)
+#: Every key a study.toml may hold, per table ("" the top level); any other is a typo.
+_KEYS = {"": ("name", "files", "columns", "response", "stimuli"),
+         "columns": _REQUIRED_COLUMNS + _OPTIONAL_COLUMNS,
+         "response": ("estimates", "scale", "step", "labels"),
+         "stimuli": ("table", "id")}
+#: Fewest trials a participant may have: the rating observer has four parameters, and a
+#: participant is a split half of the diagnosis's consistency figure.
+MIN_TRIALS = 10
 
 
 class StudyError(ValueError):
@@ -105,6 +114,32 @@ def _need(table: dict, key: str, where: str, path: Path):
     return table[key]
 
 
+def _unknown_keys(raw: dict, path: Path) -> None:
+    """Refuse keys a study.toml does not know (a typo such as ``stpe`` would otherwise be
+    dropped without a word and its default used)."""
+    bad = []
+    for table, known in _KEYS.items():
+        values = raw if not table else raw.get(table)
+        if not isinstance(values, dict):
+            continue
+        for key in values:
+            if key not in known:
+                near = difflib.get_close_matches(key, known, n=1, cutoff=0.5)
+                where = f"[{table}] {key}" if table else key
+                bad.append(f"{where!r}" + (f" (did you mean {near[0]!r}?)" if near else ""))
+    if bad:
+        raise StudyError(f"{path}: unknown keys {', '.join(bad)}; rename or remove them (the "
+                         "keys are listed in protocol.md, 'Another lab's study')")
+
+
+def _check_labels(labels: tuple, scale: list, path: Path) -> None:
+    outside = [v for v in labels if not scale[0] <= v <= scale[1]]
+    if outside:
+        raise StudyError(f"{path}: [response] labels {[f'{v:g}' for v in outside]} lie outside "
+                         f"the scale {scale}; labels are points of the scale: fix labels or "
+                         "scale")
+
+
 def load_study(path) -> Study:
     """Read and check a ``study.toml``.
 
@@ -125,6 +160,7 @@ def load_study(path) -> Study:
         raise StudyError(str(exc)) from None
     except tomllib.TOMLDecodeError as exc:
         raise StudyError(f"{path} is not valid TOML ({exc}); fix the line it names") from exc
+    _unknown_keys(raw, path)
     cols = _need(raw, "columns", "the file", path)
     columns = {k: str(_need(cols, k, "[columns]", path)) for k in _REQUIRED_COLUMNS}
     columns |= {k: str(cols[k]) for k in _OPTIONAL_COLUMNS if k in cols}
@@ -143,6 +179,7 @@ def load_study(path) -> Study:
         raise StudyError(f"{path}: [response] step = {step} does not divide the scale "
                          f"{scale}; give the scale's step (1 for integer ratings) or 0")
     labels = tuple(float(v) for v in resp.get("labels", ()))
+    _check_labels(labels, scale, path)
     stim = _need(raw, "stimuli", "the file", path)
     return Study(folder=path.parent, name=str(raw.get("name", path.parent.name)),
                  files=str(_need(raw, "files", "the file", path)), columns=columns,
@@ -285,12 +322,19 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
         out["file"] = path.name
         frames.append(out)
     frame = pd.concat(frames, ignore_index=True)
+    written = frame["response"].copy()
     for k in ("response", "trial", "rt_s"):
         if k in frame:
             frame[k] = pd.to_numeric(frame[k], errors="coerce")
     if "rt_s" not in frame:
         frame["rt_s"] = np.nan
     empty = frame["response"].isna()
+    if empty.all():
+        seen = sorted(set(written))[:3]
+        raise StudyError(f"the response column {study.columns['response']!r} holds no number in "
+                         f"any of the {len(frame)} rows of {len(files)} file(s) (it holds "
+                         f"{seen}); point study.toml's [columns] response at the column of "
+                         "the responses")
     if empty.any():
         notes.append(f"{int(empty.sum())} rows without a numeric response (skipped)")
         frame = frame[~empty]
@@ -301,11 +345,13 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
             raise StudyError(f"participants {absent} are not in the study's files (it has "
                              f"{sorted(set(frame['participant']))}); fix --participants")
         frame = frame[frame["participant"].isin(want)]
+    _check_trial_numbers(frame, study)
     lo, hi = study.scale
     out_of = (frame["response"] < lo) | (frame["response"] > hi)
     if out_of.any():
         raise StudyError(f"{int(out_of.sum())} responses lie outside the scale {[lo, hi]} (e.g. "
                          f"{frame.loc[out_of, 'response'].iloc[0]:g}); fix [response] scale")
+    notes += _unused_scale_end(frame["response"], study)
     if study.step > 0:
         k = (frame["response"] - lo) / study.step
         off = ~np.isclose(k, np.round(k), atol=1e-6)
@@ -324,6 +370,66 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
                          f"column {study.columns['trial']!r}; fix [columns] trial")
     frame = frame.sort_values(["participant", "trial"], ignore_index=True)
     return frame, _dedupe(notes)
+
+
+def _check_trial_numbers(frame: pd.DataFrame, study: Study) -> None:
+    """Refuse a participant whose trial numbers repeat (the trial column numbers the
+    presentation order within a participant): a copy of a file, two files under one ID, or a
+    trial column that restarts within a file; and a participant too small to fit or split."""
+    col = study.columns["trial"]
+    for pid, rows in frame.groupby("participant", sort=True):
+        if not rows["trial"].duplicated().any():
+            continue
+        for name, own in rows.groupby("file", sort=True):
+            counts = own["trial"].value_counts()
+            if counts.max() > 1:
+                raise StudyError(
+                    f"{name}: the trial column {col!r} repeats its numbers within the file "
+                    f"(trial {counts.idxmax():g} {int(counts.max())} times); it must number "
+                    "the presentation order within a participant: point [columns] trial at "
+                    "the column counting every trial (PsychoPy's trials.thisN, not "
+                    "thisTrialN or thisRepN)")
+        content = {name: own.drop(columns="file").sort_values("trial").to_numpy(str).tobytes()
+                   for name, own in rows.groupby("file", sort=True)}
+        names = sorted(content)
+        for i, a in enumerate(names):
+            for b in names[i + 1:]:
+                if content[a] == content[b]:
+                    raise StudyError(
+                        f"{b} holds the same trials as {a} (participant {pid}): a copy of the "
+                        "file; move the copy out of the study's folder")
+        raise StudyError(
+            f"participant {pid} has trials in {len(names)} files ({', '.join(names)}) with the "
+            "same trial numbers: two people under one ID, or one person's sessions each "
+            "numbered from the start; give each person their own ID (the participant column), "
+            "or number a later session's trials on from the earlier one's")
+    counts = frame.groupby("participant").size()
+    few = counts[counts < MIN_TRIALS]
+    if len(few):
+        raise StudyError(
+            f"participants {({k: int(v) for k, v in few.items()})} have fewer than {MIN_TRIALS} trials: too "
+            "few to fit a rating observer (four parameters) or to be a split half of the "
+            "diagnosis; leave them out with --participants, or move their files out of the "
+            "study's folder")
+
+
+def _unused_scale_end(response: pd.Series, study: Study) -> list[str]:
+    """A note where no response comes within a third of the scale's span of one of its ends:
+    a study.toml's scale copied from another study (the observer's model takes the ends as
+    given: a wrong end moves its censoring). A note, not a refusal: a study whose stimuli
+    never earn the top of the scale is possible."""
+    lo, hi = study.scale
+    if len(response) < 50:
+        return []
+    a, b = float(response.min()), float(response.max())
+    span = hi - lo
+    unused = [f"{end} ({lo if end == 'bottom' else hi:g})" for end, gap in
+              (("bottom", a - lo), ("top", hi - b)) if gap > span / 3]
+    if not unused:
+        return []
+    return [(f"no response of {len(response)} comes near the scale's {' or '.join(unused)}; "
+             f"they lie in [{a:g}, {b:g}] of the scale [{lo:g}, {hi:g}]. If the scale is "
+             "narrower, fix [response] scale in study.toml (the fit takes its ends as given)")]
 
 
 def _dedupe(notes: list[str]) -> list[str]:

@@ -200,6 +200,7 @@ def _cmd_export_print(args) -> int:
         raise ValueError(f"--spacing-cm {args.spacing_cm:g} makes a {side} x {side} height field, "
                          f"too large to mesh; use {_fine_spacing(geometry):.3g} cm or more (0.02 "
                          "cm, the default, is about a printer's resolution)")
+    _refuse_coarse_spacing(args.spacing_cm, geometry)
     mesh = print_mesh(geometry, spacing_cm=args.spacing_cm, base_cm=args.base_cm)
     ok, why = mesh_edges_ok(mesh)
     if not ok:
@@ -219,6 +220,24 @@ def _cmd_export_print(args) -> int:
 #: The largest height-field side export-print meshes (4000^2 = 16 M vertices, about 1.5 GB of
 #: STL): finer than any printer resolves for the design's arrays.
 _MAX_PRINT_GRID = 4000
+
+
+#: Height-field samples a bump's x/y radius must span at least: with 4, a grid point lies
+#: within spacing / sqrt(2) of each bump's top, whose height is then met within 1.6 % (the
+#: default 0.02 cm gives 50 on the design's 1 cm radius; 10 cm gave a flat slab).
+_MIN_SAMPLES_PER_RADIUS = 4
+
+
+def _refuse_coarse_spacing(spacing_cm: float, geometry) -> None:
+    """Refuse a --spacing-cm too coarse to resolve the bumps: the height field would miss
+    them (a flat slab, watertight all the same)."""
+    widest = geometry.radius_xy_cm / _MIN_SAMPLES_PER_RADIUS
+    if spacing_cm > widest:
+        raise ValueError(f"--spacing-cm {spacing_cm:g} is too coarse for bumps of x/y radius "
+                         f"{geometry.radius_xy_cm:g} cm: the height field would sample each "
+                         f"{geometry.radius_xy_cm / spacing_cm:.2g} times across its radius and "
+                         f"miss its shape (a flat slab); use <= {widest:.3g} cm (0.02 cm, the "
+                         "default, is about a printer's resolution)")
 
 
 def _fine_spacing(geometry) -> float:

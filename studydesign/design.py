@@ -170,6 +170,13 @@ class ArraySpec:
         _require(self.radius_xy_cm > 0, "array.radius_xy_cm must be > 0")
         _require(self.jitter_cm >= 0, "array.jitter_cm must be >= 0")
         _require(
+            max(self.n_x, self.n_y) == 1 or self.jitter_cm < self.pitch_cm / 2,
+            f"array.jitter_cm {self.jitter_cm:g} is not under half the pitch_cm "
+            f"{self.pitch_cm:g}: centres would leave their cells and cross their neighbours' "
+            f"(and the {self.extent_cm:g} cm square); use jitter_cm < {self.pitch_cm / 2:g} "
+            "(the source study's 0.2 cm on a 1 cm pitch)",
+        )
+        _require(
             0.0 <= self.z_radius_min_fraction <= 1.0,
             "array.z_radius_min_fraction must lie in [0, 1]",
         )

@@ -325,6 +325,25 @@ def read_light_fit(fit_dir) -> dict:
     return info
 
 
+def _refuse_other_sphere(info: dict, ls: LightSet, fit_dir) -> None:
+    """Refuse a fit of another sphere than the photos': its silhouette (fit.json's
+    geometry_px) is not theirs within 1 px (or 2 % of the radius). Its albedos are in another
+    camera's and exposure's units, its photos of another ball: the misfit would be a verdict
+    on nothing."""
+    g = info.get("geometry_px") or {}
+    fitted = tuple(float(g.get(k, np.nan)) for k in ("cy", "cx", "radius"))
+    cy, cx, radius = ls.geometry
+    tol = max(1.0, 0.02 * radius)
+    if all(abs(a - b) <= tol for a, b in zip(fitted, (cy, cx, radius))):
+        return
+    show = lambda v: f"centre ({v[0]:.1f}, {v[1]:.1f}) px, radius {v[2]:.1f} px"
+    raise GlossFitError(
+        f"{fit_dir} was fitted to the sphere of {info.get('photo_set', '?')} ({show(fitted)}), "
+        f"but the photos of {ls.folder} show a sphere at {show(ls.geometry)}: a fit of another "
+        f"sphere cannot predict these photos. Fit this set's other lights: python -m stimuli "
+        f"fit-gloss {ls.folder} --lights LIGHTS --out FIT, then pass --sim FIT")
+
+
 def predict_lights(fit_dir, photo_set_dir, lights) -> dict[int, dict]:
     """The fitted material (``fit_dir``'s fit.json) under ``lights`` of the photo set: per
     light, the residual-file arrays (:func:`light_arrays`), rendered with the fit's settings.
@@ -341,6 +360,7 @@ def predict_lights(fit_dir, photo_set_dir, lights) -> dict[int, dict]:
     if seen:
         raise GlossFitError(f"lights {seen} were fitted ({fit_dir}); held-out lights must be "
                             f"others, e.g. --lights {_ranges(sorted(set(range(1, ls.n_lights + 1)) - set(info['lights'])))}")
+    _refuse_other_sphere(info, ls, fit_dir)
     with LightScene(ls.mask.shape, ls.geometry, spp=info["spp"], seed=info["seed"]) as scene:
         return {k: light_arrays(ls, k, scene, info["ward"], info["min_cos"])
                 for k in ls.lights}

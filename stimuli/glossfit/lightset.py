@@ -16,7 +16,11 @@ numbered from 1 in file order; ``--lights 1-24`` picks some (:func:`parse_lights
 
 16-bit PNGs are decoded with Mitsuba's bitmap reader (libpng), which keeps all 16 bits; Pillow
 (and imageio through it) returns 8 bits for 16-bit RGB. Pixels at the file's largest code
-(65535, or 255) in any channel are saturated: censored, never fitted.
+(65535, or 255) in any channel are saturated: censored, never fitted; so are pixels at a clip
+level below it (a pile-up of equal top codes: a camera or converter that clipped there), with a
+warning. A set that mixes 8- and 16-bit PNGs is refused (their codes are on other scales), as
+is a frame with y (or x) flipped: in the normals (they disagree with the mask's silhouette) or
+in the light directions (the photos' shading agrees with n.l only with the axis negated).
 """
 
 from __future__ import annotations
@@ -34,6 +38,14 @@ __all__ = ["LightSet", "is_light_set", "load_light_set", "parse_lights", "read_p
            "sphere_geometry"]
 
 LIGHT_FILES = ("filenames.txt", "light_directions.txt", "light_intensities.txt", "mask.png")
+#: Pixels at one code below the file's top that make a clip level: with a camera's noise on
+#: 16 bits the brightest code of a photo recurs by chance in a pixel or two, a clip in many.
+_CLIP_PILE = 4
+#: Shading check: a flipped frame is refused when the photos' median correlation with n.l
+#: (diffuse shading) is above _SHADING_R with an axis of the lights negated and beats the
+#: given frame's by _FLIP_MARGIN (DiLiGenT's ball: r 0.98 as given, 0.70 with y negated).
+_SHADING_R = 0.5
+_FLIP_MARGIN = 0.15
 
 
 def is_light_set(folder: str | Path) -> bool:
@@ -136,6 +148,102 @@ def mask_normals(shape, geometry) -> np.ndarray:
     return np.where(on[..., None], np.stack([x, y, np.sqrt(np.clip(z2, 0, 1))], -1), 0.0)
 
 
+def _png_bit_depth(path: Path) -> int | None:
+    """A PNG's bit depth from its header (IHDR byte 24), without decoding; None if no PNG."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(26)
+    except OSError:
+        return None
+    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return head[24]
+
+
+def _refuse_mixed_depths(folder: Path, names: list[str]) -> None:
+    """Refuse a set whose PNGs differ in bit depth (all of the set's, not only the lights
+    loaded: held-out photos must be on the fitted ones' scale)."""
+    depth = {}
+    for name in names:
+        path = folder / "images" / name
+        depth[name] = _png_bit_depth(path if path.exists() else folder / name)
+    found = {d for d in depth.values() if d is not None}
+    if len(found) < 2:
+        return
+    common = max(found, key=lambda d: (sum(v == d for v in depth.values()), d))
+    odd = [n for n, d in depth.items() if d is not None and d != common]
+    bits = sorted({depth[n] for n in odd})
+    raise GlossFitError(
+        f"{folder}: images {odd[:8]}{' ...' if len(odd) > 8 else ''} are {bits}-bit PNGs, the "
+        f"set's other {len(names) - len(odd)} are {common}-bit: their codes are on another "
+        f"scale (top {2 ** bits[0] - 1} vs {2 ** common - 1}); export them again as "
+        f"{common}-bit raw PNGs from the camera's files, or leave the set's lights on one "
+        "bit depth")
+
+
+def _clip_level(codes: np.ndarray, top: int) -> float | None:
+    """The code a photo was clipped at below the file's top (a pile-up of at least
+    :data:`_CLIP_PILE` pixels at a channel's largest code), else None."""
+    levels = []
+    for c in range(codes.shape[-1]):
+        m = float(codes[..., c].max())
+        if 0 < m < top and int((codes[..., c] == m).sum()) >= _CLIP_PILE:
+            levels.append(m)
+    return min(levels) if levels else None
+
+
+def _check_normals_frame(normals: np.ndarray, mask: np.ndarray, path: Path) -> None:
+    """Refuse normals whose x or y runs against the mask's silhouette (a flipped axis): on an
+    orthographic sphere x - cx grows with n_x and y - cy with -n_y (y down in the image)."""
+    on = mask & (normals[..., 2] > 0.3)
+    if on.sum() < 20:
+        return
+    yy, xx = np.nonzero(on)
+    flipped = []
+    for axis, pos, n in (("x", xx, normals[on][:, 0]), ("y", -yy, normals[on][:, 1])):
+        if np.std(n) > 0 and np.corrcoef(pos, n)[0, 1] < 0:
+            flipped.append(axis)
+    if flipped:
+        axes = " and ".join(flipped)
+        raise GlossFitError(
+            f"{path}: the normals' {axes} run against mask.png's sphere (n_{flipped[0]} falls "
+            f"where the silhouette's {flipped[0]} rises): {axes} flipped. Negate the normals' "
+            f"{axes} component(s) (the frame is x right, y up, z towards the camera)")
+
+
+def _shading_r(photos: dict, saturated: dict, mask: np.ndarray, normals: np.ndarray,
+               directions: dict, flip: np.ndarray) -> float:
+    """Median over the photos of the correlation of their luminance with max(n.l, 0), the
+    light directions multiplied by ``flip`` (unsaturated pixels inside the mask)."""
+    rs = []
+    for k, photo in photos.items():
+        use = mask & ~saturated[k]
+        if use.sum() < 20:
+            continue
+        lum = rec709_luminance(photo)[use]
+        shade = np.clip(normals[use] @ (directions[k] * flip), 0, None)
+        if np.std(lum) > 0 and np.std(shade) > 0:
+            rs.append(float(np.corrcoef(lum, shade)[0, 1]))
+    return float(np.median(rs)) if rs else float("nan")
+
+
+def _check_light_frame(photos, saturated, mask, normals, directions, path: Path) -> None:
+    """Refuse light directions whose x or y is flipped against the photos: their shading
+    agrees with n.l much better with that axis negated."""
+    given = _shading_r(photos, saturated, mask, normals, directions, np.ones(3))
+    if not np.isfinite(given) or given >= 1 - _FLIP_MARGIN:
+        return
+    for axis, flip in (("y", np.array([1.0, -1, 1])), ("x", np.array([-1.0, 1, 1])),
+                       ("x and y", np.array([-1.0, -1, 1]))):
+        r = _shading_r(photos, saturated, mask, normals, directions, flip)
+        if r > _SHADING_R and r > given + _FLIP_MARGIN:
+            raise GlossFitError(
+                f"{path}: the photos' shading agrees with n.l at r = {given:.2f}, but at r = "
+                f"{r:.2f} with the lights' {axis} negated: {axis} flipped (in "
+                "light_directions.txt, or in normal_gt.npy's frame). Negate that column of "
+                "light_directions.txt (the frame is x right, y up, z towards the camera)")
+
+
 @dataclass
 class LightSet:
     """A loaded, checked directional-light photo set (only the lights asked for are read).
@@ -230,6 +338,7 @@ def load_light_set(folder: str | Path, lights: tuple[int, ...] | str | None = No
                             "vectors; normalise each row")
     if (ints <= 0).any():
         raise GlossFitError(f"{folder / 'light_intensities.txt'}: intensities must be > 0")
+    _refuse_mixed_depths(folder, names)
     mask_codes, _ = read_png16(folder / "mask.png")
     mask = mask_codes.max(axis=-1) > 0
     geometry = sphere_geometry(mask)
@@ -247,7 +356,14 @@ def load_light_set(folder: str | Path, lights: tuple[int, ...] | str | None = No
         if top == 255:
             warnings.append(f"{names[k - 1]}: an 8-bit image; 16-bit raw photos keep the "
                             "highlight's and the shadow's levels")
-        saturated[k] = np.any(codes >= top, axis=-1)
+        clip = _clip_level(codes, top)
+        if clip is not None:
+            n_clip = int(np.any(codes >= clip, axis=-1).sum())
+            warnings.append(f"{names[k - 1]}: {n_clip} pixels at or above code {clip:.0f}, "
+                            f"below the file's top ({top}): the photo was clipped there (an "
+                            "over-exposure, or a converter's white point); censored as "
+                            "saturated. Export the raw codes unclipped to fit them")
+        saturated[k] = np.any(codes >= (top if clip is None else clip), axis=-1)
         photos[k] = codes / ints[k - 1]
     normals_path = folder / "normal_gt.npy"
     if normals_path.is_file():
@@ -256,9 +372,13 @@ def load_light_set(folder: str | Path, lights: tuple[int, ...] | str | None = No
             raise GlossFitError(f"{normals_path}: shape {normals.shape}; expected "
                                 f"{(*mask.shape, 3)} (h x w x 3, as mask.png)")
         source = "normal_gt.npy"
+        _check_normals_frame(normals, mask, normals_path)
         geometry = normals_geometry(normals, mask)
     else:
         normals, source = mask_normals(mask.shape, geometry), "the mask's disc (orthographic)"
+    _check_light_frame(photos, saturated, mask, normals,
+                       {k: dirs[k - 1] / norms[k - 1] for k in lights},
+                       folder / "light_directions.txt")
     return LightSet(folder=folder, lights=lights, names={k: names[k - 1] for k in lights},
                     directions={k: dirs[k - 1] / norms[k - 1] for k in lights},
                     intensities={k: ints[k - 1] for k in lights}, photos=photos,

@@ -165,6 +165,7 @@ def load_display(real_path, sim_path):
         noise_frames.append(_read_any(warm))
     own = cpath.parent / (cal.readings_file or "readings.csv")
     fitted_rows = _read_any(own) if own.is_file() else None
+    notes += _dropped_rows(rpath)
     in_fit = _in_fit(readings, fitted_rows, cal, kind, own, notes)
     n_in = int(in_fit.sum())
     source = {"real": str(rpath), "calibration": str(cpath), "kind": kind,
@@ -175,6 +176,7 @@ def load_display(real_path, sim_path):
     if len(readings) < _MIN_READINGS:
         raise GapError(f"{rpath}: {len(readings)} readings; the display diagnosis needs "
                        f">= {_MIN_READINGS}")
+    _refuse_uninformative(readings, Path(source["real"]))
     _add_noise_frames(readings, fitted_rows, noise_frames, notes)
     source["notes"] = notes
     for note in notes:
@@ -242,6 +244,13 @@ def _in_fit(readings: pd.DataFrame, fitted_rows, cal, kind: str, own: Path,
     if fitted_rows is not None:
         keys = set(_row_keys_list(fitted_rows))
         in_fit = np.array([k in keys for k in _row_keys_list(readings)]) & same_id.to_numpy()
+        by_content = _same_content(readings, fitted_rows)
+        if (by_content & ~in_fit).any():
+            notes.append(f"{int(by_content.sum())} of {len(readings)} readings are, position "
+                         "by position and level by level, the very luminances calibration "
+                         f"{cal.calibration_id!r} was fitted from ({own}), under another "
+                         "file name or calibration_id: they are taken as its own readings")
+            in_fit |= by_content
     else:
         in_fit = np.zeros(len(readings), bool)
         if kind == "readings" and same_id.any():
@@ -261,7 +270,7 @@ def _out_of_sample(readings: pd.DataFrame, in_fit: np.ndarray, fitted_rows, rpat
     n_in = int(in_fit.sum())
     rest = readings[~in_fit].reset_index(drop=True)
     msg = (f"{n_in} of {len(readings)} readings in {rpath} are the ones calibration "
-           f"{cal.calibration_id!r} was fitted from (same calibration_id, same rows): an "
+           f"{cal.calibration_id!r} was fitted from (the same readings): an "
            "in-sample fit absorbs an offset or a gain change, so they cannot show its gap")
     val = cpath.parent / "validation.csv"
     if len(rest) >= _MIN_READINGS:
@@ -301,6 +310,84 @@ def _add_noise_frames(readings: pd.DataFrame, fitted_rows, noise_frames: list,
     if not _has_pairs(readings) and len(noise_frames) > 1:
         notes.append("the readings have no repeats: the photometer's noise is measured from "
                      "the repeated readings of the same photometer beside them")
+
+#: Share of a file's readings that must equal the calibration's own (position, level and
+#: luminance as written) for the file to be taken as those readings: a check run's reading
+#: equals one of the calibration's by chance now and then (more often from a meter that
+#: reports few digits, on a stable display), a copied or trimmed file in every row.
+_SAME_CONTENT_SHARE = 0.9
+#: Fewest distinct drive levels: an offset, a gain and a gamma change are told apart by how
+#: the change grows with the drive, which needs three levels (calibration fit needs four).
+_MIN_LEVELS = 3
+
+
+def _content_keys(frame: pd.DataFrame) -> list:
+    return [(round(float(x), 6), round(float(y), 6), round(float(lv), 6), float(f"{lum:.6g}"))
+            for x, y, lv, lum in zip(frame["x_norm"], frame["y_norm"], frame["level"],
+                                     frame["luminance_cd_m2"])]
+
+
+def _same_content(readings: pd.DataFrame, fitted_rows: pd.DataFrame) -> np.ndarray:
+    """Boolean mask of the readings whose position, level and luminance are one of the
+    calibration's own readings, where most of them are (the same readings, whatever the
+    file's name, calibration_id or timestamps); all False otherwise."""
+    keys = set(_content_keys(fitted_rows))
+    hit = np.array([k in keys for k in _content_keys(readings)], bool)
+    if not len(hit) or hit.mean() < _SAME_CONTENT_SHARE:
+        return np.zeros(len(readings), bool)
+    return hit
+
+
+def _dropped_rows(path: Path) -> list[str]:
+    """A note naming the rows of a readings file that were dropped (a negative luminance, a
+    value that is no number...): the calibration package's rule drops them, and without a
+    word the diagnosis of what is left would not say what it left out."""
+    try:
+        table = read_readings(path)
+    except CalibrationError:
+        return []
+    said = [n for n in table.notes if " dropped: " in n]
+    if not said:
+        return []
+    neg = sum("is negative" in n for n in said)
+    why = list(dict.fromkeys(n.split(" dropped: ", 1)[1] for n in said))[:3]
+    lines = [n.split(" dropped: ", 1)[0].rsplit(" line ", 1)[-1] for n in said[:5]]
+    return [f"{path}: {len(said)} of {table.n_rows} rows dropped (lines {', '.join(lines)}"
+            f"{', ...' if len(said) > 5 else ''}: {'; '.join(why)})"
+            + (f"; {neg} negative luminance(s): a photometer's noise around a dark patch can "
+               "read below 0, and leaving them out raises the dark levels' mean; if the meter "
+               "subtracts a dark reading, check its zero" if neg else "")]
+
+
+def _refuse_uninformative(readings: pd.DataFrame, path: Path) -> None:
+    """Refuse readings that cannot show a display's gap: fewer than :data:`_MIN_LEVELS`
+    drive levels (an offset cannot be told from a gain change), or readings that do not rise
+    with the drive (the photometer not aimed, the display off: ``calibration fit`` refuses
+    the same file)."""
+    levels = np.unique(readings["level"].to_numpy(float))
+    if levels.size < _MIN_LEVELS:
+        raise GapError(
+            f"{path}: {len(readings)} readings at {levels.size} drive level(s) "
+            f"({', '.join(f'{v:g}' for v in levels)}); the display diagnosis needs >= "
+            f"{_MIN_LEVELS} distinct levels to tell an offset from a gain or gamma change: "
+            "measure a check run (python -m calibration check --calibration CAL_DIR --out "
+            "CHECK_DIR) or pass readings across the drive range")
+    lum = readings["luminance_cd_m2"].to_numpy(float)
+    by = readings.groupby("level")["luminance_cd_m2"]
+    means = by.mean()
+    sd = float(np.sqrt(np.nanmean(by.var(ddof=1).to_numpy(float)))) if by.size().max() > 1 \
+        else 0.0
+    rise = float(means.iloc[-1] - means.iloc[0])
+    if not np.isfinite(sd):
+        sd = 0.0
+    if np.ptp(lum) == 0 or rise <= 5 * sd:
+        raise GapError(
+            f"{path}: the readings do not rise with the drive (level means "
+            f"{means.min():.4g} to {means.max():.4g} cd/m^2, lowest level {means.iloc[0]:.4g}, "
+            f"highest {means.iloc[-1]:.4g}): check that the photometer was aimed at the patch "
+            "and the display was on, then remeasure (python -m calibration fit refuses the "
+            "same file)")
+
 
 def _header(path: Path) -> list[str]:
     try:
