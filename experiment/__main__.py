@@ -244,6 +244,7 @@ def _cmd_status(args) -> int:
         simulated_rows,
         sliders_path,
     )
+    from experiment.history import frame_records
     from experiment.participants import (
         case_twins,
         check_new_participant,
@@ -278,7 +279,8 @@ def _cmd_status(args) -> int:
                 sliders = read_slider_histories(sliders_path(data, args.participant, session))
                 problem = _session_gaps(rows, path, {
                     runs_path(data, args.participant, session): runs,
-                    sliders_path(data, args.participant, session): sliders})
+                    sliders_path(data, args.participant, session): sliders,
+                    **frame_records(data / "logs", path.stem)})
             except DataFileError as exc:
                 problem = str(exc)
             if problem:
