@@ -67,7 +67,7 @@ from experiment.datafile import (
 from experiment.history import check_no_lost_trials, frame_records, future_record_notes
 from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
-from experiment.provenance import check_earlier_sessions
+from experiment.provenance import calibration_words, check_earlier_sessions
 from experiment.signals import SessionSignal, ending_signals
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
@@ -180,7 +180,9 @@ def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
     -------
     dict
         ``calibration`` (absolute path), ``calibration_id``, ``calibration_sha256`` (of the
-        file), ``manifest`` (absolute path) and ``stimuli_sha256``: SHA-256 of this session's
+        file), ``calibration_fit`` (its :attr:`calibration.Calibration.display_model`: a later
+        session names what changed), ``manifest`` (absolute path) and ``stimuli_sha256``:
+        SHA-256 of this session's
         ``stimulus_id:png_sha256`` lines, sorted (so rows the manifest gains later for other
         stimuli do not count, but any change to one of this session's images does).
     """
@@ -188,7 +190,7 @@ def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
     cal_file = cal_file / "calibration.json" if cal_file.is_dir() else cal_file
     lines = sorted(f"{i}:{h}" for i, h in zip(stim.frame["stimulus_id"], stim.frame["png_sha256"]))
     return {"calibration": str(cal_file.resolve()), "calibration_id": cal.calibration_id,
-            "calibration_sha256": _sha256(cal_file),
+            "calibration_sha256": _sha256(cal_file), "calibration_fit": cal.display_model,
             "manifest": str(Path(stim.manifest_path).resolve()),
             "stimuli_sha256": hashlib.sha256("\n".join(lines).encode()).hexdigest()}
 
@@ -360,10 +362,16 @@ def prepare_session(req: SessionRequest) -> Prepared:
             run_logs=lambda k: [log for _, log in _run_logs(
                 req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
-        if other:
-            msg = (f"the stimuli were gamma-corrected for calibration {other}, but this session "
-                   f"uses calibration {cal.calibration_id!r}; re-render the stimuli with this "
-                   "calibration")
+        # The same id in a file of other content is another calibration too (recalibrated
+        # under its old id); a manifest from before calibration_sha256 records no file.
+        files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
+        if other or files:
+            what = (f"calibration {other}" if other else
+                    f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
+                    f"{' and '.join(files)} (recalibrated under the same id?)")
+            msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
+                   f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
+                   "re-render the stimuli with this calibration")
             if not req.accept_calibration_mismatch:
                 raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
                                      "in the session log)")
