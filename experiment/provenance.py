@@ -86,7 +86,8 @@ def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: 
                          f"render; pass the manifest session {earlier} used")
         if first is None:
             continue
-        recalibrated = first.get("calibration_sha256") != inputs["calibration_sha256"]
+        same_file = first.get("calibration_sha256") == inputs["calibration_sha256"]
+        recalibrated = not same_file and first.get("calibration_sha256") is not None
         said = (f"session {earlier} of {participant} used calibration "
                 f"{first.get('calibration_id')!r} ({calibration_words(first)}), this run "
                 f"{inputs['calibration_id']!r} ({calibration_words(inputs)})")
@@ -101,7 +102,7 @@ def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: 
         what = (f"session {earlier} of {participant} was shown the images of "
                 f"{first.get('manifest')}; this run's manifest {inputs['manifest']} holds other "
                 f"images for those stimuli (re-rendered)")
-        if not recalibrated:
+        if same_file:
             raise PreflightError(
                 f"{what}, with the same calibration: a participant's sessions show one rendered "
                 f"set. Pass --stimuli {Path(str(first.get('manifest')))} (restore its images if "
