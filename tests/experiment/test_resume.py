@@ -254,7 +254,8 @@ def test_a_killed_run_is_never_started_over_nor_its_files_written_again(
 
     assert main(["--design", str(small_design_path), "status", "--participant", "X1",
                  "--data", str(f["data"])]) == 1
-    assert "DAMAGED" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "DAMAGED" in out and "run 1 started at trial 1 and never ended" in out
 
     # (3) Both put back, the run history deleted: the resume needs the operator's word, then
     # takes the next free run number.
