@@ -10,9 +10,10 @@ SD^2 = a^2 + (b L)^2 and the meter's floor), ``calibration.gamma`` (``GAMMA_MODE
 ``calibration.crt`` (``default_crt_path``), ``calibration.uniformity`` (``UniformityMap``),
 ``calibration.ports`` (``available_ports``).
 
-Calibration, load_calibration, save_calibration, default_calibration
+Calibration, load_calibration, save_calibration, default_calibration, display_model_words
     The calibration record (``calibration.json``); ``Calibration.drive_for_fraction`` is the
-    inverse gamma used by stimuli tone mapping.
+    inverse gamma used by stimuli tone mapping; ``Calibration.display_model`` what that inverse
+    depends on (a session records it), ``display_model_words`` says it in words.
 SimulatedCRT, load_crt
     The simulated display the fake photometer measures (parameters in ``crt.toml``).
 GammaFit, fit_gamma, fit_gamma_models, choose_gamma_model, gamma_luminance,
@@ -49,6 +50,7 @@ from calibration.record import (
     DEFAULT_CRT,
     Calibration,
     default_calibration,
+    display_model_words,
     load_calibration,
     save_calibration,
 )
@@ -67,6 +69,7 @@ __all__ = [
     "SimulatedCRT",
     "choose_gamma_model",
     "default_calibration",
+    "display_model_words",
     "fit_gamma",
     "fit_gamma_models",
     "fit_uniformity",

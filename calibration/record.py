@@ -199,6 +199,15 @@ class Calibration:
         return (now - parse_utc(self.age_from_utc)).total_seconds() / 86400.0
 
     @property
+    def display_model(self) -> dict:
+        """What a stimulus's gamma correction depends on: ``gamma_model``, ``gamma_params``,
+        ``min_luminance_cd_m2``, ``max_luminance_cd_m2`` (recorded by a session; described by
+        :func:`display_model_words`)."""
+        return {"gamma_model": self.gamma_model, "gamma_params": dict(self.gamma_params),
+                "min_luminance_cd_m2": self.min_luminance_cd_m2,
+                "max_luminance_cd_m2": self.max_luminance_cd_m2}
+
+    @property
     def chosen_fit(self) -> GammaFit | None:
         """The :class:`GammaFit` of the chosen model, if the fits were recorded."""
         return next((f for f in self.fits if f.model == self.gamma_model), None)
@@ -238,6 +247,15 @@ class Calibration:
             if isinstance(exc, CalibrationError):
                 raise
             raise CalibrationError(f"calibration is malformed ({exc})") from exc
+
+
+def display_model_words(model: dict) -> str:
+    """A :attr:`Calibration.display_model` in words, e.g. ``"black 0.50, white 95.0 cd/m^2,
+    offset_power gamma 2.40"`` (a model without a ``gamma`` parameter is named alone)."""
+    gamma = model.get("gamma_params", {}).get("gamma")
+    curve = model.get("gamma_model", "?") + ("" if gamma is None else f" gamma {gamma:.2f}")
+    return (f"black {model.get('min_luminance_cd_m2', float('nan')):.2f}, white "
+            f"{model.get('max_luminance_cd_m2', float('nan')):.1f} cd/m^2, {curve}")
 
 
 def load_calibration(path) -> Calibration:

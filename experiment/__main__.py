@@ -244,6 +244,7 @@ def _cmd_status(args) -> int:
         simulated_rows,
         sliders_path,
     )
+    from experiment.history import frame_records
     from experiment.participants import (
         case_twins,
         check_new_participant,
@@ -276,9 +277,12 @@ def _cmd_status(args) -> int:
                 rows = read_session(path)
                 runs = read_run_events(runs_path(data, args.participant, session))
                 sliders = read_slider_histories(sliders_path(data, args.participant, session))
+                history = runs_path(data, args.participant, session)
+                slider_file = sliders_path(data, args.participant, session)
                 problem = _session_gaps(rows, path, {
-                    runs_path(data, args.participant, session): runs,
-                    sliders_path(data, args.participant, session): sliders})
+                    history: runs, slider_file: sliders,
+                    **frame_records(data / "logs", path.stem)},
+                    runs=history, restore=(slider_file,))
             except DataFileError as exc:
                 problem = str(exc)
             if problem:
@@ -301,9 +305,11 @@ def _cmd_status(args) -> int:
     return 1 if damaged else 0
 
 
-def _session_gaps(rows, path, records: dict) -> str | None:
+def _session_gaps(rows, path, records: dict, **named) -> str | None:
     """What is missing from a session CSV: rows cut from the middle (trials not 1..n in
-    order), or fewer rows than its slider histories and run history record; else None."""
+    order), or fewer rows than its slider histories, run history and frames files record;
+    else None. ``named``: the run history and files to restore, as
+    :func:`experiment.history.check_no_lost_trials` takes them."""
     from experiment.checks import PreflightError
     from experiment.history import check_no_lost_trials
 
@@ -315,7 +321,7 @@ def _session_gaps(rows, path, records: dict) -> str | None:
         return (f"{path}: {what}; put the original file back (keep this copy) before the "
                 "session continues")
     try:
-        check_no_lost_trials(len(trials), path, records)
+        check_no_lost_trials(len(trials), path, records, **named)
     except PreflightError as exc:
         return str(exc)
     return None

@@ -138,7 +138,8 @@ class SessionStimuli:
     frame : DataFrame
         One row per stimulus id: ``stimulus_id``, ``png`` (absolute path), ``image_width_cm``,
         ``width_px``, ``height_px``, ``calibration_id`` (the calibration the PNG was gamma-corrected
-        for), ``png_sha256``.
+        for), ``calibration_sha256`` (its file's SHA-256; empty where the manifest records
+        none), ``png_sha256``.
     """
 
     manifest_path: Path
@@ -221,6 +222,7 @@ def check_stimuli(manifest, plan_rows: pd.DataFrame, *,
         "width_px": rows["width_px"].astype(int).to_numpy(),
         "height_px": rows["height_px"].astype(int).to_numpy(),
         "calibration_id": rows["calibration_id"].astype(str).to_numpy(),
+        "calibration_sha256": rows["calibration_sha256"].astype(str).to_numpy(),
         "png_sha256": rows["png_sha256"].to_numpy(),
     })
     return SessionStimuli(manifest_path=path, frame=out)

@@ -1,8 +1,9 @@
 """What a session's records say happened: how many trials were answered, and when.
 
 A session CSV is the record the analysis reads, but not the only one: each trial's slider
-histories (``sliders/``), the run history (``logs/*_runs.jsonl``) and each run's log
-(``logs/*_run<k>.json``) say how far the session got. Before a session resumes they are
+histories (``sliders/``), the run history (``logs/*_runs.jsonl``), each run's log
+(``logs/*_run<k>.json``) and its frame intervals (``logs/*_run<k>_frames.csv``, the one record a
+killed run leaves besides its rows) say how far the session got. Before a session resumes they are
 compared with the CSV, so that a CSV moved aside, replaced by an older copy or cut short never
 makes the session start over (a participant would see stimuli twice); their times are compared
 with this PC's clock.
@@ -10,6 +11,8 @@ with this PC's clock.
 
 from __future__ import annotations
 
+import re
+import warnings
 from pathlib import Path
 
 import pandas as pd
@@ -18,7 +21,8 @@ from calibration import CalibrationError
 from experiment.checks import PreflightError
 from labfiles.clock import future_problem
 
-__all__ = ["check_no_lost_trials", "future_record_notes", "recorded_trials"]
+__all__ = ["check_no_lost_trials", "frame_records", "future_record_notes", "recorded_trials",
+           "unended_runs"]
 
 
 def recorded_trials(records: list[dict]) -> int:
@@ -42,7 +46,45 @@ def recorded_trials(records: list[dict]) -> int:
     return n
 
 
-def check_no_lost_trials(n_done: int, path: Path, records: dict) -> None:
+def frame_records(logs, stem: str) -> dict:
+    """Each run's frame-interval file ``logs/<stem>_run<k>_frames.csv`` as run events
+    ``{path: [start, end]}``: a trial's intervals are appended after its row is written, so the
+    trials a file names were answered, even when the run was killed before its end event and
+    its log. A file that does not read (another encoding, a torn tail) counts for what reads."""
+    from labfiles import LabFileError, read_csv_records
+
+    found = {}
+    for path in sorted(Path(logs).glob(f"{stem}_run*_frames.csv")):
+        match = re.fullmatch(rf"{re.escape(stem)}_run(\d+)_frames\.csv", path.name)
+        if match is None:
+            continue
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # a torn tail is the writer's to move aside
+                trials = pd.to_numeric(read_csv_records(path, repair=False)["trial"],
+                                       errors="coerce").dropna().astype(int)
+        except (OSError, LabFileError, KeyError, ValueError, pd.errors.ParserError):
+            continue
+        if trials.empty:
+            continue
+        run = int(match.group(1))
+        found[path] = [{"event": "start", "run": run, "first_trial": int(trials.min())},
+                       {"run": run, "trials_this_run": int(trials.max() - trials.min() + 1)}]
+    return found
+
+
+def unended_runs(events: list[dict]) -> dict[int, int]:
+    """The runs of a run history that started and have no end event (killed, or the PC lost
+    power): ``{run: first_trial}``."""
+    started = {e.get("run"): e.get("first_trial") for e in events if e.get("event") == "start"}
+    for e in events:
+        if "trials_this_run" in e:
+            started.pop(e.get("run"), None)
+    return started
+
+
+def check_no_lost_trials(n_done: int, path: Path, records: dict, *, runs: Path | None = None,
+                         restore=()) -> None:
     """A session never starts over (nor goes back) while a record of later trials exists.
 
     Parameters
@@ -50,7 +92,12 @@ def check_no_lost_trials(n_done: int, path: Path, records: dict) -> None:
     n_done : int
         Rows of the session CSV ``path``.
     records : dict
-        Path -> its records (slider histories, run events), as read.
+        Path -> its records (slider histories, run events, :func:`frame_records`), as read.
+    runs : Path, optional
+        The run history among ``records``: a run in it with no end is named in the message.
+    restore : sequence of Path
+        Other files among ``records`` the fix names when they too record fewer trials (the
+        slider histories moved aside with the CSV).
 
     Raises
     ------
@@ -63,12 +110,20 @@ def check_no_lost_trials(n_done: int, path: Path, records: dict) -> None:
         return
     n, where = max((recorded_trials(recs), str(where)) for where, recs in records.items())
     if n > n_done:
+        crashed = ", ".join(f"run {k} started at trial {t}" for k, t in
+                            unended_runs(records.get(runs, [])).items())
+        if crashed:
+            crashed = (f" (the run history {runs}: {crashed} and never ended: killed or "
+                       "crashed after showing those trials)")
+        back = f"{path.name} back in {path.parent}" + "".join(
+            f" and {p.name} in {p.parent}" for p in restore
+            if recorded_trials(records.get(p, [])) < n)
         raise PreflightError(
-            f"{path} holds {n_done} answered trial(s), but {where} records {n}: the session "
-            "file was moved aside, replaced by an older copy or cut short, and starting from "
-            f"trial {n_done + 1} would show the participant stimuli again. Put the original "
-            f"{path.name} back in {path.parent} (keep every copy), then run the same "
-            "command; `python -m experiment status` shows what is recorded")
+            f"{path} holds {n_done} answered trial(s), but {where} records {n}{crashed}: the "
+            "session file was moved aside, replaced by an older copy or cut short, and starting "
+            f"from trial {n_done + 1} would show the participant stimuli again. Put the original "
+            f"{back} (keep every copy), then run the same command; `python -m experiment "
+            "status` shows what is recorded")
 
 
 def future_record_notes(rows: pd.DataFrame, events: list, path: Path, runs: Path) -> list[str]:

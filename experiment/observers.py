@@ -79,7 +79,8 @@ def load_observer_params(path=None) -> dict:
     Raises
     ------
     ValueError
-        The file is missing, is not TOML, or lacks a kind's table or one of its parameters.
+        The file is missing, is not TOML, lacks a kind's table or one of its parameters, or
+        holds ``nan`` or ``inf`` in a kind's table (named as ``humanlike.gloss_noise_pct.mean``).
     """
     path = Path(path) if path is not None else default_observers_path()
     try:
@@ -103,7 +104,24 @@ def load_observer_params(path=None) -> dict:
         lacking = [k for k in _REQUIRED[kind] if not isinstance(table, Mapping) or k not in table]
         if lacking:
             raise ValueError(f"observer parameter file {path}: [{kind}] lacks {lacking}")
+        _refuse_non_finite(table, path, kind)
     return raw
+
+
+def _refuse_non_finite(value, path, key: str) -> None:
+    """TOML reads ``nan`` and ``inf`` as numbers; no observer parameter may be either (a noise
+    SD of nan passed every check written as ``x < 0`` and made every simulated answer nan).
+    The ``[fit]`` table is not checked: a standard error may be nan there."""
+    if isinstance(value, Mapping):
+        for k, v in value.items():
+            _refuse_non_finite(v, path, f"{key}.{k}")
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            _refuse_non_finite(v, path, f"{key}[{i}]")
+    elif isinstance(value, float) and not math.isfinite(value):
+        raise ValueError(f"observer parameter file {path}: {key} = {value} is not a finite "
+                         "number; write a number there (see experiment/observers.toml), or refit "
+                         "the file with python -m experiment fit-observer")
 
 
 def _toml_key(key: str) -> str:

@@ -5,7 +5,9 @@ A session's first run records a SHA-256 over its ``stimulus_id:png_sha256`` line
 for an earlier session's stimuli, says whether the manifest still holds the images that session
 showed. It does not when the set was re-rendered: with the same calibration that is a mistake
 (refused, naming the manifest the earlier session used); after a new calibration it is how the
-protocol keeps the gamma correction right, and is said on stderr and in the run's log.
+protocol keeps the gamma correction right, and is said on stderr and in the run's log. A new
+calibration is a file of other content (its SHA-256), whatever its id: a recalibration saved
+under the old id is said as one under a new id is, with both fits.
 """
 
 from __future__ import annotations
@@ -19,13 +21,25 @@ import pandas as pd
 from experiment.checks import PreflightError
 from experiment.datafile import DataFileError, read_run_events, runs_path, session_path
 
-__all__ = ["check_earlier_sessions", "stimuli_digest"]
+__all__ = ["calibration_words", "check_earlier_sessions", "stimuli_digest"]
 
 
 def stimuli_digest(stimulus_ids, png_sha256) -> str:
     """SHA-256 of the sorted ``stimulus_id:png_sha256`` lines (one session's images)."""
     lines = sorted(f"{i}:{h}" for i, h in zip(stimulus_ids, png_sha256))
     return hashlib.sha256("\n".join(lines).encode()).hexdigest()
+
+
+def calibration_words(inputs: dict) -> str:
+    """A session's calibration as its inputs record it: the file, its SHA-256 and (in records
+    that hold it) the fit, e.g. ``"/lab/cal/calibration.json, SHA-256 1f2e...; black 0.50,
+    white 95.0 cd/m^2, offset_power gamma 2.40"``."""
+    from calibration import display_model_words
+
+    sha = str(inputs.get("calibration_sha256") or "?")
+    fit = inputs.get("calibration_fit")
+    return (f"{inputs.get('calibration')}, SHA-256 {sha[:12]}..."
+            + (f"; {display_model_words(fit)}" if isinstance(fit, dict) else ""))
 
 
 def _first_start(data_dir, participant: str, session: int, run_logs) -> dict | None:
@@ -70,18 +84,28 @@ def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: 
                          f"showed ({runs_path(data_dir, participant, earlier).name} and its run "
                          "logs are missing): this run cannot check that --stimuli holds the same "
                          f"render; pass the manifest session {earlier} used")
-        if first is None or not all(i in sha for i in ids):
+        if first is None:
             continue
-        if stimuli_digest(ids, [sha[i] for i in ids]) == first["stimuli_sha256"]:
+        same_file = first.get("calibration_sha256") == inputs["calibration_sha256"]
+        recalibrated = not same_file and first.get("calibration_sha256") is not None
+        said = (f"session {earlier} of {participant} used calibration "
+                f"{first.get('calibration_id')!r} ({calibration_words(first)}), this run "
+                f"{inputs['calibration_id']!r} ({calibration_words(inputs)})")
+        if recalibrated and first.get("calibration_id") == inputs["calibration_id"]:
+            said += ": another file under the same id (the display was recalibrated)"
+        if (not all(i in sha for i in ids)
+                or stimuli_digest(ids, [sha[i] for i in ids]) == first["stimuli_sha256"]):
+            if recalibrated:  # the same images (or some not in this manifest): still said
+                notes.append(f"{said}; the participant's sessions were shown under two "
+                             "calibrations of the display")
             continue
         what = (f"session {earlier} of {participant} was shown the images of "
                 f"{first.get('manifest')}; this run's manifest {inputs['manifest']} holds other "
                 f"images for those stimuli (re-rendered)")
-        if first.get("calibration_sha256") == inputs["calibration_sha256"]:
+        if same_file:
             raise PreflightError(
                 f"{what}, with the same calibration: a participant's sessions show one rendered "
                 f"set. Pass --stimuli {Path(str(first.get('manifest')))} (restore its images if "
                 "they were replaced)")
-        notes.append(f"{what} for the new calibration {inputs['calibration_id']!r} (session "
-                     f"{earlier} used {first.get('calibration_id')!r}): the participant's "
-                     "sessions show two renders of the set")
+        notes.append(f"{what} for the new calibration {inputs['calibration_id']!r} ({said}): "
+                     "the participant's sessions show two renders of the set")

@@ -27,6 +27,7 @@ import hashlib
 import json
 import os
 import platform
+import re
 import warnings
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -63,10 +64,10 @@ from experiment.datafile import (
     sliders_path,
     write_run_log,
 )
-from experiment.history import check_no_lost_trials, future_record_notes
+from experiment.history import check_no_lost_trials, frame_records, future_record_notes
 from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
-from experiment.provenance import check_earlier_sessions
+from experiment.provenance import calibration_words, check_earlier_sessions
 from experiment.signals import SessionSignal, ending_signals
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
@@ -179,7 +180,9 @@ def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
     -------
     dict
         ``calibration`` (absolute path), ``calibration_id``, ``calibration_sha256`` (of the
-        file), ``manifest`` (absolute path) and ``stimuli_sha256``: SHA-256 of this session's
+        file), ``calibration_fit`` (its :attr:`calibration.Calibration.display_model`: a later
+        session names what changed), ``manifest`` (absolute path) and ``stimuli_sha256``:
+        SHA-256 of this session's
         ``stimulus_id:png_sha256`` lines, sorted (so rows the manifest gains later for other
         stimuli do not count, but any change to one of this session's images does).
     """
@@ -187,7 +190,7 @@ def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
     cal_file = cal_file / "calibration.json" if cal_file.is_dir() else cal_file
     lines = sorted(f"{i}:{h}" for i, h in zip(stim.frame["stimulus_id"], stim.frame["png_sha256"]))
     return {"calibration": str(cal_file.resolve()), "calibration_id": cal.calibration_id,
-            "calibration_sha256": _sha256(cal_file),
+            "calibration_sha256": _sha256(cal_file), "calibration_fit": cal.display_model,
             "manifest": str(Path(stim.manifest_path).resolve()),
             "stimuli_sha256": hashlib.sha256("\n".join(lines).encode()).hexdigest()}
 
@@ -229,22 +232,31 @@ def _check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], pat
             "images if they were replaced)")
 
 
-def _run_logs(data_dir, stem: str, *, read: bool = True) -> list[tuple[int, dict]]:
+def _run_logs(data_dir, stem: str) -> list[tuple[int, dict]]:
     """The run logs ``logs/<stem>_run<k>.json`` of a session as ``(k, log)``, by ``k``; a log
-    that does not read as JSON is ``{}`` (and so is every log with ``read=False``)."""
+    that does not read as JSON is ``{}``."""
     found = []
     for path in (Path(data_dir) / "logs").glob(f"{stem}_run*.json"):
         number = path.stem[len(stem) + 4:]
         if not number.isdigit():
             continue
-        log = {}
-        if read:
-            try:
-                log = json.loads(path.read_text(encoding="utf-8"))
-            except (OSError, ValueError):
-                log = {}
+        try:
+            log = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            log = {}
         found.append((int(number), log if isinstance(log, dict) else {}))
     return sorted(found, key=lambda item: item[0])
+
+
+def _run_numbers_on_disk(logs: Path, stem: str) -> set[int]:
+    """The run numbers ``k`` of every file ``logs/<stem>_run<k>...`` (a log, a frames file or
+    plot, a torn tail moved aside): a run killed before its log leaves its frames file."""
+    found = set()
+    for path in logs.glob(f"{stem}_run*"):
+        match = re.match(rf"{re.escape(stem)}_run(\d+)(?!\d)", path.name)
+        if match:
+            found.add(int(match.group(1)))
+    return found
 
 
 def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
@@ -266,7 +278,7 @@ def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
 def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
                    records: dict) -> list[str]:
     """A session CSV holding fewer trials than the session's other records (slider histories
-    in ``records``, the run history, the run logs) is refused (:func:`check_no_lost_trials`);
+    in ``records``, the run history, the run logs, the runs' frame files) is refused (:func:`check_no_lost_trials`);
     returns warnings: participants differing only in case, times after this PC's clock."""
     path = session_path(req.data_dir, req.participant, session)
     events_path = runs_path(req.data_dir, req.participant, session)
@@ -275,7 +287,9 @@ def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
             [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
              {"run": k, "trials_this_run": log.get("trials_this_run")}]
             for k, log in _run_logs(req.data_dir, path.stem)}
-    check_no_lost_trials(len(done), path, {**records, events_path: events, **logs})
+    frames = frame_records(Path(req.data_dir) / "logs", path.stem)
+    check_no_lost_trials(len(done), path, {**records, events_path: events, **logs, **frames},
+                         runs=events_path, restore=tuple(records))
     twins = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: if "
              "they are one person, session 2 shows stimuli seen before; ask the study lead "
              "before going on" for other, where in case_twins(req.participant,
@@ -348,10 +362,16 @@ def prepare_session(req: SessionRequest) -> Prepared:
             run_logs=lambda k: [log for _, log in _run_logs(
                 req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
         other = [c for c in stim.calibration_ids if c != cal.calibration_id]
-        if other:
-            msg = (f"the stimuli were gamma-corrected for calibration {other}, but this session "
-                   f"uses calibration {cal.calibration_id!r}; re-render the stimuli with this "
-                   "calibration")
+        # The same id in a file of other content is another calibration too (recalibrated
+        # under its old id); a manifest from before calibration_sha256 records no file.
+        files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
+        if other or files:
+            what = (f"calibration {other}" if other else
+                    f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
+                    f"{' and '.join(files)} (recalibrated under the same id?)")
+            msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
+                   f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
+                   "re-render the stimuli with this calibration")
             if not req.accept_calibration_mismatch:
                 raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
                                      "in the session log)")
@@ -491,12 +511,13 @@ def _run_prepared(prep: Prepared, out) -> SessionOutcome:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
             events = runs_path(req.data_dir, req.participant, prep.session)
-            starts = sum(1 for e in read_run_events(events, repair=True)
-                         if e.get("event") == "start")
-            # The next free run number: a run log is never overwritten, even when the run
-            # history (``*_runs.jsonl``) was lost.
-            run = 1 + max([starts, *(k for k, _ in _run_logs(req.data_dir, data.stem,
-                                                              read=False))])
+            history = read_run_events(events, repair=True)
+            starts = [e for e in history if e.get("event") == "start"]
+            # The next free run number: no earlier run's log or frames file is ever written
+            # to, even when the run history (``*_runs.jsonl``) was lost.
+            run = 1 + max([len(starts), *(e["run"] for e in starts
+                                          if isinstance(e.get("run"), int)),
+                           *_run_numbers_on_disk(logs, data.stem)])
             read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
                                   repair=True)
             try:

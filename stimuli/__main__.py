@@ -41,11 +41,14 @@ SESSION_MAX_CALIBRATION_AGE_DAYS = 30.0
 
 
 def _load_calibration(design, path):
+    """The calibration and the SHA-256 of its file ("" for the default curve, no file)."""
     from calibration import default_calibration, load_calibration
+    from stimuli.manifest import sha256_file
 
     if not path:
-        return default_calibration(design)
+        return default_calibration(design), ""
     cal = load_calibration(path)
+    file = Path(path) / "calibration.json" if Path(path).is_dir() else Path(path)
     age = cal.age_days()
     if age > SESSION_MAX_CALIBRATION_AGE_DAYS:
         print(f"warning: calibration {cal.calibration_id} ({path}) is {age:.1f} days old, older "
@@ -53,7 +56,7 @@ def _load_calibration(design, path):
               "stimuli's gamma correction may no longer fit the CRT; recalibrate (`python -m "
               "calibration run`, or `calibration check` to test it) and render with the new "
               "calibration", file=sys.stderr)
-    return cal
+    return cal, sha256_file(file)
 
 
 def _load_gloss(path):
@@ -94,7 +97,7 @@ def _cmd_render(args) -> int:
     elif args.dry_run:
         raise ValueError("--dry-run prints a batch job script: add --cluster slurm|pbs|sge")
     gloss, gloss_name = _load_gloss(args.gloss_table)
-    cal = _load_calibration(design, args.calibration)
+    cal, cal_sha256 = _load_calibration(design, args.calibration)
     # fails here, with the fix, before any worker starts
     variant = setup_mitsuba(args.variant or design.render.variant)
     from stimuli.render import multijitter_spp
@@ -135,7 +138,8 @@ def _cmd_render(args) -> int:
           f"{cal.calibration_id} -> {args.out}", file=sys.stderr)
     run = {"table": table, "out_dir": args.out, "job": job, "gloss_table": gloss,
            "calibration": cal, "tonemap_spec": design.tonemap,
-           "progress": not args.no_progress, "gloss_table_name": gloss_name}
+           "progress": not args.no_progress, "gloss_table_name": gloss_name,
+           "calibration_sha256": cal_sha256}
     if not args.scheduler and spec is None and workers <= 0:
         summary = render_set(**run)
     else:
@@ -262,7 +266,7 @@ def _cmd_plan_spp(args) -> int:
     design = load_design(args.design)
     gloss, gloss_name = _load_gloss(args.gloss_table)
     variant = setup_mitsuba(args.variant or design.render.variant)
-    camera = camera_geometry(design, _load_calibration(design, args.calibration))
+    camera = camera_geometry(design, _load_calibration(design, args.calibration)[0])
     target = design.render.displayed_error_pct if args.target_pct is None else args.target_pct
     print(f"stimuli plan-spp: {variant}, {args.size} px, target {target:g} % of the display "
           f"range, pilot {args.pilot_spp} spp x {args.repeats} seeds, gloss table {gloss_name}",

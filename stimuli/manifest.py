@@ -10,7 +10,10 @@ height_px``, ``image_width_cm`` (show the image this wide on the CRT: physical s
 ``distance_cm`` (the viewing distance it was rendered for), the Mitsuba ``variant``, the probe
 (``envmap``, ``envmap_sha256``, ``rotation_deg``), ``tonemap_lmax`` (L_max of the condition's
 tone curve, render units), ``calibration_id`` (whose inverse gamma the PNG carries), the files
-and their SHA-256.
+and their SHA-256, and ``calibration_sha256``: the SHA-256 of that calibration's file, so that
+a recalibration that kept its id is told apart (empty for the built-in default curve, which has
+no file, and in manifests written before the column existed: they still load, and a resumed
+render appends to them in their own columns).
 """
 
 from __future__ import annotations
@@ -59,7 +62,11 @@ MANIFEST_COLUMNS = [
     "rotation_deg",
     "tonemap_lmax",
     "distance_cm",
+    "calibration_sha256",
 ]
+#: The columns of manifests written before ``calibration_sha256`` (issue 40): read, with that
+#: column empty, and appended to in their own layout.
+_LEGACY_COLUMNS = MANIFEST_COLUMNS[:-1]
 
 
 class ManifestError(ValueError):
@@ -84,7 +91,19 @@ def append_manifest_row(path: str | Path, row: dict) -> None:
     missing = [c for c in MANIFEST_COLUMNS if c not in row]
     if missing:
         raise ManifestError(f"manifest row lacks {missing}")
-    append_csv_record(path, MANIFEST_COLUMNS, [row[c] for c in MANIFEST_COLUMNS])
+    columns = _LEGACY_COLUMNS if _header(path) == _LEGACY_COLUMNS else MANIFEST_COLUMNS
+    append_csv_record(path, columns, [row[c] for c in columns])
+
+
+def _header(path) -> list[str] | None:
+    """The names in a manifest's first line (None for a missing or empty file)."""
+    try:
+        with open(path, "rb") as fh:
+            line = fh.readline()
+    except FileNotFoundError:
+        return None
+    text = line.decode("utf-8", "replace").lstrip("\ufeff").rstrip("\r\n")
+    return [name.strip('"') for name in text.split(",")] if text else None
 
 
 def load_manifest(path: str | Path) -> pd.DataFrame:
@@ -105,11 +124,15 @@ def load_manifest(path: str | Path) -> pd.DataFrame:
         )
     try:
         frame = read_csv_records(path, repair=False,
-                                 dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str})
+                                 dtype={"stimulus_id": str, "exr_sha256": str, "png_sha256": str,
+                                        "calibration_sha256": str})
     except LabFileError as exc:
         raise ManifestError(f"stimulus manifest {exc}") from None
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
         raise ManifestError(f"stimulus manifest {path} is not a readable CSV: {exc}") from exc
+    if "calibration_sha256" not in frame.columns:
+        frame["calibration_sha256"] = ""  # written before the column existed
+    frame["calibration_sha256"] = frame["calibration_sha256"].fillna("")
     missing = [c for c in MANIFEST_COLUMNS if c not in frame.columns]
     if missing:
         raise ManifestError(f"stimulus manifest {path} lacks columns {missing}; re-render with this version")

@@ -276,7 +276,7 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
 
 
 def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, tonemap_spec,
-                  progress: bool) -> tuple[int, int, Path]:
+                  progress: bool, calibration_sha256: str) -> tuple[int, int, Path]:
     """Pass 2: tone map each light field's EXRs with one curve (its largest luminance), write
     the PNGs and append their manifest rows. Returns (PNGs written, skipped, manifest path).
 
@@ -337,6 +337,7 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
                     "png_sha256": sha256_file(png), "envmap_sha256": rec["envmap_sha256"],
                     "rotation_deg": row.rotation_deg, "tonemap_lmax": lmax,
                     "distance_cm": job.camera.distance_cm,
+                    "calibration_sha256": calibration_sha256,
                 })
                 n_png += 1
                 bar.update(1)
@@ -345,18 +346,33 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
     return n_png, n_png_skipped, manifest_path
 
 
-def _check_one_calibration(manifest_path: Path, calibration) -> None:
+def _check_one_calibration(manifest_path: Path, calibration, calibration_sha256: str) -> None:
     """One manifest, one gamma correction: a resume into a folder whose PNGs were corrected
-    for another calibration is refused before anything is rendered."""
+    for another calibration is refused before anything is rendered. Another calibration is
+    another id, or the same id in a file of other content (a recalibration that kept its id:
+    the SHA-256 the manifest records differs from ``calibration_sha256``)."""
     if not manifest_path.exists():
         return
-    ids = sorted(set(load_manifest(manifest_path)["calibration_id"].astype(str)))
+    manifest = load_manifest(manifest_path)
+    ids = sorted(set(manifest["calibration_id"].astype(str)))
     if ids and ids != [calibration.calibration_id]:
         raise StimuliError(
             f"{manifest_path} lists PNGs gamma-corrected for calibration {ids}; this run uses "
             f"{calibration.calibration_id!r}, and one manifest holds one calibration's images: "
             f"render into a new --out folder, or pass the calibration of {ids[0]!r} with "
             "--calibration to finish this set")
+    shas = sorted(set(manifest["calibration_sha256"].astype(str)) - {""})
+    if calibration_sha256 and shas and shas != [calibration_sha256]:
+        from calibration import display_model_words
+
+        raise StimuliError(
+            f"{manifest_path} lists PNGs gamma-corrected for calibration {ids[0]!r} as in the "
+            f"file of SHA-256 {' and '.join(shas)}; this run's calibration {ids[0]!r} is "
+            f"another file (SHA-256 {calibration_sha256}: "
+            f"{display_model_words(calibration.display_model)}): the display was recalibrated "
+            "under the same id, and one manifest holds one calibration's images: render into a "
+            "new --out folder, or pass the calibration file the folder was rendered with "
+            "(`sha256sum` shows which) with --calibration to finish this set")
 
 
 def render_set(
@@ -371,6 +387,7 @@ def render_set(
     progress: bool = True,
     gloss_table_name: str = "",
     workers: dict | None = None,
+    calibration_sha256: str = "",
 ) -> dict:
     """Render ``table`` (rows of a stimulus set) into ``out_dir`` (see the module docstring).
 
@@ -386,6 +403,9 @@ def render_set(
         Validated gloss table (gloss % -> Ward parameters).
     calibration : calibration.Calibration
         Inverse gamma for the PNGs; its id goes into the manifest.
+    calibration_sha256 : str
+        SHA-256 of the calibration's file, recorded in the manifest (the command line passes
+        it; empty for the built-in default curve, and then not checked).
     tonemap_spec : studydesign.ToneMapSpec
         The design's tone-map numbers.
     client : dask.distributed.Client, optional
@@ -405,7 +425,7 @@ def render_set(
         Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
     """
     out = Path(out_dir)
-    _check_one_calibration(out / "manifest.csv", calibration)
+    _check_one_calibration(out / "manifest.csv", calibration, calibration_sha256)
     for sub in ("exr", "png"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     stale = _remove_stale_temporaries(out)
@@ -417,7 +437,8 @@ def render_set(
     n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {})
     t_render = time.perf_counter() - t0
     n_png, n_png_skipped, manifest_path = _tonemap_pass(out, plan, job, calibration,
-                                                       tonemap_spec, progress)
+                                                       tonemap_spec, progress,
+                                                       calibration_sha256)
     wall = time.perf_counter() - t0
     return {
         "n_stimuli": len(plan), "rendered": n_rendered, "render_skipped": n_done,

@@ -20,16 +20,25 @@ WIDTH_CM = 8.0
 GREEN = (40, 200, 60)
 
 
-def make_calibration(folder: Path, design, *, calibration_id="test", age_days=1.0) -> Path:
-    """A calibration (the default CRT curve) dated ``age_days`` ago, saved as JSON."""
+def make_calibration(folder: Path, design, *, calibration_id="test", age_days=1.0,
+                     white_cd_m2: float | None = None, gamma: float | None = None) -> Path:
+    """A calibration (the default CRT curve, or one of another white and gamma: a display that
+    drifted) dated ``age_days`` ago, saved as JSON."""
     created = (datetime.now(UTC) - timedelta(days=age_days)).strftime("%Y-%m-%dT%H:%M:%SZ")
     cal = dataclasses.replace(default_calibration(design), calibration_id=calibration_id,
                               created_utc=created, monitor_name="glossdepth-test")
+    if white_cd_m2 is not None or gamma is not None:
+        white = white_cd_m2 if white_cd_m2 is not None else cal.max_luminance_cd_m2
+        g = gamma if gamma is not None else cal.gamma_params["gamma"]
+        black = cal.gamma_params["a"]
+        cal = dataclasses.replace(cal, max_luminance_cd_m2=white, gamma_params={
+            "a": black, "b": 0.0, "k": (white - black) ** (1 / g), "gamma": g})
     return save_calibration(cal, Path(folder) / "calibration.json")
 
 
 def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=None,
-                  size_px: int = SIZE_PX, width_cm: float = WIDTH_CM) -> Path:
+                  size_px: int = SIZE_PX, width_cm: float = WIDTH_CM,
+                  calibration_sha256: str = "") -> Path:
     """Write one real PNG per stimulus and a manifest listing them; returns the manifest path.
 
     Each PNG is a green square with a darker border and a stripe pattern unique to its stimulus.
@@ -56,7 +65,7 @@ def make_manifest(folder: Path, design, *, calibration_id="test", stimulus_ids=N
             alpha=0.1, spp=1, width_px=size_px, height_px=size_px, image_width_cm=width_cm,
             variant="test", envmap="none", calibration_id=calibration_id,
             exr_path="", exr_sha256="", png_path=f"png/{row.stimulus_id}.png",
-            png_sha256=sha256_file(png),
+            png_sha256=sha256_file(png), calibration_sha256=calibration_sha256,
         )
         append_manifest_row(manifest, values)
     return manifest

@@ -321,6 +321,44 @@ def test_simulate_refuses_a_bad_observer_file(tmp_path, capsys):
     assert not (tmp_path / "sim").exists()
 
 
+@pytest.mark.parametrize("line, said", [
+    ("gloss_noise_pct = { mean = nan, sd = 1.0 }", "humanlike.gloss_noise_pct.mean = nan"),
+    ("gloss_noise_pct = inf", "humanlike.gloss_noise_pct = inf"),
+    ("gloss_noise_pct = { mean = 10.0, sd = -inf }", "humanlike.gloss_noise_pct.sd = -inf"),
+])
+def test_non_finite_observer_parameters_are_refused_before_anything_is_written(
+        tmp_path, capsys, line, said):
+    """Issue 40, item 7: ``nan`` in observers.toml made ``simulate`` write every gloss match as
+    nan (exit 0), ``gap diagnose`` die in scipy and ``run`` open the window and die at trial 1.
+    Each reader of the file now refuses it, naming the key, before any file or window."""
+    from analysis.gap.__main__ import main as gap_main
+    from experiment.observers import default_observers_path
+
+    shipped = default_observers_path().read_text(encoding="utf-8")
+    assert shipped.count("gloss_noise_pct = 10.0") == 1
+    bad = tmp_path / "observers.toml"
+    bad.write_text(shipped.replace("gloss_noise_pct = 10.0", line), encoding="utf-8")
+    fix = "write a number there (see experiment/observers.toml)"
+    assert main(["simulate", "--observer", "humanlike", "--participants", "S01", "--data",
+                 str(tmp_path / "sim"), "--observer-params", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert f"{bad}: {said} is not a finite number" in err and fix in err
+    assert not (tmp_path / "sim").exists()
+    code = main(["run", "--participant", "P01", "--session", "1", "--stimuli",
+                 str(tmp_path / "manifest.csv"), "--calibration", str(tmp_path / "cal.json"),
+                 "--data", str(tmp_path / "data"), "--simulate", "humanlike", "--fast",
+                 "--observer-params", str(bad)])
+    assert code == 2 and said in capsys.readouterr().err
+    assert not (tmp_path / "data").exists()
+    assert main(["simulate", "--observer", "humanlike", "--participants", "S01", "--data",
+                 str(tmp_path / "real")]) == 0
+    capsys.readouterr()
+    assert gap_main(["diagnose", "--layer", "observer", "--real", str(tmp_path / "real"),
+                     "--sim", str(bad), "--out", str(tmp_path / "rep")]) == 2
+    assert said in capsys.readouterr().err
+    assert not any((tmp_path / "rep").glob("*"))  # gap makes --out first, writes nothing
+
+
 @pytest.mark.xvfb
 @pytest.mark.slow
 def test_run_simulate_uses_a_fitted_observer_file(tmp_path, session_files, design):

@@ -115,6 +115,51 @@ def test_session_2_on_a_re_rendered_set_is_refused(stopped, small_design, small_
 
 
 @pytest.mark.xvfb
+def test_session_2_under_a_recalibration_of_the_same_id_is_said_or_refused(
+        stopped, small_design, small_design_path, tmp_path, capsys):
+    """Issue 40, item 1: the display recalibrated (white 100 -> 80 cd/m^2, gamma 2.2 -> 2.0)
+    and saved under the id of session 1's calibration. Session 2 ran with no word. Now, on
+    images rendered for session 1's calibration file (the manifest records its SHA-256) it is
+    refused as another id is; on a manifest that records no file, it runs and says at its
+    start and in its run log what changed."""
+    from experiment.session import SessionRequest, prepare_session
+    from stimuli import sha256_file
+
+    files = dict(stopped[0], data=tmp_path / "data")
+    shutil.copytree(stopped[0]["data"], files["data"])
+    old = files["calibration"]
+    files["calibration"] = make_calibration(tmp_path / "recal", small_design, white_cd_m2=80.0,
+                                            gamma=2.0)
+    said = (f"session 1 of P01 used calibration 'test' ({old.resolve()}, SHA-256 "
+            f"{sha256_file(old)[:12]}...; black 0.50, white 100.0 cd/m^2, offset_power gamma "
+            f"2.20), this run 'test' ({files['calibration'].resolve()}, SHA-256 "
+            f"{sha256_file(files['calibration'])[:12]}...; black 0.50, white 80.0 cd/m^2, "
+            "offset_power gamma 2.00): another file under the same id (the display was "
+            "recalibrated)")
+    rendered = make_manifest(tmp_path / "rendered", small_design,
+                             calibration_sha256=sha256_file(old))
+    assert main(_args(small_design_path, files, "P01", 2, manifest=rendered)) == 2
+    err = capsys.readouterr().err
+    assert (f"gamma-corrected for calibration 'test' as in the file of SHA-256 "
+            f"{sha256_file(old)} (recalibrated under the same id?), but this session uses "
+            "calibration 'test'") in err and "--accept-calibration-mismatch" in err
+    prep = prepare_session(SessionRequest(
+        design=small_design, participant="P01", session=2, manifest=str(rendered),
+        calibration=str(files["calibration"]), data_dir=str(files["data"]),
+        accept_calibration_mismatch=True))
+    assert any(said in w for w in prep.warnings), prep.warnings
+    # The manifest of session 1 records no calibration file: the session runs, and says it.
+    res = subprocess.run([sys.executable, "-m", "experiment",
+                          *_args(small_design_path, files, "P01", 2)], cwd=REPO, env=app_env(),
+                         capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr
+    assert f"warning: {said}" in res.stdout
+    log = json.loads((files["data"] / "logs" / "P01_s2_run1.json").read_text())
+    assert any(said in w for w in log["warnings"])
+    assert log["inputs"]["calibration_fit"]["max_luminance_cd_m2"] == 80.0
+
+
+@pytest.mark.xvfb
 def test_a_resume_without_its_start_record_is_refused(stopped, small_design, small_design_path,
                                                       tmp_path, capsys):
     """runs.jsonl and the run log lost: the resume used to warn and show other images."""

@@ -215,3 +215,60 @@ def test_full_disk_mid_session_is_named_and_the_resume_completes(
         hist = pd.read_json(files["data"] / "sliders" / "D1_s1.jsonl", lines=True)
         assert hist.drop_duplicates("trial", keep="last")["trial"].tolist() == \
             list(range(1, n + 1))
+
+
+def test_a_killed_run_is_never_started_over_nor_its_files_written_again(
+        small_design, small_design_path, session_files, tmp_path, capsys):
+    """Issue 40, items 2 and 3. A run killed with kill -9 leaves its rows, its slider histories,
+    a start event with no end in the run history and its frames file. (2) With the CSV and the
+    slider file moved aside, the session started over at trial 1: refused now, naming the run
+    history and the frames file. (3) With the run history deleted and
+    --accept-unverified-resume, the next run was numbered 1 again and appended its frames to
+    the killed run's file: it is run 2 now, in files of its own."""
+    import shutil
+
+    f = session_files
+    n = small_design.sessions.trials_per_session
+    cmd = _cmd(small_design_path, f, "X1", 1)
+    path = f["data"] / "sessions" / "X1_s1.csv"
+    logs = f["data"] / "logs"
+    killed_with = _kill_after(cmd, path, 2)
+    frames1 = logs / "X1_s1_run1_frames.csv"
+    shown = int(pd.read_csv(frames1)["trial"].max())  # trials whose frames were appended
+    assert 1 <= shown <= killed_with < n
+    assert [e["event"] for e in read_run_events(logs / "X1_s1_runs.jsonl")] == ["start"]
+    assert not (logs / "X1_s1_run1.json").exists()
+
+    # (2) The session CSV and its slider histories moved aside.
+    sliders = f["data"] / "sliders" / "X1_s1.jsonl"
+    shutil.move(path, tmp_path / "aside.csv")
+    shutil.move(sliders, tmp_path / "aside.jsonl")
+    res = _run(cmd)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert f"{path} holds 0 answered trial(s), but {frames1} records {shown} (the run history " \
+           f"{logs / 'X1_s1_runs.jsonl'}: run 1 started at trial 1 and never ended" in res.stderr
+    assert f"Put the original X1_s1.csv back in {path.parent} and X1_s1.jsonl in " \
+           f"{sliders.parent}" in res.stderr
+    assert not path.exists() and not sliders.exists()  # nothing started over
+    from experiment.__main__ import main
+
+    assert main(["--design", str(small_design_path), "status", "--participant", "X1",
+                 "--data", str(f["data"])]) == 1
+    out = capsys.readouterr().out
+    assert "DAMAGED" in out and "run 1 started at trial 1 and never ended" in out
+
+    # (3) Both put back, the run history deleted: the resume needs the operator's word, then
+    # takes the next free run number.
+    shutil.move(tmp_path / "aside.csv", path)
+    shutil.move(tmp_path / "aside.jsonl", sliders)
+    (logs / "X1_s1_runs.jsonl").unlink()
+    before = frames1.read_bytes()
+    res = _run([*cmd, "--accept-unverified-resume"])
+    assert res.returncode == 0, res.stderr
+    assert f"X1 session 1 run 2: trials {killed_with + 1}-{n}" in res.stdout
+    assert frames1.read_bytes() == before
+    frames2 = pd.read_csv(logs / "X1_s1_run2_frames.csv")
+    assert frames2["trial"].min() == killed_with + 1 and frames2["trial"].max() == n
+    assert json.loads((logs / "X1_s1_run2.json").read_text())["run"] == 2
+    assert not (logs / "X1_s1_run1.json").exists()
+    assert read_session(path)["trial"].tolist() == list(range(1, n + 1))

@@ -57,3 +57,26 @@ def test_torn_manifest_row_is_read_around_then_kept_aside_by_the_next_append(tmp
     assert list(load_manifest(tmp_path)["stimulus_id"]) == ["indoor_g02_d02", "indoor_g02_d03"]
     side = list(tmp_path.glob("manifest.csv.torn-*"))
     assert len(side) == 1 and side[0].read_bytes() == b"indoor_g02_d03,0,0,"
+
+
+def test_a_manifest_from_before_calibration_checksums_loads_and_grows_in_its_own_columns(
+        tmp_path):
+    """Manifests written before ``calibration_sha256`` (issue 40) are a lab's rendered sets:
+    they load with the column empty, and a resumed render appends rows in their header's
+    columns (a row of another width would be refused as torn)."""
+    from labfiles import append_csv_record
+
+    path = tmp_path / "manifest.csv"
+    legacy = [c for c in MANIFEST_COLUMNS if c != "calibration_sha256"]
+    row = _row(tmp_path, "indoor_g02_d02")
+    append_csv_record(path, legacy, [row[c] for c in legacy])
+    header = path.read_bytes().splitlines()[0]
+    append_manifest_row(path, _row(tmp_path, "indoor_g02_d03") | {"calibration_sha256": "ab"})
+    assert path.read_bytes().splitlines()[0] == header
+    frame = load_manifest(path)
+    assert list(frame["stimulus_id"]) == ["indoor_g02_d02", "indoor_g02_d03"]
+    assert list(frame["calibration_sha256"]) == ["", ""]
+    new = tmp_path / "new" / "manifest.csv"
+    new.parent.mkdir()
+    append_manifest_row(new, _row(tmp_path, "indoor_g02_d02") | {"calibration_sha256": "ab"})
+    assert list(load_manifest(new)["calibration_sha256"]) == ["ab"]

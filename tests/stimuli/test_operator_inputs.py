@@ -68,3 +68,56 @@ def test_export_print_spacing_too_fine_to_mesh_is_refused(tmp_path, capsys):
                str(tmp_path / "a.stl")])
     err = capsys.readouterr().err
     assert rc == 1 and "too large to mesh; use 0.00" in err and "Traceback" not in err
+
+
+def _recalibrated(folder, design, *, white_cd_m2, gamma):
+    """A calibration 'demo' of the default CRT curve with another white and gamma (a display
+    that drifted, recalibrated under the id of its first calibration)."""
+    import dataclasses
+    from datetime import UTC, datetime, timedelta
+
+    from calibration import default_calibration, save_calibration
+
+    black = 0.5
+    cal = dataclasses.replace(
+        default_calibration(design), calibration_id="demo", max_luminance_cd_m2=white_cd_m2,
+        created_utc=(datetime.now(UTC) - timedelta(days=1)).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        gamma_params={"a": black, "b": 0.0, "k": (white_cd_m2 - black) ** (1 / gamma),
+                      "gamma": gamma})
+    return save_calibration(cal, folder / "calibration.json")
+
+
+def test_render_resumed_with_a_recalibration_of_the_same_id_is_refused(tmp_path, design,
+                                                                       capsys):
+    """Issue 40, item 1: a folder rendered (--limit 2) under calibration 'demo' took two more
+    stimuli (of the other light field, so that no tone curve changes) corrected for a
+    recalibration saved under the same id (white 95 -> 80 cd/m^2, gamma 2.4 -> 2.0): one
+    manifest, images corrected for two displays, no word. The manifest records each
+    calibration file's SHA-256, and the resume is refused naming both."""
+    from stimuli import sha256_file
+
+    old = _recalibrated(tmp_path / "old", design, white_cd_m2=95.0, gamma=2.4)
+    new = _recalibrated(tmp_path / "new", design, white_cd_m2=80.0, gamma=2.0)
+    out = tmp_path / "R"
+    tiny = ["--workers", "0", "--size", "16", "--spp", "1", "--no-progress"]
+    assert main(["render", "--set", "experiment", "--limit", "2", "--out", str(out),
+                 "--calibration", str(old), *tiny]) == 0
+    capsys.readouterr()
+    before = (out / "manifest.csv").read_bytes()
+    more = ["--filter", "illumination=outdoor", "--limit", "2"]
+    rc = main(["render", "--set", "experiment", *more, "--out", str(out),
+               "--calibration", str(new), *tiny])
+    err = capsys.readouterr().err
+    assert rc == 1, err
+    assert (f"gamma-corrected for calibration 'demo' as in the file of SHA-256 "
+            f"{sha256_file(old)}; this run's calibration 'demo' is another file (SHA-256 "
+            f"{sha256_file(new)}: black 0.50, white 80.0 cd/m^2, offset_power gamma 2.00): the "
+            "display was recalibrated under the same id") in err
+    assert "render into a new --out folder" in err
+    assert (out / "manifest.csv").read_bytes() == before
+    assert len(list((out / "png").rglob("*.png"))) == 2
+    # The calibration the folder was rendered with finishes it.
+    assert main(["render", "--set", "experiment", *more, "--out", str(out),
+                 "--calibration", str(old), *tiny]) == 0
+    assert set(pd.read_csv(out / "manifest.csv")["calibration_sha256"]) == {sha256_file(old)}
+    assert len(pd.read_csv(out / "manifest.csv")) == 4
