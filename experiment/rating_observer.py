@@ -31,6 +31,7 @@ import pandas as pd
 from scipy import optimize
 from scipy.special import expit, logit, ndtr
 
+from experiment.observers import _refuse_non_finite
 from labfiles import LabFileError, read_toml
 
 __all__ = ["RATING_PARAMS", "fit_rating_observers", "load_rating_observers",
@@ -249,4 +250,7 @@ def load_rating_observers(path) -> dict:
                          f"{missing or ['rating.' + k for k in lacking]}); write one with "
                          "python -m experiment fit-observer PILOT_DIR --study "
                          "PILOT_DIR/study.toml --out observers.toml")
+    # nan/inf pass every check written as x < 0 and make every simulated rating nan: refused
+    # here, as the study's own observers file is (experiment.observers), [fit] left alone.
+    _refuse_non_finite(raw["rating"], path, "rating")
     return raw

@@ -104,16 +104,26 @@ def main(argv=None) -> int:
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")
     args = ap.parse_args(argv)
     design = load_design()
+    out = Path(args.out)
+    created = not out.exists()
     try:
-        if not (Path(args.out) / "index.html").exists():  # an existing report: refused later
+        if not (out / "index.html").exists():  # an existing report: refused later
             prepare_out_dir(args.out)
         return _diagnose(args, design)
     except (GapError, OutDirError) as exc:
         print(f"error: {exc}", file=sys.stderr)
+        _remove_if_made_empty(out, created)
         return 2
     except OSError as exc:  # a write that failed after the check (a full disk)
         print(f"error: {write_error_line(exc)}", file=sys.stderr)
         return 1
+
+
+def _remove_if_made_empty(out: Path, created: bool) -> None:
+    """A refused diagnosis leaves no trace: the ``--out`` folder this run created is removed
+    again while it is still empty (an empty REPORT read as a report that failed half-way)."""
+    if created and out.is_dir() and not any(out.iterdir()):
+        out.rmdir()
 
 
 if __name__ == "__main__":

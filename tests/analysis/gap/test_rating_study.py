@@ -136,3 +136,30 @@ def test_storrs_ratings_a_gap_stimulus_to_stimulus_outside_the_catalogue(tmp_pat
     assert "from stimulus to stimulus, consistently across participants" in rem["where"]
     r = float(rem["where"].split("split-half r ")[1].split()[0])
     assert r > 0.7
+
+
+def test_nan_in_a_rating_observers_file_is_refused_and_leaves_no_report_folder(tmp_path):
+    """TOML reads ``nan`` as a number; a rating observers file holding one is refused where it
+    is read, naming the key (as the study's own observers.toml is), and the refused diagnosis
+    removes the empty --out folder it made."""
+    import re
+    import subprocess
+    import sys
+
+    st = write_study(tmp_path / "s", np.random.default_rng(3), n_participants=6)
+    study = load_study(st)
+    pilot, _ = read_study_trials(study, ["01", "02", "03"])
+    good = write_rating_observers(tmp_path / "obs.toml", fit_rating_observers(pilot, study))
+    text = good.read_text()
+    bad, n = re.subn(r"(?m)^(noise\s*=\s*)\S+", r"\1nan", text, count=1)  # [rating] first
+    assert n == 1
+    (tmp_path / "nan.toml").write_text(bad)
+    out = tmp_path / "REPORT"
+    run = subprocess.run([sys.executable, "-m", "analysis", "gap", "diagnose", "--layer",
+                          "observer", "--real", str(st.parent), "--study", str(st), "--sim",
+                          str(tmp_path / "nan.toml"), "--participants", "04", "05", "06",
+                          "--out", str(out)], check=False, capture_output=True, text=True,
+                         cwd=REPO)
+    assert run.returncode == 2, run.stderr
+    assert "rating.noise = nan is not a finite number" in run.stderr
+    assert not out.exists()
