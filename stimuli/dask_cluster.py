@@ -38,6 +38,7 @@ __all__ = [
     "JobSpec",
     "add_cluster_arguments",
     "finished",
+    "job_memory",
     "job_script",
     "job_spec_from",
     "open_client",
@@ -53,6 +54,10 @@ NO_WORKER_S = 120.0
 #: How often a task may be lost with its worker after Dask's own retries (3 workers) before the
 #: run stops: a task that kills every worker it lands on is a bug, not a pre-emption.
 MAX_RESUBMITS = 3
+#: The least memory a worker job may ask for, bytes: a render worker (Python, Dask, Mitsuba) holds
+#: about 0.43 GiB by itself (measured: peak RSS of a 32 px render), and Dask pauses a worker at
+#: 80 % of its limit.
+MIN_JOB_MEMORY_BYTES = 10**9
 _REPO = Path(__file__).resolve().parents[1]
 
 
@@ -130,7 +135,9 @@ def job_spec_from(args, design) -> JobSpec:
         value = getattr(args, name, None)
         return getattr(c, name) if value is None else value
 
-    spec = JobSpec(system=args.cluster, cores=int(pick("cores")), memory=str(pick("memory")),
+    memory = job_memory(str(pick("memory")), "--memory" if getattr(args, "memory", None)
+                        is not None else f"cluster.memory of {design.source}")
+    spec = JobSpec(system=args.cluster, cores=int(pick("cores")), memory=memory,
                    walltime=str(pick("walltime")), queue=str(pick("queue")),
                    jobs=int(pick("jobs")), account=str(pick("account")),
                    extra=tuple(getattr(args, "job_extra", None) or ()))
@@ -140,6 +147,39 @@ def job_spec_from(args, design) -> JobSpec:
         raise ClusterError(f"--walltime {spec.walltime!r} is not HH:MM:SS (e.g. --walltime "
                            "04:00:00)")
     return spec
+
+
+def job_memory(text: str, source: str = "--memory") -> str:
+    """``text`` if it is an amount of memory a batch job can ask for (a number and a unit,
+    ``"16GB"``, ``"8GiB"``, ``"500 MB"``), at least :data:`MIN_JOB_MEMORY_BYTES`.
+
+    Raises
+    ------
+    ClusterError
+        Naming ``source`` (``--memory`` or the design's ``cluster.memory``), the value and the fix:
+        a bare number (dask-jobqueue would read ``16`` as 16 bytes and fail formatting it), an
+        unknown unit, or too little for a worker.
+    """
+    from dask.utils import parse_bytes
+
+    value = text.strip()
+    match = re.fullmatch(r"(\d+(?:\.\d*)?|\.\d+)\s*([A-Za-z]*)", value)
+    if match is None:
+        raise ClusterError(f"{source} {text!r} is not an amount of memory: give a number and a "
+                           "unit, e.g. 16GB or 8GiB")
+    if not match.group(2):
+        raise ClusterError(f"{source} {text}: give a unit, e.g. {match.group(1)}GB (a bare "
+                           "number would be read as bytes)")
+    try:
+        n_bytes = parse_bytes(value)
+    except ValueError:
+        raise ClusterError(f"{source} {text!r}: unknown unit {match.group(2)!r}; use kB, MB, "
+                           "GB, TB or KiB, MiB, GiB, TiB, e.g. 16GB") from None
+    if n_bytes < MIN_JOB_MEMORY_BYTES:
+        raise ClusterError(f"{source} {text}: a worker job needs at least 1GB (a render worker "
+                           "holds about 0.45 GiB by itself, and Dask pauses it at 80 % of its "
+                           "memory); give e.g. 8GiB")
+    return value
 
 
 def _seconds(walltime: str) -> int:

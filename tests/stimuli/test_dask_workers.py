@@ -134,6 +134,41 @@ def test_cluster_job_size_comes_from_the_design(tmp_path, capsys):
     assert rc == 1 and "--walltime '4h' is not HH:MM:SS" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("memory, says", [
+    ("16", "--memory 16: give a unit, e.g. 16GB"),
+    ("0GiB", "--memory 0GiB: a worker job needs at least 1GB"),
+    ("16k", "--memory 16k: a worker job needs at least 1GB"),
+    ("16XB", "--memory '16XB': unknown unit 'XB'"),
+    ("=-1GB", "--memory '-1GB' is not an amount of memory"),
+])
+def test_job_memory_without_a_unit_or_too_small_is_refused(tmp_path, capsys, memory, says):
+    """`--memory 16` was a TypeError inside dask-jobqueue ("not all arguments converted during
+    string formatting"); `0GiB` the same."""
+    option = f"--memory{memory}" if memory.startswith("=") else ["--memory", memory]
+    rc = main(["render", "--set", "preview", "--out", str(tmp_path / "r"), "--cluster", "slurm",
+               "--dry-run", *([option] if isinstance(option, str) else option)])
+    err = capsys.readouterr().err
+    assert rc == 1 and says in err, err
+    assert "Traceback" not in err and not (tmp_path / "r").exists()
+
+
+def test_job_memory_of_the_design_without_a_unit_is_refused_naming_the_design(tmp_path, capsys):
+    from analysis.imagestats.__main__ import main as imagestats_main
+    from studydesign import default_design_path
+
+    design = tmp_path / "design.toml"
+    design.write_text(default_design_path().read_text().replace('memory = "8GiB"',
+                                                                'memory = "16"'))
+    rc = main(["--design", str(design), "render", "--set", "preview", "--out",
+               str(tmp_path / "r"), "--cluster", "slurm", "--dry-run"])
+    err = capsys.readouterr().err
+    assert rc == 1 and f"cluster.memory of {design} 16: give a unit, e.g. 16GB" in err, err
+    rc = imagestats_main([str(tmp_path), "--out", str(tmp_path / "s.parquet"), "--cluster",
+                          "slurm", "--memory", "0GiB", "--dry-run"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "--memory 0GiB: a worker job needs at least 1GB" in err, err
+
+
 def _dies_first(marker: str, times: int) -> int:
     """Kill the worker process running it, the first ``times`` calls (counted in a file)."""
     from pathlib import Path
