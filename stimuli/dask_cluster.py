@@ -36,6 +36,7 @@ __all__ = [
     "BATCH_SYSTEMS",
     "ClusterError",
     "JobSpec",
+    "SchedulerLost",
     "add_cluster_arguments",
     "finished",
     "job_memory",
@@ -253,7 +254,7 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
         advice = (f"start one on any machine that sees the output folder at the same path: "
                   f"`{worker_command(scheduler)}` (or `dask worker {scheduler}` in this "
                   "project's virtual environment)")
-        with client:
+        with _quiet_client(), client:
             yield client, advice
         return
     if spec is not None:
@@ -265,11 +266,11 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
                   f"runs yet: check the queue (`{queue}`); a job that cannot start (wrong "
                   "--queue, too much --memory) never will: stop with Ctrl-C (finished work is "
                   f"kept) and fix its options; `--dry-run` shows the job script")
-        with cluster, Client(cluster) as client:
+        with _quiet_client(), cluster, Client(cluster) as client:
             yield client, advice
         return
     cluster = local()
-    with cluster, Client(cluster) as client:
+    with _quiet_client(), cluster, Client(cluster) as client:
         yield client, "the local cluster lost its workers: stop with Ctrl-C and run again"
 
 
@@ -287,7 +288,7 @@ class _Watch:
         try:
             return self.client.nthreads()
         except (OSError, TimeoutError) as exc:
-            raise ClusterError(_gone(self.client, exc)) from None
+            raise _gone(self.client, exc) from None
 
     def check(self, n_waiting: int) -> None:
         self.nthreads = self._workers()
@@ -313,10 +314,30 @@ class _Watch:
             self.last_said = now
 
 
-def _gone(client, exc) -> str:
-    return (f"lost the Dask scheduler at {client.scheduler.address} ({type(exc).__name__}); "
-            "start it again (`dask scheduler`, and workers) and run the same command: finished "
-            "work is kept")
+class SchedulerLost(ClusterError):
+    """The Dask scheduler went away mid-run (killed, its machine rebooted): the run cannot go
+    on, and re-running the same command resumes it."""
+
+
+@contextlib.contextmanager
+def _quiet_client():
+    """Dask's client logs "Couldn't gather keys" and, when the scheduler is lost, a chained
+    traceback per reconnection attempt ("Failed to reconnect to scheduler"), also while the
+    client closes: this module says these in words instead (:func:`_gone`)."""
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def _gone(client, exc) -> SchedulerLost:
+    return SchedulerLost(
+        f"lost the Dask scheduler at {client.scheduler.address} ({type(exc).__name__}: it was "
+        "stopped, killed or became unreachable); start it again (`dask scheduler`, and workers) "
+        "and re-run the same command: it resumes, finished work is kept")
 
 
 def per_thread(nthreads: dict) -> int:
@@ -369,16 +390,18 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
             item = waiting.popleft()
             pending[submit(item)] = (item, 0)
 
-    top_up()
-    quiet = logging.getLogger("distributed.client")  # "Couldn't gather keys": said above
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)
-    try:
+    with _quiet_client():
+        try:
+            top_up()
+        except (CancelledError, OSError) as exc:
+            raise _gone(client, exc) from None
         while pending:
             try:
                 done = wait(list(pending), timeout=poll_s, return_when="FIRST_COMPLETED").done
             except TimeoutError:
                 done = set()
+            except (CancelledError, OSError) as exc:  # the scheduler went away mid-wait
+                raise _gone(client, exc) from None
             for future in done:
                 item, lost = pending.pop(future)
                 try:
@@ -398,10 +421,11 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
                     pending[submit(item)] = (item, lost + 1)
                     continue
                 except CancelledError as exc:
-                    raise ClusterError(_gone(client, exc)) from None
+                    raise _gone(client, exc) from None
                 future.release()
                 yield result
             watch.check(len(pending) + len(waiting))
-            top_up()
-    finally:
-        quiet.setLevel(level)
+            try:
+                top_up()
+            except (CancelledError, OSError) as exc:
+                raise _gone(client, exc) from None
