@@ -259,7 +259,7 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
         return
     if spec is not None:
         cluster = _jobqueue_cluster(spec)
-        cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
+        adaptive = cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
         queue = {"slurm": "squeue -u $USER", "pbs": "qstat -u $USER",
                  "sge": "qstat -u $USER"}[spec.system]
         advice = (f"{spec.jobs} worker job(s) were submitted to {spec.system.upper()} and none "
@@ -267,11 +267,52 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
                   "--queue, too much --memory) never will: stop with Ctrl-C (finished work is "
                   f"kept) and fix its options; `--dry-run` shows the job script")
         with _quiet_client(), cluster, Client(cluster) as client:
-            yield client, advice
+            try:
+                yield client, advice
+            finally:
+                _end_jobs(cluster, client, adaptive, spec.system)
         return
     cluster = local()
     with _quiet_client(), cluster, Client(cluster) as client:
         yield client, "the local cluster lost its workers: stop with Ctrl-C and run again"
+
+
+def _end_jobs(cluster, client, adaptive, system: str, wait_s: float = 15.0) -> None:
+    """Let SLURM worker jobs end by themselves, so that they end COMPLETED (exit 0) in its
+    records rather than CANCELLED: no job is replaced any more, each worker is retired and its
+    process exits, and the run waits (up to ``wait_s``) until those jobs have left the queue;
+    any still there then is cancelled (``scancel``), as closing the cluster cancels the jobs that
+    never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
+    commands are untested here)."""
+    adaptive.stop()
+    if system != "slurm":
+        return
+    try:
+        retired = client.retire_workers(close_workers=True)
+    except (OSError, TimeoutError):
+        return
+    names = {str(info.get("name")) for info in retired.values()}
+    ending = []
+    for key, job in list(cluster.workers.items()):  # a job's workers are named KEY or KEY-i
+        if getattr(job, "job_id", None) and any(n == str(key) or n.startswith(f"{key}-")
+                                                for n in names):
+            del cluster.workers[key]  # neither Dask's lost-worker timer nor closing cancels it
+            ending.append(str(job.job_id))
+    if not ending:
+        return
+    import subprocess
+
+    deadline = time.monotonic() + wait_s
+    queued = ending
+    with contextlib.suppress(OSError, subprocess.TimeoutExpired):
+        while queued and time.monotonic() < deadline:
+            time.sleep(0.2)
+            listed = subprocess.run(["squeue", "-h", "-o", "%i", "-j", ",".join(queued)],
+                                    capture_output=True, text=True, timeout=10, check=False)
+            # squeue refuses ids it no longer knows (exit 1): all of them ended
+            queued = listed.stdout.split() if listed.returncode == 0 else []
+        if queued:
+            subprocess.run(["scancel", *queued], capture_output=True, timeout=10, check=False)
 
 
 class _Watch:
