@@ -9,8 +9,11 @@ Three ways to get workers, one per command-line option:
 * ``--cluster slurm|pbs|sge``: a batch system through dask-jobqueue (the Dask project's package
   for job queues): this process runs the scheduler and submits ``--jobs`` worker jobs of
   ``--cores``, ``--memory``, ``--walltime`` on ``--queue`` (defaults from the design's
-  ``[cluster]``); jobs that end (walltime, pre-emption) are replaced. ``--dry-run`` prints the
-  job script and submits nothing.
+  ``[cluster]``); jobs that end (walltime, pre-emption, ``scancel``) are replaced once Dask counts
+  their worker as lost; when the run ends, SLURM jobs end by themselves (their workers retire:
+  COMPLETED, exit 0), other jobs are cancelled. ``--dry-run`` prints the job script and submits
+  nothing. Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
+  through their job scripts.
 
 :func:`finished` drives the tasks: a worker that dies (killed, pre-empted) costs only its tasks in
 flight, which the scheduler gives to the other workers or to the next one to join; a task that
@@ -413,7 +416,8 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
     ------
     ClusterError
         If a task was lost with its workers more than :data:`MAX_RESUBMITS` times after Dask's
-        retries, or the scheduler went away. Any error the task itself raised is re-raised.
+        retries; :class:`SchedulerLost` if the scheduler went away (no Dask traceback). Any error
+        the task itself raised is re-raised.
     """
     from concurrent.futures import CancelledError
 
