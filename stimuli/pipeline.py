@@ -365,7 +365,8 @@ def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibra
     return (f"kept: {len(done)} of {len(plan)} EXRs rendered and logged in {out / 'renders.csv'}; "
             f"{listed}" + (f" (the other {rest} light field(s) are tone-mapped once all their "
                            "EXRs are rendered)" if complete and rest else "")
-            + "; re-run the same command to finish: it resumes, nothing is rendered twice")
+            + "; re-run the same command to finish: it resumes, finished EXRs are not rendered "
+            "again")
 
 
 def _check_one_calibration(manifest_path: Path, calibration) -> None:
