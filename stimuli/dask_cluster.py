@@ -287,12 +287,14 @@ def _end_jobs(cluster, client, adaptive, system: str, wait_s: float = 15.0) -> N
     any still there then is cancelled (``scancel``), as closing the cluster cancels the jobs that
     never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
     commands are untested here)."""
+    from concurrent.futures import CancelledError
+
     adaptive.stop()
     if system != "slurm":
         return
     try:
         retired = client.retire_workers(close_workers=True)
-    except (OSError, TimeoutError):
+    except (OSError, TimeoutError, CancelledError):
         return
     names = {str(info.get("name")) for info in retired.values()}
     ending = []
