@@ -17,12 +17,15 @@ export DRJIT_LIBLLVM_PATH ?= /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1
 # Debian packages the tests and the demo need (Xvfb for PsychoPy windows, PsychoPy's audio/keyboard
 # libraries, the xcb libraries Qt's X11 plugin needs for PsychoPy's dialogs, LLVM for Mitsuba,
 # R with lme4, car, lmerTest and pbkrtest as the reference for the mixed models, a font,
-# Chromium to screenshot the gap report in a real browser).
+# Chromium to screenshot the gap report in a real browser, SLURM and munge for the batch-cluster
+# tests: tests/slurm_processes.py starts its own controller and node as the user who runs the
+# tests, so the services the packages install need not run, and a policy-rc.d that stops them
+# from starting does not fail the install).
 DEB_PACKAGES := xvfb xauth libglu1-mesa libgl1 libegl1 libfontconfig1 libasound2 \
 	libjack-jackd2-0 libportaudio2 libusb-1.0-0 libxrandr2 libxcursor1 libxi6 libxinerama1 \
 	libxcb-icccm4 libxcb-keysyms1 libxcb-cursor0 \
 	libllvm19 r-base-core r-cran-lme4 r-cran-car r-cran-lmertest r-cran-pbkrtest fonts-dejavu-core \
-	chromium
+	chromium slurm-wlm munge
 XVFB := xvfb-run -a -s "-screen 0 1280x1024x24"
 
 .PHONY: help demo test test-fast system-deps venv lint bench clean-venv

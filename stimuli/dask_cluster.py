@@ -9,8 +9,11 @@ Three ways to get workers, one per command-line option:
 * ``--cluster slurm|pbs|sge``: a batch system through dask-jobqueue (the Dask project's package
   for job queues): this process runs the scheduler and submits ``--jobs`` worker jobs of
   ``--cores``, ``--memory``, ``--walltime`` on ``--queue`` (defaults from the design's
-  ``[cluster]``); jobs that end (walltime, pre-emption) are replaced. ``--dry-run`` prints the
-  job script and submits nothing.
+  ``[cluster]``); jobs that end (walltime, pre-emption, ``scancel``) are replaced once Dask counts
+  their worker as lost; when the run ends, SLURM jobs end by themselves (their workers retire:
+  COMPLETED, exit 0), other jobs are cancelled. ``--dry-run`` prints the job script and submits
+  nothing. Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
+  through their job scripts.
 
 :func:`finished` drives the tasks: a worker that dies (killed, pre-empted) costs only its tasks in
 flight, which the scheduler gives to the other workers or to the next one to join; a task that
@@ -36,8 +39,10 @@ __all__ = [
     "BATCH_SYSTEMS",
     "ClusterError",
     "JobSpec",
+    "SchedulerLost",
     "add_cluster_arguments",
     "finished",
+    "job_memory",
     "job_script",
     "job_spec_from",
     "open_client",
@@ -53,6 +58,10 @@ NO_WORKER_S = 120.0
 #: How often a task may be lost with its worker after Dask's own retries (3 workers) before the
 #: run stops: a task that kills every worker it lands on is a bug, not a pre-emption.
 MAX_RESUBMITS = 3
+#: The least memory a worker job may ask for, bytes: a render worker (Python, Dask, Mitsuba) holds
+#: about 0.43 GiB by itself (measured: peak RSS of a 32 px render), and Dask pauses a worker at
+#: 80 % of its limit.
+MIN_JOB_MEMORY_BYTES = 10**9
 _REPO = Path(__file__).resolve().parents[1]
 
 
@@ -130,7 +139,9 @@ def job_spec_from(args, design) -> JobSpec:
         value = getattr(args, name, None)
         return getattr(c, name) if value is None else value
 
-    spec = JobSpec(system=args.cluster, cores=int(pick("cores")), memory=str(pick("memory")),
+    memory = job_memory(str(pick("memory")), "--memory" if getattr(args, "memory", None)
+                        is not None else f"cluster.memory of {design.source}")
+    spec = JobSpec(system=args.cluster, cores=int(pick("cores")), memory=memory,
                    walltime=str(pick("walltime")), queue=str(pick("queue")),
                    jobs=int(pick("jobs")), account=str(pick("account")),
                    extra=tuple(getattr(args, "job_extra", None) or ()))
@@ -140,6 +151,39 @@ def job_spec_from(args, design) -> JobSpec:
         raise ClusterError(f"--walltime {spec.walltime!r} is not HH:MM:SS (e.g. --walltime "
                            "04:00:00)")
     return spec
+
+
+def job_memory(text: str, source: str = "--memory") -> str:
+    """``text`` if it is an amount of memory a batch job can ask for (a number and a unit,
+    ``"16GB"``, ``"8GiB"``, ``"500 MB"``), at least :data:`MIN_JOB_MEMORY_BYTES`.
+
+    Raises
+    ------
+    ClusterError
+        Naming ``source`` (``--memory`` or the design's ``cluster.memory``), the value and the fix:
+        a bare number (dask-jobqueue would read ``16`` as 16 bytes and fail formatting it), an
+        unknown unit, or too little for a worker.
+    """
+    from dask.utils import parse_bytes
+
+    value = text.strip()
+    match = re.fullmatch(r"(\d+(?:\.\d*)?|\.\d+)\s*([A-Za-z]*)", value)
+    if match is None:
+        raise ClusterError(f"{source} {text!r} is not an amount of memory: give a number and a "
+                           "unit, e.g. 16GB or 8GiB")
+    if not match.group(2):
+        raise ClusterError(f"{source} {text}: give a unit, e.g. {match.group(1)}GB (a bare "
+                           "number would be read as bytes)")
+    try:
+        n_bytes = parse_bytes(value)
+    except ValueError:
+        raise ClusterError(f"{source} {text!r}: unknown unit {match.group(2)!r}; use kB, MB, "
+                           "GB, TB or KiB, MiB, GiB, TiB, e.g. 16GB") from None
+    if n_bytes < MIN_JOB_MEMORY_BYTES:
+        raise ClusterError(f"{source} {text}: a worker job needs at least 1GB (a render worker "
+                           "holds about 0.45 GiB by itself, and Dask pauses it at 80 % of its "
+                           "memory); give e.g. 8GiB")
+    return value
 
 
 def _seconds(walltime: str) -> int:
@@ -213,24 +257,67 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
         advice = (f"start one on any machine that sees the output folder at the same path: "
                   f"`{worker_command(scheduler)}` (or `dask worker {scheduler}` in this "
                   "project's virtual environment)")
-        with client:
+        with _quiet_client(), client:
             yield client, advice
         return
     if spec is not None:
         cluster = _jobqueue_cluster(spec)
-        cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
+        adaptive = cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
         queue = {"slurm": "squeue -u $USER", "pbs": "qstat -u $USER",
                  "sge": "qstat -u $USER"}[spec.system]
         advice = (f"{spec.jobs} worker job(s) were submitted to {spec.system.upper()} and none "
                   f"runs yet: check the queue (`{queue}`); a job that cannot start (wrong "
                   "--queue, too much --memory) never will: stop with Ctrl-C (finished work is "
                   f"kept) and fix its options; `--dry-run` shows the job script")
-        with cluster, Client(cluster) as client:
-            yield client, advice
+        with _quiet_client(), cluster, Client(cluster) as client:
+            try:
+                yield client, advice
+            finally:
+                _end_jobs(cluster, client, adaptive, spec.system)
         return
     cluster = local()
-    with cluster, Client(cluster) as client:
+    with _quiet_client(), cluster, Client(cluster) as client:
         yield client, "the local cluster lost its workers: stop with Ctrl-C and run again"
+
+
+def _end_jobs(cluster, client, adaptive, system: str, wait_s: float = 15.0) -> None:
+    """Let SLURM worker jobs end by themselves, so that they end COMPLETED (exit 0) in its
+    records rather than CANCELLED: no job is replaced any more, each worker is retired and its
+    process exits, and the run waits (up to ``wait_s``) until those jobs have left the queue;
+    any still there then is cancelled (``scancel``), as closing the cluster cancels the jobs that
+    never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
+    commands are untested here)."""
+    from concurrent.futures import CancelledError
+
+    adaptive.stop()
+    if system != "slurm":
+        return
+    try:
+        retired = client.retire_workers(close_workers=True)
+    except (OSError, TimeoutError, CancelledError):
+        return
+    names = {str(info.get("name")) for info in retired.values()}
+    ending = []
+    for key, job in list(cluster.workers.items()):  # a job's workers are named KEY or KEY-i
+        if getattr(job, "job_id", None) and any(n == str(key) or n.startswith(f"{key}-")
+                                                for n in names):
+            del cluster.workers[key]  # neither Dask's lost-worker timer nor closing cancels it
+            ending.append(str(job.job_id))
+    if not ending:
+        return
+    import subprocess
+
+    deadline = time.monotonic() + wait_s
+    queued = ending
+    with contextlib.suppress(OSError, subprocess.TimeoutExpired):
+        while queued and time.monotonic() < deadline:
+            time.sleep(0.2)
+            listed = subprocess.run(["squeue", "-h", "-o", "%i", "-j", ",".join(queued)],
+                                    capture_output=True, text=True, timeout=10, check=False)
+            # squeue refuses ids it no longer knows (exit 1): all of them ended
+            queued = listed.stdout.split() if listed.returncode == 0 else []
+        if queued:
+            subprocess.run(["scancel", *queued], capture_output=True, timeout=10, check=False)
 
 
 class _Watch:
@@ -247,7 +334,7 @@ class _Watch:
         try:
             return self.client.nthreads()
         except (OSError, TimeoutError) as exc:
-            raise ClusterError(_gone(self.client, exc)) from None
+            raise _gone(self.client, exc) from None
 
     def check(self, n_waiting: int) -> None:
         self.nthreads = self._workers()
@@ -273,10 +360,30 @@ class _Watch:
             self.last_said = now
 
 
-def _gone(client, exc) -> str:
-    return (f"lost the Dask scheduler at {client.scheduler.address} ({type(exc).__name__}); "
-            "start it again (`dask scheduler`, and workers) and run the same command: finished "
-            "work is kept")
+class SchedulerLost(ClusterError):
+    """The Dask scheduler went away mid-run (killed, its machine rebooted): the run cannot go
+    on, and re-running the same command resumes it."""
+
+
+@contextlib.contextmanager
+def _quiet_client():
+    """Dask's client logs "Couldn't gather keys" and, when the scheduler is lost, a chained
+    traceback per reconnection attempt ("Failed to reconnect to scheduler"), also while the
+    client closes: this module says these in words instead (:func:`_gone`)."""
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+def _gone(client, exc) -> SchedulerLost:
+    return SchedulerLost(
+        f"lost the Dask scheduler at {client.scheduler.address} ({type(exc).__name__}: it was "
+        "stopped, killed or became unreachable); start it again (`dask scheduler`, and workers) "
+        "and re-run the same command: it resumes, finished work is kept")
 
 
 def per_thread(nthreads: dict) -> int:
@@ -311,7 +418,8 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
     ------
     ClusterError
         If a task was lost with its workers more than :data:`MAX_RESUBMITS` times after Dask's
-        retries, or the scheduler went away. Any error the task itself raised is re-raised.
+        retries; :class:`SchedulerLost` if the scheduler went away (no Dask traceback). Any error
+        the task itself raised is re-raised.
     """
     from concurrent.futures import CancelledError
 
@@ -329,16 +437,18 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
             item = waiting.popleft()
             pending[submit(item)] = (item, 0)
 
-    top_up()
-    quiet = logging.getLogger("distributed.client")  # "Couldn't gather keys": said above
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)
-    try:
+    with _quiet_client():
+        try:
+            top_up()
+        except (CancelledError, OSError) as exc:
+            raise _gone(client, exc) from None
         while pending:
             try:
                 done = wait(list(pending), timeout=poll_s, return_when="FIRST_COMPLETED").done
             except TimeoutError:
                 done = set()
+            except (CancelledError, OSError) as exc:  # the scheduler went away mid-wait
+                raise _gone(client, exc) from None
             for future in done:
                 item, lost = pending.pop(future)
                 try:
@@ -358,10 +468,11 @@ def finished(client, submit: Callable, items: Iterable, *, what_to_start: str,
                     pending[submit(item)] = (item, lost + 1)
                     continue
                 except CancelledError as exc:
-                    raise ClusterError(_gone(client, exc)) from None
+                    raise _gone(client, exc) from None
                 future.release()
                 yield result
             watch.check(len(pending) + len(waiting))
-            top_up()
-    finally:
-        quiet.setLevel(level)
+            try:
+                top_up()
+            except (CancelledError, OSError) as exc:
+                raise _gone(client, exc) from None

@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from labfiles import TEMPORARY_GLOB, append_csv_record, read_csv_records
+from stimuli.dask_cluster import ClusterError
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss
@@ -346,6 +347,30 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
     return n_png, n_png_skipped, manifest_path
 
 
+def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibration,
+                          tonemap_spec, calibration_sha256: str) -> str:
+    """After pass 1 stopped early: tone map every light field whose EXRs are all rendered (its
+    curve is then final) into the manifest, and say what is kept and how to finish."""
+    done = _done_exrs(out, plan, job)
+    complete = [lf for lf, group in plan.groupby("light_field", sort=False)
+                if group["stimulus_id"].isin(done).all()]
+    n_listed = 0
+    if complete:
+        n_png, n_skipped, _ = _tonemap_pass(out, plan[plan["light_field"].isin(complete)], job,
+                                            calibration, tonemap_spec, progress=False,
+                                            calibration_sha256=calibration_sha256)
+        n_listed = n_png + n_skipped
+    rest = len(plan["light_field"].unique()) - len(complete)
+    listed = (f"{n_listed} images of the {len(complete)} light field(s) whose renders are all "
+              f"done are tone-mapped and listed in {out / 'manifest.csv'}" if complete else
+              "no light field has all its EXRs yet, so none is tone-mapped")
+    return (f"kept: {len(done)} of {len(plan)} EXRs rendered and logged in {out / 'renders.csv'}; "
+            f"{listed}" + (f" (the other {rest} light field(s) are tone-mapped once all their "
+                           "EXRs are rendered)" if complete and rest else "")
+            + "; re-run the same command to finish: it resumes, finished EXRs are not rendered "
+            "again")
+
+
 def _check_one_calibration(manifest_path: Path, calibration, calibration_sha256: str) -> None:
     """One manifest, one gamma correction: a resume into a folder whose PNGs were corrected
     for another calibration is refused before anything is rendered. Another calibration is
@@ -423,6 +448,13 @@ def render_set(
     -------
     dict
         Counts (rendered, skipped, pngs written, skipped), wall time, images per hour.
+
+    Raises
+    ------
+    stimuli.dask_cluster.ClusterError
+        If the Dask scheduler was lost (``SchedulerLost``) or a task killed its workers too often;
+        the light fields whose EXRs are all rendered are tone-mapped into the manifest first, and
+        the message says what is kept and that re-running the same command resumes.
     """
     out = Path(out_dir)
     _check_one_calibration(out / "manifest.csv", calibration, calibration_sha256)
@@ -434,7 +466,12 @@ def render_set(
         probe_path(env)  # fail early, naming the file, before any worker starts
     t0 = time.perf_counter()
 
-    n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {})
+    try:
+        n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {})
+    except ClusterError as exc:  # the scheduler lost, a task that kills every worker
+        kept = _manifest_of_finished(out, plan, job, calibration, tonemap_spec,
+                                    calibration_sha256)
+        raise type(exc)(f"{exc}\n{kept}") from None
     t_render = time.perf_counter() - t0
     n_png, n_png_skipped, manifest_path = _tonemap_pass(out, plan, job, calibration,
                                                        tonemap_spec, progress,

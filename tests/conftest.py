@@ -1,7 +1,8 @@
-"""Shared fixtures: a seeded RNG, the shipped design, the repository root."""
+"""Shared fixtures: a seeded RNG, the shipped design, the repository root, a local SLURM."""
 
 from __future__ import annotations
 
+import contextlib
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,24 @@ def design():
 @pytest.fixture(scope="session")
 def repo_root() -> Path:
     return REPO_ROOT
+
+
+@pytest.fixture(scope="session")
+def slurm():
+    """A SLURM controller and node on this machine (:mod:`tests.slurm_processes`), idle; its
+    jobs cancelled and its daemons stopped by their pid files afterwards. Where it cannot be
+    started (slurm-wlm or munge not installed, a daemon that dies), the test fails, naming
+    why: the batch-cluster path is never skipped silently."""
+    from tests.slurm_processes import SlurmError, local_slurm
+
+    with contextlib.ExitStack() as stack:
+        try:
+            cluster, problem = stack.enter_context(local_slurm()), None
+        except SlurmError as exc:
+            cluster, problem = None, str(exc)
+        if problem:
+            pytest.fail(f"SLURM could not be started on this machine: {problem}", pytrace=False)
+        yield cluster
 
 
 def pytest_terminal_summary(terminalreporter):

@@ -90,6 +90,57 @@ def test_a_killed_worker_costs_only_its_images_and_the_run_finishes(tmp_path):
     assert renders["stimulus_id"].is_unique  # finished EXRs were not rendered again
 
 
+@pytest.mark.slow
+def test_a_killed_scheduler_is_said_in_words_and_the_finished_light_fields_are_listed(tmp_path):
+    """SIGKILL the `dask scheduler` once the first light field's EXRs are all logged: the run
+    ends with one line naming what happened and the fix (re-run: it resumes), no chained Dask
+    traceback, and a manifest listing the finished light field (before: a FuturesCancelledError
+    traceback and no manifest); the same command then finishes the set, each image once."""
+    from stimuli.sets import apply_filters, parse_filters, stimulus_set
+    from studydesign import load_design
+
+    out = tmp_path / "r"
+    log = out / "renders.csv"
+    select = ["--set", "experiment", "--filter", "gloss_level=2,10"]
+    table = apply_filters(stimulus_set(load_design(), "experiment"),
+                          parse_filters(["gloss_level=2,10"]))
+    first = table["light_field"].iloc[0]
+    first_ids = set(table.loc[table["light_field"] == first, "stimulus_id"])
+    slow = [*select, "--out", str(out), "--size", "32", "--spp", "36", "--no-progress"]
+    with dask_processes(tmp_path / "dask") as dask:
+        dask.start_worker(nthreads=2)
+        dask.wait_workers(1)
+        err_path = tmp_path / "render.err"
+        with open(err_path, "w") as err_file:
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "stimuli", "render", *slow, "--scheduler", dask.address],
+                cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.PIPE,
+                stderr=err_file, text=True, start_new_session=True)
+        try:
+            deadline = time.monotonic() + 120
+            while not (log.is_file() and first_ids <= set(pd.read_csv(log)["stimulus_id"])):
+                assert proc.poll() is None, err_path.read_text()
+                assert time.monotonic() < deadline, "first light field not rendered in 120 s"
+                time.sleep(0.02)
+            kill(dask.procs[0])  # the scheduler
+            n_at_kill = len(pd.read_csv(log))
+            assert n_at_kill < len(table), "the set was done before the kill: proves nothing"
+            proc.communicate(timeout=120)
+        finally:
+            kill(proc)
+    err = err_path.read_text()
+    assert proc.returncode == 1, err
+    assert "Traceback" not in err and "During handling" not in err, err
+    assert f"error: lost the Dask scheduler at {dask.address}" in err, err
+    assert "re-run the same command" in err and "it resumes" in err, err
+    listed = load_manifest(out)
+    assert set(listed["stimulus_id"]) == first_ids, err  # the finished light field, no other
+    assert verify_manifest(out, kinds=("png", "exr")) == []
+    assert main(["render", *slow, "--workers", "0"]) == 0  # the same command, resumed here
+    _once_each(out, len(table))
+    assert pd.read_csv(log)["stimulus_id"].is_unique
+
+
 @pytest.mark.parametrize("system, directives", [
     ("slurm", ["#SBATCH -p lab", "#SBATCH --cpus-per-task=8", "#SBATCH --mem=16G",
                "#SBATCH -t 12:00:00", "#SBATCH -A vision", "#SBATCH --gres=tmp:1"]),
@@ -132,6 +183,41 @@ def test_cluster_job_size_comes_from_the_design(tmp_path, capsys):
     rc = main(["render", "--set", "preview", "--out", str(tmp_path / "r"), "--cluster", "slurm",
                "--walltime", "4h", "--dry-run"])
     assert rc == 1 and "--walltime '4h' is not HH:MM:SS" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("memory, says", [
+    ("16", "--memory 16: give a unit, e.g. 16GB"),
+    ("0GiB", "--memory 0GiB: a worker job needs at least 1GB"),
+    ("16k", "--memory 16k: a worker job needs at least 1GB"),
+    ("16XB", "--memory '16XB': unknown unit 'XB'"),
+    ("=-1GB", "--memory '-1GB' is not an amount of memory"),
+])
+def test_job_memory_without_a_unit_or_too_small_is_refused(tmp_path, capsys, memory, says):
+    """`--memory 16` was a TypeError inside dask-jobqueue ("not all arguments converted during
+    string formatting"); `0GiB` the same."""
+    option = f"--memory{memory}" if memory.startswith("=") else ["--memory", memory]
+    rc = main(["render", "--set", "preview", "--out", str(tmp_path / "r"), "--cluster", "slurm",
+               "--dry-run", *([option] if isinstance(option, str) else option)])
+    err = capsys.readouterr().err
+    assert rc == 1 and says in err, err
+    assert "Traceback" not in err and not (tmp_path / "r").exists()
+
+
+def test_job_memory_of_the_design_without_a_unit_is_refused_naming_the_design(tmp_path, capsys):
+    from analysis.imagestats.__main__ import main as imagestats_main
+    from studydesign import default_design_path
+
+    design = tmp_path / "design.toml"
+    design.write_text(default_design_path().read_text().replace('memory = "8GiB"',
+                                                                'memory = "16"'))
+    rc = main(["--design", str(design), "render", "--set", "preview", "--out",
+               str(tmp_path / "r"), "--cluster", "slurm", "--dry-run"])
+    err = capsys.readouterr().err
+    assert rc == 1 and f"cluster.memory of {design} 16: give a unit, e.g. 16GB" in err, err
+    rc = imagestats_main([str(tmp_path), "--out", str(tmp_path / "s.parquet"), "--cluster",
+                          "slurm", "--memory", "0GiB", "--dry-run"])
+    err = capsys.readouterr().err
+    assert rc == 1 and "--memory 0GiB: a worker job needs at least 1GB" in err, err
 
 
 def _dies_first(marker: str, times: int) -> int:
