@@ -155,14 +155,14 @@ def table(results: list[dict]) -> str:
     groups = defaultdict(list)
     for r in results:
         groups[(r["layer"], r["case"])].append(r)
-    lines = [f"{'layer':9s} {'case':13s} {'rule':40s} {'pass':>9s}  verdicts (count)"]
+    lines = [f"{'layer':9s} {'case':13s} {'rule':42s} {'pass':>9s}  verdicts (count)"]
     for (layer, case), rs in groups.items():
         rule = rs[0]["rule"]
         rule_s = rule[0] + (": " + " + ".join(rule[1:]) if len(rule) > 1 else "")
         n_pass = sum(r["pass"] for r in rs)
         counts = Counter(r["verdict"] if r["verdict"] is not None else r["status"] for r in rs)
         verdicts = ", ".join(f"{v} ({c})" for v, c in counts.most_common())
-        lines.append(f"{layer:9s} {case:13s} {rule_s:40s} {n_pass:3d}/{len(rs):<3d}  "
+        lines.append(f"{layer:9s} {case:13s} {rule_s:42s} {n_pass:3d}/{len(rs):<3d}  "
                      f"{100.0 * n_pass / len(rs):5.1f} %  {verdicts}")
     return "\n".join(lines)
 
