@@ -152,7 +152,7 @@ def _print_light_fields(results_path: Path) -> None:
     for r in lf["effects"]:
         by_stat.setdefault(r["statistic"], {})[r["scope"]] = r
     for name, scopes in by_stat.items():
-        cells = [f"{s[:6]:6s} g {scopes[s]['gloss_slope_sd_per_10pct']:+.2f} "
+        cells = [f"{s.split()[0]:7s} g {scopes[s]['gloss_slope_sd_per_10pct']:+.2f} "
                  f"d {scopes[s]['depth_slope_sd_per_cm']:+.2f}"
                  for s in ("within light fields", "indoor", "outdoor") if s in scopes]
         sp = spread.get(name, {})
