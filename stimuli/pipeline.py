@@ -217,11 +217,20 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
         raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
                            "(finished EXRs will be rendered again)") from exc
     done = done.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
+    probe_sha = {env: sha256_file(probe_path(env)) for env in plan["envmap"].unique()}
     ok = set()
     for row in plan.itertuples(index=False):
         if row.stimulus_id not in done.index:
             continue
         rec = done.loc[row.stimulus_id]
+        if str(rec["envmap_sha256"]) != probe_sha[row.envmap]:
+            # rendering it again would replace a recorded EXR (a design whose light field now
+            # points at another file, e.g. the captures that replaced the studio probes)
+            raise StimuliError(
+                f"{log} records {row.stimulus_id} rendered under another light probe (checksum "
+                f"{str(rec['envmap_sha256'])[:12]}..., not {row.envmap}'s "
+                f"{probe_sha[row.envmap][:12]}...); recorded data are never overwritten: render "
+                "into a new --out folder")
         same = (int(rec["spp"]) == int(row.spp) and int(rec["width_px"]) == job.size_px
                 and np.isclose(rec["rho_d"], row.rho_d) and np.isclose(rec["rho_s"], row.rho_s)
                 and np.isclose(rec["alpha"], row.alpha) and int(rec["seed"]) == int(row.seed))

@@ -210,3 +210,26 @@ def test_export_print_is_true_size_in_a_slicer(tmp_path, capsys, design, units, 
     assert info["units"] == (units or "mm")
     assert info["size"] == f"{width:.1f} x {depth:.1f} x {height:.1f} {units or 'mm'}"
     assert out.read_bytes()[:80].rstrip().endswith(f"units {units or 'mm'}".encode())
+
+
+def test_resume_under_another_probe_is_refused_before_anything_is_replaced(tmp_path, capsys,
+                                                                           mitsuba_variant):
+    """A folder rendered under one probe, resumed with a design whose condition now names
+    another capture, used to count its EXRs as done (same levels, spp and size) and keep them
+    silently; now the run stops, naming the probe, and replaces nothing."""
+    from studydesign import default_design_path
+
+    out = tmp_path / "r"
+    args = ["render", "--set", "preview", "--filter", "illumination=indoor", "--limit", "1",
+            "--out", str(out), "--workers", "0", *TINY]
+    assert main(args) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    exr = next((out / "exr").rglob("*.exr"))
+    before = exr.read_bytes()
+    other = tmp_path / "design.toml"
+    other.write_text(default_design_path().read_text().replace(
+        '"aerodynamics_workshop_512x256.hdr"', '"lebombo_512x256.hdr"', 1))
+    assert main(["--design", str(other), *args]) == 1
+    err = capsys.readouterr().err
+    assert "another light probe" in err and "new --out folder" in err
+    assert exr.read_bytes() == before
