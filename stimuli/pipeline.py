@@ -20,10 +20,10 @@ leave during a run (:func:`stimuli.dask_cluster.finished`): one that dies costs 
 flight, which other workers render again. Pass 2 waits
 for every EXR of a light field (its tone-mapping condition), computes the condition's L_max, and
 writes PNGs and manifest rows, and records the curve of each light field beside them
-(``tonemaps.csv``: the seed's map fitted once per light field). Every file is written to a hidden temporary name and renamed, so an
-interrupted run (Ctrl-C, kill, disk full) leaves no half-written file under a real name; re-running
-the same command skips every EXR whose logged checksum and settings verify and every manifest row
-whose files verify, and finishes the rest.
+(``tonemaps.csv``: the seed's map fitted once per light field). Every file is written to a hidden
+temporary name and renamed, so an interrupted run (Ctrl-C, kill, disk full) leaves no
+half-written file under a real name; re-running the same command skips every EXR whose logged
+checksum and settings verify and every manifest row whose files verify, and finishes the rest.
 """
 
 from __future__ import annotations
@@ -59,6 +59,8 @@ __all__ = ["RENDER_LOG_COLUMNS", "TONEMAP_COLUMNS", "RenderJob", "render_group",
 
 RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px", "rho_d", "rho_s",
                       "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
+#: Render-log columns read as text (a checksum of digits and one "e" would read as a number).
+_LOG_TEXT = {"stimulus_id": str, "exr_sha256": str, "envmap_sha256": str}
 #: ``tonemaps.csv``: per light field, its probe and the tone curve of its PNGs
 #: (:mod:`stimuli.tonemap`; L_max over the images of the light field in the folder).
 TONEMAP_COLUMNS = ["light_field", "illumination", "envmap", "envmap_sha256", "envmap_scale",
@@ -212,7 +214,7 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
     if not log.is_file():
         return set()
     try:
-        done = read_csv_records(log, dtype={"stimulus_id": str, "exr_sha256": str})
+        done = read_csv_records(log, dtype=_LOG_TEXT)
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
                            "(finished EXRs will be rendered again)") from exc
@@ -307,7 +309,7 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
         If the manifest already lists a stimulus rendered or tone-mapped differently, or a listed
         PNG is missing or changed (recorded data are never overwritten).
     """
-    records = read_csv_records(out / "renders.csv", dtype={"stimulus_id": str, "exr_sha256": str})
+    records = read_csv_records(out / "renders.csv", dtype=_LOG_TEXT)
     records = records.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
     manifest_path = out / "manifest.csv"
     existing = load_manifest(manifest_path) if manifest_path.exists() else None
