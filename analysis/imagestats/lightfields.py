@@ -50,6 +50,17 @@ def _kind(frame: pd.DataFrame) -> pd.Series:
     return frame["illumination"].astype(str)
 
 
+def _separable(sub: pd.DataFrame, *, within: bool) -> bool:
+    """Whether gloss and depth slopes are estimable from ``sub`` with a residual left: the
+    gloss and depth columns (each light field's mean removed when ``within``) of full rank."""
+    x = sub[["true_gloss_pct", "true_depth_cm"]].to_numpy(np.float64, copy=True)
+    groups = sub["light_field"].to_numpy() if within else np.zeros(len(sub))
+    for g in np.unique(groups):
+        x[groups == g] -= x[groups == g].mean(axis=0)
+    n_params = 2 + len(np.unique(groups))
+    return len(sub) > n_params and np.linalg.matrix_rank(x) == 2
+
+
 def light_field_effects(frame: pd.DataFrame, names: list[str]) -> pd.DataFrame:
     """Slopes of each statistic on gloss and depth, within light fields and per kind.
 
@@ -81,7 +92,7 @@ def light_field_effects(frame: pd.DataFrame, names: list[str]) -> pd.DataFrame:
         scopes += [(k, sub, "_y ~ true_gloss_pct + true_depth_cm")
                    for k, sub in data.groupby("_kind")]
         for scope, sub, formula in scopes:
-            if sub["true_gloss_pct"].nunique() < 2 or sub["true_depth_cm"].nunique() < 2:
+            if not _separable(sub, within=scope == "within light fields"):
                 continue
             fit = smf.ols(formula, data=sub).fit(cov_type="HC3")
             if fit.df_resid < 1 or not np.isfinite(fit.bse[["true_gloss_pct",
