@@ -134,11 +134,12 @@ step "analysis report: figures, mixed models (lme4's formulation), bootstrap"
 
 # --- image statistics ---
 step "image statistics: a stratified subset of the imagestats set, statistics on Dask, relation to gloss"
-# 2 illuminations x 1 light field x 1 array x gloss levels 2,6,10 x depth levels 2,6,10 = 18
+# 2 light fields (the experiment's indoor and outdoor captures) x 1 array x gloss levels 2,6,10 x
+# depth levels 2,6,10 = 18
 # images at 192 px (the smallest size whose array square suits the Portilla-Simoncelli pyramid),
 # 16 spp; the full set is 58,564 images (protocol.md, 7.1).
 IS="$RUN/imagestats"
-"$PY" -m stimuli render --set imagestats --filter light_field=indoor_lf00,outdoor_lf00 \
+"$PY" -m stimuli render --set imagestats --filter light_field=aerodynamics_workshop,immenstadter_horn \
   --filter array_index=0 --filter gloss_level=2,6,10 --filter depth_level=2,6,10 \
   --size 192 --spp 16 --workers 1 --out "$IS/renders" --no-progress
 "$PY" -m analysis imagestats "$IS/renders" --out "$IS/stats.parquet" --workers 2 \

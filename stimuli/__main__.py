@@ -283,9 +283,36 @@ def _cmd_plan_spp(args) -> int:
     return 0
 
 
+def _cmd_probe_scale(args) -> int:
+    import numpy as np
+
+    from stimuli.illumination import (
+        diffuse_white_luminance,
+        diffuse_white_scale,
+        load_light_probe,
+        luminance,
+    )
+
+    probe = load_light_probe(args.file, normalise="none")
+    scale = diffuse_white_scale(probe.rgb)
+    y = luminance(probe.rgb)
+    row, col = np.unravel_index(int(np.argmax(y)), y.shape)
+    h, w = y.shape
+    print(json.dumps({"file": probe.path, "sha256": probe.sha256, "width_px": w, "height_px": h,
+                      "diffuse_white_luminance": diffuse_white_luminance(probe.rgb),
+                      "scale": float(f"{scale:.6g}"), "brightest_luminance": float(y.max()),
+                      "brightest_elevation_deg": round(90 - 180 * (row + 0.5) / h, 1),
+                      "brightest_azimuth_deg_from_viewer": round(360 * (col + 0.5) / w - 180, 1),
+                      "brightest_over_median": float(y.max() / max(np.median(y), 1e-30))}))
+    print(f"# in design.toml: envmap = \"{args.file}\", scale = {scale:.6g}  (a matte white "
+          "facing the viewer at luminance 1)", file=sys.stderr)
+    return 0
+
+
 def _add_selection(p) -> None:
     p.add_argument("--set", default="experiment",
-                   help="set name: experiment, imagestats or preview (default: experiment)")
+                   help="set name: experiment, imagestats, imagestats_slice or preview "
+                        "(default: experiment)")
     p.add_argument("--filter", action="append", metavar="COL=V1,V2",
                    help="keep rows whose COL is one of the values (repeatable), "
                         "e.g. --filter depth_level=2,5 --filter illumination=indoor")
@@ -401,6 +428,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
     p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
     p.set_defaults(func=_cmd_plan_spp)
+
+    p = sub.add_parser("probe-scale", help="the design's scale of a light probe (a matte white "
+                       "facing the viewer at luminance 1) and where its brightest pixel is")
+    p.add_argument("file", help="a lat-long OpenEXR or Radiance .hdr panorama, or a shipped "
+                   "probe's name")
+    p.set_defaults(func=_cmd_probe_scale)
 
     p = sub.add_parser("check-env", help="select the Mitsuba variant and smoke-test a render")
     p.add_argument("--variant")

@@ -1,4 +1,5 @@
-"""HDR light probes: lat-long OpenEXR maps -> checked float32 arrays -> Mitsuba ``envmap`` emitters.
+"""HDR light probes: lat-long OpenEXR or Radiance maps -> checked float32 arrays -> Mitsuba
+``envmap`` emitters.
 
 EXRs are decoded with the OpenEXR package, never with Mitsuba's bundled decoder (which read some
 DWAB-compressed maps differently when tried). A probe is a linear-RGB equirectangular map, rows
@@ -6,8 +7,12 @@ from the zenith (top) to the nadir, columns covering 360 deg of azimuth; Mitsuba
 takes the same layout with +y up, which is the stimulus's up (the array hangs fronto-parallel like a
 picture on a wall, the sky above it).
 
-The two shipped probes (``stimuli/probes``, CC0 Poly Haven, see ``probes/LICENSE.txt``) are the
-design's default conditions; any lab probe (e.g. SYNS) is accepted by path.
+Radiance ``.hdr`` files are decoded by :mod:`stimuli.rgbe`.
+
+The shipped probes (``stimuli/probes``, CC0 Poly Haven, see ``probes/LICENSE.txt`` and
+``probes/lightfields.tsv``) are the design's light fields: 22 real, unclipped captures, two of
+which light the experiment; any lab probe (e.g. SYNS) is accepted by path. Their scale is the
+design's (:func:`diffuse_white_scale`): the files are not absolutely calibrated.
 """
 
 from __future__ import annotations
@@ -28,10 +33,14 @@ __all__ = [
     "REC709_Y",
     "SHIPPED_PROBES",
     "LightProbe",
+    "diffuse_white_luminance",
+    "diffuse_white_scale",
+    "downsample_latlong",
     "load_light_probe",
     "luminance",
     "probe_path",
     "read_exr",
+    "read_probe_image",
     "rotate_latlong",
     "solid_angle_weights",
     "write_exr",
@@ -39,8 +48,9 @@ __all__ = [
 
 #: Folder of the light probes shipped with the package.
 SHIPPED_PROBES = Path(__file__).resolve().parent / "probes"
-#: Intensity normalisations: none, or scale so the solid-angle-weighted mean luminance = target.
-NORMALISE_MODES = ("none", "mean_luminance")
+#: Intensity normalisations: none; scale so the solid-angle-weighted mean luminance = target; or
+#: so that a matte white facing the viewer has luminance = target (:func:`diffuse_white_scale`).
+NORMALISE_MODES = ("none", "mean_luminance", "diffuse_white")
 #: Negative values down to this fraction of the mean |value| are compression ringing, set to 0.
 NEGATIVE_TOLERANCE = 1e-3
 
@@ -59,11 +69,28 @@ def probe_path(name_or_path: str | os.PathLike) -> Path:
     shipped = SHIPPED_PROBES / p.name
     if not p.parent.parts and shipped.is_file():
         return shipped
-    have = sorted(f.name for f in SHIPPED_PROBES.glob("*.exr"))
+    have = sorted(f.name for f in SHIPPED_PROBES.iterdir() if f.suffix in (".exr", ".hdr"))
     raise IlluminationError(
         f"light probe {str(name_or_path)!r} not found (neither a file nor one of the shipped probes "
-        f"{have} in {SHIPPED_PROBES}); give the path of a lat-long OpenEXR file"
+        f"{have} in {SHIPPED_PROBES}); give the path of a lat-long OpenEXR or Radiance .hdr file"
     )
+
+
+def read_probe_image(path: str | os.PathLike) -> np.ndarray:
+    """Read a light probe file: OpenEXR (:func:`read_exr`) or Radiance RGBE
+    (:func:`stimuli.rgbe.read_rgbe`), told apart by their first bytes.
+
+    Returns
+    -------
+    ndarray, shape (h, w, 3) or (h, w), float32
+        Linear values as stored.
+    """
+    from stimuli.rgbe import is_rgbe, read_rgbe
+
+    path = Path(path)
+    if path.is_file() and is_rgbe(path):
+        return read_rgbe(path)
+    return read_exr(path)
 
 
 def read_exr(path: str | os.PathLike) -> np.ndarray:
@@ -159,6 +186,78 @@ def solid_angle_weights(height: int, width: int) -> np.ndarray:
     return np.repeat((band * 2 * np.pi / width)[:, None], width, axis=1)
 
 
+def _front_cosine(height: int, width: int) -> np.ndarray:
+    """cos of the angle to +z (towards the viewer) of each pixel's direction, clipped at 0.
+
+    Mitsuba's ``envmap`` maps a direction d to u = atan2(d_x, -d_z) / 2 pi, v = acos(d_y) / pi,
+    so the centre column (u = 1/2) is +z, the light that falls on the array's front.
+    """
+    theta = (np.arange(height) + 0.5) / height * np.pi
+    phi = (np.arange(width) + 0.5) / width * 2 * np.pi
+    return np.clip(-np.cos(phi)[None, :] * np.sin(theta)[:, None], 0.0, None)
+
+
+def diffuse_white_luminance(rgb: np.ndarray) -> float:
+    """Luminance of a matte white (Lambertian, albedo 1) facing the viewer, lit by a lat-long map.
+
+    L_white = (1 / pi) * integral over the front hemisphere of Y(w) cos(w, +z) dw, the irradiance
+    of the array's plane over pi (occlusion by the array itself left out). Same units as ``rgb``.
+    """
+    y = luminance(np.asarray(rgb, dtype=np.float64))
+    h, w = y.shape
+    return float(np.sum(y * solid_angle_weights(h, w) * _front_cosine(h, w)) / np.pi)
+
+
+def diffuse_white_scale(rgb: np.ndarray, *, target: float = 1.0) -> float:
+    """Factor that makes :func:`diffuse_white_luminance` of ``rgb`` equal ``target``.
+
+    The design's scale of each light field (``python -m stimuli probe-scale FILE`` prints it):
+    captures are not absolutely calibrated, so each is scaled so that a matte white facing the
+    viewer has the same luminance under every light field (protocol.md, section 4).
+
+    Raises
+    ------
+    IlluminationError
+        If no light falls on the front hemisphere.
+    """
+    white = diffuse_white_luminance(rgb)
+    if not white > 0:
+        raise IlluminationError("the probe sends no light onto the array's front (+z "
+                                "hemisphere); check the file and its orientation")
+    return float(target) / white
+
+
+def downsample_latlong(image: np.ndarray, factor: int) -> np.ndarray:
+    """Shrink a lat-long map by an integer ``factor`` in each direction, keeping its energy.
+
+    Each output pixel is the solid-angle-weighted mean of the ``factor`` x ``factor`` pixels it
+    covers, so the radiant power from every region of the sphere (a sun spread over fewer,
+    larger pixels included) is the same as in the input.
+
+    Parameters
+    ----------
+    image : ndarray, shape (h, w, 3) or (h, w)
+        h and w multiples of ``factor``.
+    factor : int
+        >= 1.
+
+    Returns
+    -------
+    ndarray, shape (h / factor, w / factor[, 3]), float32
+    """
+    img = np.asarray(image, dtype=np.float64)
+    h, w = img.shape[:2]
+    if factor < 1 or h % factor or w % factor:
+        raise ValueError(f"cannot shrink a {w} x {h} map by {factor}: use a factor >= 1 that "
+                         "divides both sides")
+    om = solid_angle_weights(h, w)
+    om = om.reshape(om.shape + (1,) * (img.ndim - 2))
+    shape = (h // factor, factor, w // factor, factor) + img.shape[2:]
+    num = (img * om).reshape(shape).sum(axis=(1, 3))
+    den = np.broadcast_to(om, img.shape).reshape(shape).sum(axis=(1, 3))
+    return (num / den).astype(np.float32)
+
+
 def rotate_latlong(image: np.ndarray, degrees: float) -> np.ndarray:
     """Rotate a lat-long map about the vertical axis by ``degrees`` of azimuth (new array).
 
@@ -183,7 +282,7 @@ class LightProbe:
     Attributes
     ----------
     name : str
-        File name of the probe (e.g. ``interior.exr``).
+        File name of the probe (e.g. ``noon_grass_256.hdr``).
     path : str
         Where it was read from.
     sha256 : str
@@ -244,21 +343,25 @@ def load_light_probe(
     rotation_deg: float = 0.0,
     normalise: str = "mean_luminance",
     target: float = 1.0,
+    scale: float | None = None,
 ) -> LightProbe:
-    """Read, check, rotate and scale a lat-long HDR light probe.
+    """Read, check, rotate and scale a lat-long HDR light probe (OpenEXR or Radiance ``.hdr``).
 
     Parameters
     ----------
     name_or_path : str or path-like
-        A file, or the name of a shipped probe (``interior.exr``).
+        A file, or the name of a shipped probe (``noon_grass_256.hdr``).
     rotation_deg : float
         Azimuthal rotation about the vertical axis, degrees.
-    normalise : {"none", "mean_luminance"}
-        "mean_luminance" scales the map so its solid-angle-weighted mean CIE Y equals ``target``
-        (probes of different exposure then light the stimulus comparably; the per-condition tone
-        map sets the final display range anyway).
+    normalise : {"none", "mean_luminance", "diffuse_white"}
+        "mean_luminance" scales the map so its solid-angle-weighted mean CIE Y equals ``target``;
+        "diffuse_white" so that a matte white facing the viewer has luminance ``target``
+        (:func:`diffuse_white_scale`). Ignored when ``scale`` is given.
     target : float
-        Mean luminance after normalisation (relative units), > 0.
+        Mean luminance or diffuse white's luminance after normalisation (relative units), > 0.
+    scale : float, optional
+        The factor applied to the file's values (the design's scale of a light field), > 0;
+        replaces ``normalise``.
 
     Raises
     ------
@@ -269,8 +372,10 @@ def load_light_probe(
         raise ValueError(f"normalise={normalise!r}; choose one of {list(NORMALISE_MODES)}")
     if not target > 0:
         raise ValueError(f"target mean luminance must be > 0, got {target}")
+    if scale is not None and not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"light probe scale must be a finite number > 0, got {scale}")
     path = probe_path(name_or_path)
-    img = read_exr(path)
+    img = read_probe_image(path)
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
     h, w = img.shape[:2]
@@ -297,8 +402,11 @@ def load_light_probe(
     mean_y = float(np.sum(y * solid_angle_weights(h, w)) / (4 * np.pi))
     if not mean_y > 0:
         raise IlluminationError(f"light probe {path} is black (mean luminance 0); check the file")
-    scale = target / mean_y if normalise == "mean_luminance" else 1.0
+    if scale is None:
+        scale = {"none": 1.0, "mean_luminance": target / mean_y}.get(normalise)
+        if normalise == "diffuse_white":
+            scale = diffuse_white_scale(img, target=target)
     rgb = (rotate_latlong(img, rotation_deg) if rotation_deg else img) * np.float32(scale)
     return LightProbe(name=path.name, path=str(path), sha256=sha256_file(path),
-                      rgb=rgb.astype(np.float32), rotation_deg=float(rotation_deg), scale=scale,
-                      n_clamped=n_clamped)
+                      rgb=rgb.astype(np.float32), rotation_deg=float(rotation_deg),
+                      scale=float(scale), n_clamped=n_clamped)

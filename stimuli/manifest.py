@@ -8,12 +8,13 @@ true values, ``light_field`` (its tone-mapping condition), ``array_index`` and `
 array), the Ward ``rho_d, rho_s, alpha``, ``spp`` (multijitter's real count), ``width_px,
 height_px``, ``image_width_cm`` (show the image this wide on the CRT: physical size) and
 ``distance_cm`` (the viewing distance it was rendered for), the Mitsuba ``variant``, the probe
-(``envmap``, ``envmap_sha256``, ``rotation_deg``), ``tonemap_lmax`` (L_max of the condition's
-tone curve, render units), ``calibration_id`` (whose inverse gamma the PNG carries), the files
-and their SHA-256, and ``calibration_sha256``: the SHA-256 of that calibration's file, so that
-a recalibration that kept its id is told apart (empty for the built-in default curve, which has
-no file, and in manifests written before the column existed: they still load, and a resumed
-render appends to them in their own columns).
+(``envmap``, ``envmap_sha256``, ``rotation_deg``), ``tonemap_lmax`` (L_max of its light field's
+tone curve, render units; the whole curve of each light field is in ``tonemaps.csv`` beside the
+manifest), ``calibration_id`` (whose inverse gamma the PNG carries), the files and their SHA-256,
+and ``calibration_sha256``: the SHA-256 of that calibration's file, so that a recalibration that
+kept its id is told apart (empty for the built-in default curve, which has no file, and in
+manifests written before the column existed: they still load, and a resumed render appends to
+them in their own columns).
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@ Folder layout (paths in the manifest are relative to it)::
 
     OUT/manifest.csv            one row per finished stimulus (MANIFEST_COLUMNS), fsynced per row
     OUT/renders.csv             one row per finished EXR (pass 1 record, fsynced per row)
+    OUT/tonemaps.csv            one row per light field: its probe and its tone curve
+                                (TONEMAP_COLUMNS), rewritten atomically after each run
     OUT/exr/<light_field>/<stimulus_id>.exr   float32 luminance (CIE Y), channel "Y"
     OUT/png/<light_field>/<stimulus_id>.png   8-bit grey, tone-mapped and gamma-corrected
 
@@ -17,10 +19,11 @@ Dr.Jit's threads on the cores its process may use; its other threads wait. Worke
 leave during a run (:func:`stimuli.dask_cluster.finished`): one that dies costs only its groups in
 flight, which other workers render again. Pass 2 waits
 for every EXR of a light field (its tone-mapping condition), computes the condition's L_max, and
-writes PNGs and manifest rows. Every file is written to a hidden temporary name and renamed, so an
-interrupted run (Ctrl-C, kill, disk full) leaves no half-written file under a real name; re-running
-the same command skips every EXR whose logged checksum and settings verify and every manifest row
-whose files verify, and finishes the rest.
+writes PNGs and manifest rows, and records the curve of each light field beside them
+(``tonemaps.csv``: the seed's map fitted once per light field). Every file is written to a hidden
+temporary name and renamed, so an interrupted run (Ctrl-C, kill, disk full) leaves no
+half-written file under a real name; re-running the same command skips every EXR whose logged
+checksum and settings verify and every manifest row whose files verify, and finishes the rest.
 """
 
 from __future__ import annotations
@@ -36,7 +39,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from labfiles import TEMPORARY_GLOB, append_csv_record, read_csv_records
+from labfiles import TEMPORARY_GLOB, append_csv_record, atomic_open, read_csv_records
 from stimuli.dask_cluster import ClusterError
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
@@ -49,13 +52,21 @@ from stimuli.tonemap import (
     gamma_encode,
     luminance_range,
     tone_curve,
+    tone_curve_record,
     write_png,
 )
 
-__all__ = ["RENDER_LOG_COLUMNS", "RenderJob", "render_group", "render_set"]
+__all__ = ["RENDER_LOG_COLUMNS", "TONEMAP_COLUMNS", "RenderJob", "render_group", "render_set"]
 
 RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px", "rho_d", "rho_s",
                       "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
+#: Render-log columns read as text (a checksum of digits and one "e" would read as a number).
+_LOG_TEXT = {"stimulus_id": str, "exr_sha256": str, "envmap_sha256": str}
+#: ``tonemaps.csv``: per light field, its probe and the tone curve of its PNGs
+#: (:mod:`stimuli.tonemap`; L_max over the images of the light field in the folder).
+TONEMAP_COLUMNS = ["light_field", "illumination", "envmap", "envmap_sha256", "envmap_scale",
+                   "n_images", "lmax_percentile", "tonemap_lmax", "knee_luminance",
+                   "logistic_rate", "linear_fraction", "knee_value", "max_value"]
 
 
 @dataclass(frozen=True)
@@ -145,9 +156,12 @@ def _render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
         design = load_design(job.design_path or None)
         _worker["design"], _worker["design_path"] = design, job.design_path
     first = rows[0]
-    probe_key = (first["envmap"], first["rotation_deg"])
+    scale = float(first.get("envmap_scale", float("nan")))
+    scale = None if np.isnan(scale) else scale  # NaN: mean luminance 1 (designs without scales)
+    probe_key = (first["envmap"], first["rotation_deg"], scale)
     if _worker.get("probe_key") != probe_key:
-        _worker["probe"] = load_light_probe(first["envmap"], rotation_deg=first["rotation_deg"])
+        _worker["probe"] = load_light_probe(first["envmap"], rotation_deg=first["rotation_deg"],
+                                            scale=scale)
         _worker["probe_key"] = probe_key
     probe = _worker["probe"]
     geometry = draw_array(design, first["true_depth_cm"], int(first["seed"]))
@@ -201,16 +215,25 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
     if not log.is_file():
         return set()
     try:
-        done = read_csv_records(log, dtype={"stimulus_id": str, "exr_sha256": str})
+        done = read_csv_records(log, dtype=_LOG_TEXT)
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
                            "(finished EXRs will be rendered again)") from exc
     done = done.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
+    probe_sha = {env: sha256_file(probe_path(env)) for env in plan["envmap"].unique()}
     ok = set()
     for row in plan.itertuples(index=False):
         if row.stimulus_id not in done.index:
             continue
         rec = done.loc[row.stimulus_id]
+        if str(rec["envmap_sha256"]) != probe_sha[row.envmap]:
+            # rendering it again would replace a recorded EXR (a design whose light field now
+            # points at another file, e.g. the captures that replaced the studio probes)
+            raise StimuliError(
+                f"{log} records {row.stimulus_id} rendered under another light probe (checksum "
+                f"{str(rec['envmap_sha256'])[:12]}..., not {row.envmap}'s "
+                f"{probe_sha[row.envmap][:12]}...); recorded data are never overwritten: render "
+                "into a new --out folder")
         same = (int(rec["spp"]) == int(row.spp) and int(rec["width_px"]) == job.size_px
                 and np.isclose(rec["rho_d"], row.rho_d) and np.isclose(rec["rho_s"], row.rho_s)
                 and np.isclose(rec["alpha"], row.alpha) and int(rec["seed"]) == int(row.seed))
@@ -287,19 +310,26 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
         If the manifest already lists a stimulus rendered or tone-mapped differently, or a listed
         PNG is missing or changed (recorded data are never overwritten).
     """
-    records = read_csv_records(out / "renders.csv", dtype={"stimulus_id": str, "exr_sha256": str})
+    records = read_csv_records(out / "renders.csv", dtype=_LOG_TEXT)
     records = records.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
     manifest_path = out / "manifest.csv"
     existing = load_manifest(manifest_path) if manifest_path.exists() else None
     have = {} if existing is None else existing.set_index("stimulus_id").to_dict("index")
     bar = _progress(len(plan), "tone map PNG", progress)
     n_png = n_png_skipped = 0
+    curves = []
     try:
         for lf, group in plan.groupby("light_field", sort=False):
             # streamed (one image in memory at a time): a light field of the imagestats set
             # holds thousands of EXRs
             lmax = max(luminance_range([read_exr(out / p)]) for p in group["exr_path"])
             curve = tone_curve(tonemap_spec, lmax)
+            first = group.iloc[0]
+            curves.append({"light_field": lf, "illumination": first["illumination"],
+                           "envmap": first["envmap"],
+                           "envmap_sha256": records.loc[first["stimulus_id"], "envmap_sha256"],
+                           "envmap_scale": first.get("envmap_scale", float("nan")),
+                           "n_images": len(group), **tone_curve_record(curve)})
             for row in group.itertuples(index=False):
                 rec = records.loc[row.stimulus_id]
                 prior = have.get(row.stimulus_id)
@@ -344,7 +374,20 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
                 bar.update(1)
     finally:
         bar.close()
+    _record_tone_curves(out / "tonemaps.csv", curves)
     return n_png, n_png_skipped, manifest_path
+
+
+def _record_tone_curves(path: Path, curves: list[dict]) -> None:
+    """Write ``tonemaps.csv``: this run's light fields, and those of earlier runs into the same
+    folder that this run did not touch (kept as recorded)."""
+    frame = pd.DataFrame(curves, columns=TONEMAP_COLUMNS)
+    if path.is_file():
+        old = read_csv_records(path, dtype={"light_field": str, "envmap_sha256": str})
+        old = old[~old["light_field"].isin(frame["light_field"])]
+        frame = pd.concat([old[TONEMAP_COLUMNS], frame], ignore_index=True)
+    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
+        frame.to_csv(fh, index=False)
 
 
 def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibration,

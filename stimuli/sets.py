@@ -3,20 +3,25 @@
 * ``experiment``: the design's stimuli (``design.stimuli()``, 162 = 2 illuminations x 9 gloss x
   9 depth). One array per depth level (array index 0), shared by all gloss levels and both
   illuminations, so stimuli of one depth differ only in material and light.
-* ``imagestats``: for the image-statistics analysis, every physical gloss and depth level (11 x 11)
-  x ``design.imagestats.n_arrays`` arrays x ``design.imagestats.n_light_fields`` light fields
-  per illumination condition (seed: 2 x 11 x 11 x 11 x 22 = 58,564 images). A condition's light
-  fields are its probe rotated about the vertical by ``k * 360 / n`` degrees (k = 0..n-1): the
-  project ships one probe per condition, and a rotation moves every light source; a lab with
-  more probes can point the conditions at them. Select subsets with filters.
+* ``imagestats``: for the image-statistics analysis, every light field of
+  ``design.imagestats.light_fields`` (22 captures, 11 indoor and 11 outdoor, each its own file)
+  x every physical gloss and depth level (11 x 11) x ``design.imagestats.n_arrays`` arrays
+  (seed: 22 x 11 x 11 x 22 = 58,564 images). ``illumination`` is the condition of the light
+  field's kind (``design.illumination_of_kind``). Select subsets with filters.
+* ``imagestats_slice``: the stratified slice of ``imagestats`` that measures the full set's
+  cost and previews its statistics: two images per light field (44), which within each kind
+  cover every physical gloss and depth level twice, uncorrelated (:func:`slice_levels`).
 * ``preview``: the lowest and highest rendered gloss and depth under both illuminations (8),
   for the demo and tests.
 
 Every row carries ``light_field`` (the tone-mapping condition), ``array_index``, ``seed`` (the
-array's, :func:`stimuli.geometry.stimulus_seed`), ``envmap`` and ``rotation_deg``.
+array's, :func:`stimuli.geometry.stimulus_seed`), ``envmap``, ``envmap_scale`` (the factor the
+probe file's values are multiplied by; NaN: mean luminance 1) and ``rotation_deg``.
 """
 
 from __future__ import annotations
+
+import math
 
 import pandas as pd
 
@@ -28,12 +33,14 @@ __all__ = [
     "SET_NAMES",
     "apply_filters",
     "parse_filters",
+    "slice_levels",
     "stimulus_set",
 ]
 
-SET_NAMES = ("experiment", "imagestats", "preview")
+SET_NAMES = ("experiment", "imagestats", "imagestats_slice", "preview")
 SET_COLUMNS = ["stimulus_id", "illumination", "gloss_level", "depth_level", "true_gloss_pct",
-               "true_depth_cm", "light_field", "array_index", "seed", "envmap", "rotation_deg"]
+               "true_depth_cm", "light_field", "array_index", "seed", "envmap", "envmap_scale",
+               "rotation_deg"]
 
 
 def _experiment(design: StudyDesign) -> pd.DataFrame:
@@ -42,22 +49,54 @@ def _experiment(design: StudyDesign) -> pd.DataFrame:
     t["array_index"] = 0
     t["seed"] = [stimulus_seed(d, 0) for d in t["depth_level"]]
     t["envmap"] = [design.illumination(il).envmap for il in t["illumination"]]
+    scales = [design.illumination(il).scale for il in t["illumination"]]
+    t["envmap_scale"] = [math.nan if v is None else float(v) for v in scales]
     t["rotation_deg"] = 0.0
     return t[SET_COLUMNS]
 
 
+def _imagestats_rows(design: StudyDesign, lf, cells) -> list[tuple]:
+    """Rows of light field ``lf`` for ``(gloss, depth, array)`` label triples."""
+    condition = design.illumination_of_kind(lf.kind)
+    pct = dict(zip(design.gloss.labels, design.gloss.physical_pct))
+    cm = dict(zip(design.depth.labels, design.depth.physical_cm))
+    return [(f"{lf.name}_g{g:02d}_d{d:02d}_a{a:02d}", condition, g, d, pct[g], cm[d], lf.name, a,
+             stimulus_seed(d, a), lf.envmap, float(lf.scale), 0.0) for g, d, a in cells]
+
+
 def _imagestats(design: StudyDesign) -> pd.DataFrame:
+    cells = [(g, d, a) for g in design.gloss.labels for d in design.depth.labels
+             for a in range(design.imagestats.n_arrays)]
+    rows = [r for lf in design.imagestats.light_fields for r in _imagestats_rows(design, lf, cells)]
+    return pd.DataFrame(rows, columns=SET_COLUMNS)
+
+
+def slice_levels(i: int, r: int, kind_index: int, n_gloss: int, n_depth: int) -> tuple[int, int]:
+    """Gloss and depth level indices (0-based) of image ``r`` (0 or 1) of the ``i``-th light
+    field of a kind in the ``imagestats_slice`` set.
+
+    Image 0: (i, 3 i + k), image 1: (2 i, 2 i + 7 + k), modulo the numbers of levels, with k = 0
+    indoor and 1 outdoor. With 11 light fields per kind and 11 levels (the shipped design) each
+    kind covers every gloss and every depth level exactly twice, gloss and depth are uncorrelated
+    over the kind's 22 images (r = 0.00), and so are the two images' differences in gloss and in
+    depth within a light field (r = 0.00), so that the slopes on gloss and on depth are
+    estimable both across and within light fields.
+    """
+    if r == 0:
+        return i % n_gloss, (3 * i + kind_index) % n_depth
+    return (2 * i) % n_gloss, (2 * i + 7 + kind_index) % n_depth
+
+
+def _imagestats_slice(design: StudyDesign) -> pd.DataFrame:
     rows = []
-    n_lf = design.imagestats.n_light_fields
-    for il in design.illuminations:
-        for k in range(n_lf):
-            lf = f"{il.name}_lf{k:02d}"
-            for g in design.gloss.labels:
-                for d in design.depth.labels:
-                    for a in range(design.imagestats.n_arrays):
-                        rows.append((f"{lf}_g{g:02d}_d{d:02d}_a{a:02d}", il.name, g, d,
-                                     float(design.gloss.pct(g)), float(design.depth.cm(d)), lf, a,
-                                     stimulus_seed(d, a), il.envmap, 360.0 * k / n_lf))
+    gl, dl = design.gloss.labels, design.depth.labels
+    for k, kind in enumerate(("indoor", "outdoor")):
+        lfs = [lf for lf in design.imagestats.light_fields if lf.kind == kind]
+        for i, lf in enumerate(lfs):
+            for r in (0, 1):
+                g, d = slice_levels(i, r, k, len(gl), len(dl))
+                rows += _imagestats_rows(design, lf, [(gl[g], dl[d],
+                                                       (i + r) % design.imagestats.n_arrays)])
     return pd.DataFrame(rows, columns=SET_COLUMNS)
 
 
@@ -77,7 +116,8 @@ def stimulus_set(design: StudyDesign, name: str) -> pd.DataFrame:
     ValueError
         If ``name`` is not one of ``SET_NAMES``.
     """
-    builders = {"experiment": _experiment, "imagestats": _imagestats, "preview": _preview}
+    builders = {"experiment": _experiment, "imagestats": _imagestats,
+                "imagestats_slice": _imagestats_slice, "preview": _preview}
     if name not in builders:
         raise ValueError(f"unknown stimulus set {name!r}; choose one of {list(SET_NAMES)}")
     return builders[name](design).reset_index(drop=True)

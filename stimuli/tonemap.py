@@ -1,6 +1,8 @@
 """Tone mapping (the source study's linear + asymptotic logistic) and gamma correction to 8-bit PNG.
 
-Per illumination condition, one curve for all its stimuli. With ``L_max`` the condition's
+Per light field (the tone-mapping condition: the experiment's illumination condition, or one
+light field of the image-statistics set), one curve for all its stimuli, as the seed did per
+illumination condition. With ``L_max`` the condition's
 luminance range (below), ``f = design.tonemap.linear_fraction`` (0.67), ``v_k = knee_value`` (171)
 and ``v_max = max_value`` (255), the display value ``v`` (0-255, proportional to the wanted screen
 luminance) of a pixel of luminance ``L`` is
@@ -41,6 +43,7 @@ __all__ = [
     "gamma_encode",
     "luminance_range",
     "tone_curve",
+    "tone_curve_record",
     "tonemap",
     "write_png",
 ]
@@ -90,6 +93,16 @@ def tone_curve(spec: ToneMapSpec, max_luminance: float) -> ToneCurve:
             "are black or broken: check the light probe and the EXR files")
     return ToneCurve(float(max_luminance), float(spec.linear_fraction), float(spec.knee_value),
                      float(spec.max_value))
+
+
+def tone_curve_record(curve: ToneCurve) -> dict:
+    """The numbers that define a curve, as recorded beside renders (``tonemaps.csv``):
+    ``lmax_percentile``, ``tonemap_lmax`` (L_max), ``knee_luminance`` (L_k), ``logistic_rate``
+    (s), ``linear_fraction`` (f), ``knee_value`` (v_k), ``max_value`` (v_max)."""
+    return {"lmax_percentile": LMAX_PERCENTILE, "tonemap_lmax": curve.max_luminance,
+            "knee_luminance": curve.knee_luminance, "logistic_rate": curve.logistic_rate,
+            "linear_fraction": curve.linear_fraction, "knee_value": curve.knee_value,
+            "max_value": curve.max_value}
 
 
 def luminance_range(images) -> float:

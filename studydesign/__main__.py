@@ -34,7 +34,10 @@ def _summary(design) -> str:
         ),
         (
             "illuminations: "
-            + ", ".join(f"{il.name} ({il.kind}, {il.envmap})" for il in design.illuminations)
+            + ", ".join(f"{il.name} ({il.kind}, {il.envmap}, "
+                        + (f"scale {il.scale:.4g})" if il.scale is not None
+                           else "scaled to mean luminance 1)")
+                        for il in design.illuminations)
         ),
         (
             f"stimuli: {design.n_stimuli} in {design.sessions.n_sessions} sessions of "
@@ -42,9 +45,10 @@ def _summary(design) -> str:
         ),
         (
             f"image-statistics set: {design.imagestats.n_light_fields} light fields x "
-            f"{design.imagestats.n_arrays} arrays per gloss x depth x illumination = "
-            f"{design.n_imagestats_images} images"
+            f"{design.gloss.n_levels} gloss x {design.depth.n_levels} depth x "
+            f"{design.imagestats.n_arrays} arrays = {design.n_imagestats_images} images"
         ),
+        _light_fields(design),
         (
             f"display: {design.display.resolution_px[0]}x{design.display.resolution_px[1]} px at "
             f"{design.display.viewing_distance_cm:g} cm"
@@ -55,6 +59,32 @@ def _summary(design) -> str:
             f"gloss_pct = {design.slider.gloss_pct_per_unit:g} (v - 1)"
         ),
     ]
+    return "\n".join(lines)
+
+
+#: Why each light field has the scale it has, per ``[imagestats] scale_rule``.
+_SCALE_WHY = {
+    "diffuse_white": "the captures are not absolutely calibrated (each file has its own "
+    "arbitrary scale); each is scaled so that a matte white facing the viewer has luminance 1 "
+    "(relative units) under it: the light fields then differ in how their light is laid out, "
+    "not in the exposure of the file, as for an observer adapted to each scene, and light from "
+    "behind the array (which never reaches its visible side) does not set the scale, as it "
+    "would if the mean luminance were equalised; the PNGs' range is set per light field by "
+    "the tone map anyway (protocol.md, section 4)",
+}
+
+
+def _light_fields(design) -> str:
+    lfs = design.imagestats.light_fields
+    kinds = {k: sum(lf.kind == k for lf in lfs) for k in ("indoor", "outdoor")}
+    files = {lf.envmap for lf in lfs}
+    head = (f"light fields: {len(lfs)} ({kinds['indoor']} indoor, {kinds['outdoor']} "
+            f"outdoor), {len(files)} distinct files; scale rule "
+            f"{design.imagestats.scale_rule}: {_SCALE_WHY[design.imagestats.scale_rule]}")
+    lines = [head]
+    width = max(len(lf.name) for lf in lfs)
+    for lf in lfs:
+        lines.append(f"  {lf.kind:7s} {lf.name:{width}s}  {lf.envmap}  scale {lf.scale:.6g}")
     return "\n".join(lines)
 
 

@@ -17,12 +17,20 @@ ImageStatsObserver
 stat_table, depth_effects, DepthEffect, gloss_regression, join_perception, cell_means,
 ps_components, SCALAR_STATS
     Relating the statistics to depth and perceived gloss.
+light_field_effects, light_field_spread, light_field_means
+    How each statistic follows gloss and depth within and across light fields (indoor vs
+    outdoor), and the statistics per light field.
 build_relate_report
     The HTML report (``python -m analysis imagestats relate``).
 """
 
 from analysis.imagestats.config import StatsConfig
 from analysis.imagestats.images import ImageStatsError, read_luminance
+from analysis.imagestats.lightfields import (
+    light_field_effects,
+    light_field_means,
+    light_field_spread,
+)
 from analysis.imagestats.measure import measure_image
 from analysis.imagestats.observer import ImageStatsObserver
 from analysis.imagestats.pixelstats import PIXEL_STATS, pixel_statistics
@@ -57,6 +65,9 @@ __all__ = [
     "depth_effects",
     "gloss_regression",
     "join_perception",
+    "light_field_effects",
+    "light_field_means",
+    "light_field_spread",
     "load_stats",
     "measure_image",
     "pixel_statistics",

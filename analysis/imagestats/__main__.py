@@ -131,8 +131,35 @@ def _relate(argv: list[str]) -> int:
             ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+    _print_light_fields(index.parent / "results.json")
     print(f"report: {index}")
     return 0
+
+
+def _print_light_fields(results_path: Path) -> None:
+    """One line per statistic: its slopes within light fields and per kind, and the indoor -
+    outdoor difference (when the table held several light fields)."""
+    import json
+
+    lf = json.loads(results_path.read_text(encoding="utf-8")).get("light_fields")
+    if not lf:
+        return
+    spread = {r["statistic"]: r for r in lf["spread"]}
+    print(f"light fields: {len(lf['means'])}; slopes of each standardised statistic (SD per 10 % "
+          "gloss, SD per cm depth), within light fields | indoor | outdoor; between-light-field "
+          "variance share; indoor - outdoor (SD)")
+    by_stat: dict = {}
+    for r in lf["effects"]:
+        by_stat.setdefault(r["statistic"], {})[r["scope"]] = r
+    for name, scopes in by_stat.items():
+        cells = [f"{s.split()[0]:7s} g {scopes[s]['gloss_slope_sd_per_10pct']:+.2f} "
+                 f"d {scopes[s]['depth_slope_sd_per_cm']:+.2f}"
+                 for s in ("within light fields", "indoor", "outdoor") if s in scopes]
+        sp = spread.get(name, {})
+        print(f"  {name:20s} " + " | ".join(cells)
+              + f" | between {sp.get('between_light_field_r2', float('nan')):.2f}"
+              f" | in-out {sp.get('indoor_minus_outdoor_sd', float('nan')):+.2f}"
+              f" (p {sp.get('welch_p', float('nan')):.2g})")
 
 
 def main(argv: list[str] | None = None) -> int:

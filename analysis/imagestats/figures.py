@@ -7,7 +7,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-__all__ = ["plot_depth_effects", "plot_observer_fit", "plot_stat_grid"]
+__all__ = ["plot_depth_effects", "plot_light_fields", "plot_observer_fit", "plot_stat_grid"]
 
 
 def plot_stat_grid(cells: pd.DataFrame, statistic: str) -> Figure:
@@ -69,4 +69,18 @@ def plot_observer_fit(observed: np.ndarray, predicted: np.ndarray, depth_cm: np.
     ax.set_xlabel("predicted gloss from image statistics (%)")
     ax.set_ylabel("perceived gloss, cell mean (%)")
     fig.colorbar(sc, ax=ax, label="true depth (cm)")
+    return fig
+
+
+def plot_light_fields(means: pd.DataFrame, names: list[str]) -> Figure:
+    """Each statistic's mean per light field (``light_field_means``), one panel per statistic,
+    light fields on the x axis grouped by kind (indoor blue, outdoor orange)."""
+    fig = Figure(figsize=(0.22 * len(means) + 2.5, 1.6 * len(names) + 0.8), layout="constrained")
+    axes = fig.subplots(len(names), 1, sharex=True, squeeze=False)[:, 0]
+    x = np.arange(len(means))
+    colours = np.where(means["kind"] == "indoor", "C0", "C1")
+    for ax, name in zip(axes, names):
+        ax.scatter(x, means[name], c=colours, s=14)
+        ax.set_ylabel(name, fontsize=7)
+    axes[-1].set_xticks(x, means["light_field"], rotation=90, fontsize=6)
     return fig

@@ -94,7 +94,8 @@ def stat_table(stats: pd.DataFrame, *, n_ps_components: int = 3) -> tuple[pd.Dat
     Returns
     -------
     frame : DataFrame
-        ``stimulus_id``, `CELL`, ``true_gloss_pct``, ``true_depth_cm``, the statistics.
+        ``stimulus_id``, `CELL`, ``true_gloss_pct``, ``true_depth_cm``, ``light_field`` (when the
+        table has it), the statistics.
     names : list of str
         The statistics' column names.
     """
@@ -102,6 +103,8 @@ def stat_table(stats: pd.DataFrame, *, n_ps_components: int = 3) -> tuple[pd.Dat
     missing = [c for c in keys + list(SCALAR_STATS) if c not in stats.columns]
     if missing:
         raise ImageStatsError(f"the statistics table lacks columns {missing}")
+    if "light_field" in stats.columns:  # the light fields, for statistics across them
+        keys.append("light_field")
     frame = stats[keys + list(SCALAR_STATS)].copy()
     names = list(SCALAR_STATS)
     has_ps = any(c.startswith("ps_") for c in stats.columns)

@@ -11,7 +11,17 @@ import numpy as np
 import pandas as pd
 
 from analysis.figures import save_figure
-from analysis.imagestats.figures import plot_depth_effects, plot_observer_fit, plot_stat_grid
+from analysis.imagestats.figures import (
+    plot_depth_effects,
+    plot_light_fields,
+    plot_observer_fit,
+    plot_stat_grid,
+)
+from analysis.imagestats.lightfields import (
+    light_field_effects,
+    light_field_means,
+    light_field_spread,
+)
 from analysis.imagestats.observer import ImageStatsObserver
 from analysis.imagestats.relate import (
     CELL,
@@ -37,6 +47,35 @@ def _write_csv(frame: pd.DataFrame, path: Path) -> None:
 
 def _table(frame: pd.DataFrame) -> str:
     return frame.to_html(index=False, float_format=lambda v: f"{v:.3g}", border=0)
+
+
+def _light_field_section(frame: pd.DataFrame, names: list[str], out: Path,
+                         results: dict) -> str:
+    """The statistics across the light fields, and how they follow gloss and depth within
+    and across them (analysis.imagestats.lightfields); tables also as CSV."""
+    means = light_field_means(frame, names)
+    effects = light_field_effects(frame, names)
+    spread = light_field_spread(frame, names)
+    _write_csv(means, out / "light_field_means.csv")
+    _write_csv(effects, out / "light_field_effects.csv")
+    _write_csv(spread, out / "light_field_spread.csv")
+    save_figure(plot_light_fields(means, names), out / "light_fields.png")
+    results["light_fields"] = {"means": means.to_dict("records"),
+                               "effects": effects.to_dict("records"),
+                               "spread": spread.to_dict("records")}
+    kinds = means.groupby("kind").size().to_dict()
+    return ("<h2>Across the light fields</h2>"
+            f"<p>{len(means)} light fields ({', '.join(f'{v} {k}' for k, v in kinds.items())}). "
+            "Mean of each statistic per light field:</p>" + _table(means)
+            + '<img src="light_fields.png">'
+            "<h3>How each statistic follows gloss and depth within and across light fields</h3>"
+            "<p>Standardised statistic (SD units) regressed on true gloss (per 10 %) and true "
+            "depth (per cm): <i>within light fields</i> with a fixed effect per light field "
+            "(from differences between images of one light field), and over the light fields "
+            "of each kind; HC3 95 % CIs.</p>" + _table(effects)
+            + "<p>Share of each statistic's variance between light fields, and indoor minus "
+            "outdoor (mean over light fields, SD units; Welch's t over the light fields' "
+            "means):</p>" + _table(spread))
 
 
 def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
@@ -97,6 +136,8 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
     _write_csv(eff, out / "depth_effects.csv")
     _write_csv(per_cell, out / "depth_slopes_per_cell.csv")
     _write_csv(cells, out / "cell_means.csv")
+    if "light_field" in frame.columns and frame["light_field"].nunique() >= 2:
+        parts.append(_light_field_section(frame, names, out, results))
     parts.append("<h2>Each statistic over the gloss x depth grid</h2>"
                  "<p>Mean over the images of each cell (light fields, arrays).</p>")
     for name in names:

@@ -104,7 +104,8 @@ def _bad(tmp_path):
     src = (tmp_path / "design.toml")
     from studydesign import default_design_path
 
-    src.write_text(default_design_path().read_text().replace('"interior.exr"', '"nowhere.exr"'))
+    indoor = '"aerodynamics_workshop_512x256.hdr"'  # the indoor condition's probe, named first
+    src.write_text(default_design_path().read_text().replace(indoor, '"nowhere.exr"', 1))
     return [
         (["--set", "nonsense"], "unknown stimulus set"),
         (["--gloss-table", str(tmp_path / "missing.csv")], "missing.csv not found"),
@@ -138,21 +139,39 @@ def test_export_print_writes_a_watertight_stl(tmp_path, capsys):
     assert "not a depth level" in capsys.readouterr().err
 
 
-def test_imagestats_light_fields_are_rotated_probes(tmp_path, capsys, mitsuba_variant):
-    """Two light fields of one condition: same array and material, probe rotated -> other image."""
-    out = tmp_path / "is"
-    rc = main(["render", "--set", "imagestats", "--filter", "light_field=outdoor_lf00,outdoor_lf03",
-               "--filter", "gloss_level=9", "--filter", "depth_level=6", "--filter",
-               "array_index=4", "--out", str(out), "--workers", "0", *TINY])
+@pytest.mark.slow
+def test_imagestats_slice_renders_22_distinct_captures_each_tone_mapped_alone(
+        tmp_path, design, capsys, mitsuba_variant):
+    """The slice crosses all 22 light fields: the manifest names 22 distinct probe files with
+    their checksums, and tonemaps.csv holds one tone curve per light field, the one its PNGs
+    were mapped with (L_max from that light field's images only)."""
+    from stimuli.illumination import probe_path
+    from stimuli.manifest import sha256_file
+
+    out = tmp_path / "slice"
+    rc = main(["render", "--set", "imagestats_slice", "--out", str(out), "--workers", "0",
+               "--size", "16", "--spp", "1", "--no-progress"])
     assert rc == 0, capsys.readouterr().err
-    m = load_manifest(out).set_index("light_field")
-    assert list(m.index) == ["outdoor_lf00", "outdoor_lf03"]
-    assert m.loc["outdoor_lf03", "rotation_deg"] == pytest.approx(3 * 360 / 11)
-    assert m["seed"].nunique() == 1 and m["envmap_sha256"].nunique() == 1
-    a, b = (read_exr(out / p) for p in m["exr_path"])
-    # 8 x 8 blocks average 16 pixels x 4 spp: the lighting pattern, not the sampling noise
-    blocks = [im.reshape(4, 8, 4, 8).mean(axis=(1, 3)) for im in (a, b)]
-    assert np.abs(blocks[0] - blocks[1]).mean() > 0.2 * blocks[0].mean()  # 0.39 when written
+    m = load_manifest(out)
+    assert len(m) == 44 and m["light_field"].nunique() == 22
+    probes = m.groupby("light_field")[["envmap", "envmap_sha256"]].agg(set)
+    assert (probes.map(len) == 1).all().all()  # one probe per light field
+    files = {next(iter(e)) for e in probes["envmap"]}
+    assert len(files) == 22 and (m["rotation_deg"] == 0).all()
+    for row in m.drop_duplicates("envmap").itertuples():
+        assert row.envmap_sha256 == sha256_file(probe_path(row.envmap))
+    curves = pd.read_csv(out / "tonemaps.csv").set_index("light_field")
+    assert len(curves) == 22 and curves["n_images"].eq(2).all()
+    lmax = m.groupby("light_field")["tonemap_lmax"].agg(["min", "max"])
+    assert (lmax["min"] == lmax["max"]).all()
+    np.testing.assert_allclose(curves.loc[lmax.index, "tonemap_lmax"], lmax["min"], rtol=1e-9)
+    assert curves["tonemap_lmax"].nunique() == 22  # each fitted to its own light field
+    for lf, c in curves.iterrows():
+        expected = max(np.percentile(read_exr(out / p), 99.9)
+                       for p in m.loc[m["light_field"] == lf, "exr_path"])
+        assert c["tonemap_lmax"] == pytest.approx(expected, rel=1e-6)
+        assert c["knee_luminance"] == pytest.approx(design.tonemap.linear_fraction * expected)
+    assert set(curves["envmap"]) == files
 
 
 def _stl_vertices_as_a_slicer_reads_them(path) -> np.ndarray:
@@ -191,3 +210,26 @@ def test_export_print_is_true_size_in_a_slicer(tmp_path, capsys, design, units, 
     assert info["units"] == (units or "mm")
     assert info["size"] == f"{width:.1f} x {depth:.1f} x {height:.1f} {units or 'mm'}"
     assert out.read_bytes()[:80].rstrip().endswith(f"units {units or 'mm'}".encode())
+
+
+def test_resume_under_another_probe_is_refused_before_anything_is_replaced(tmp_path, capsys,
+                                                                           mitsuba_variant):
+    """A folder rendered under one probe, resumed with a design whose condition now names
+    another capture, used to count its EXRs as done (same levels, spp and size) and keep them
+    silently; now the run stops, naming the probe, and replaces nothing."""
+    from studydesign import default_design_path
+
+    out = tmp_path / "r"
+    args = ["render", "--set", "preview", "--filter", "illumination=indoor", "--limit", "1",
+            "--out", str(out), "--workers", "0", *TINY]
+    assert main(args) == 0, capsys.readouterr().err
+    capsys.readouterr()
+    exr = next((out / "exr").rglob("*.exr"))
+    before = exr.read_bytes()
+    other = tmp_path / "design.toml"
+    other.write_text(default_design_path().read_text().replace(
+        '"aerodynamics_workshop_512x256.hdr"', '"lebombo_512x256.hdr"', 1))
+    assert main(["--design", str(other), *args]) == 1
+    err = capsys.readouterr().err
+    assert "another light probe" in err and "new --out folder" in err
+    assert exr.read_bytes() == before

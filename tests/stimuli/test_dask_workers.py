@@ -279,7 +279,8 @@ def test_the_plan_of_the_full_set_matches_the_measured_44_hours(design):
     from stimuli.sets import stimulus_set
 
     table = stimulus_set(design, "imagestats")
-    spp = [design.render.spp(g) for g in table["gloss_level"]]
+    measured_at = (24, 24, 25, 30, 30, 35, 36, 42, 48, 56, 80)  # the design's spp back then
+    spp = [measured_at[g - 1] for g in table["gloss_level"]]
     text = plan_text(len(table), 0, 256, spp, {"lab-pc": 2})
     assert "plan: 58564 images to render (0 already done), 256 px" in text
     hours = float(text.split("2 cores): ")[1].split(" h")[0])

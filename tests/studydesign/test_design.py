@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from studydesign import DesignError, load_design
+from studydesign import DesignError, default_design_path, load_design
 
 
 def test_gloss_levels_match_seed(design):
@@ -52,8 +52,42 @@ def test_stimulus_set_is_two_by_nine_by_nine(design):
 
 
 def test_imagestats_set_is_the_seeds_58564_images(design):
-    assert design.imagestats.n_light_fields == 11 and design.imagestats.n_arrays == 22
-    assert design.n_imagestats_images == 2 * 11 * 11 * 11 * 22 == 58_564
+    assert design.imagestats.n_light_fields == 22 and design.imagestats.n_arrays == 22
+    assert design.n_imagestats_images == 22 * 11 * 11 * 22 == 58_564
+
+
+def test_light_fields_are_22_distinct_captures_11_indoor_11_outdoor(design):
+    lfs = design.imagestats.light_fields
+    assert len({lf.envmap for lf in lfs}) == len({lf.name for lf in lfs}) == 22
+    assert sorted(lf.kind for lf in lfs) == ["indoor"] * 11 + ["outdoor"] * 11
+    assert all(lf.scale > 0 for lf in lfs) and design.imagestats.scale_rule == "diffuse_white"
+    # the experiment's two conditions are two of them, with the same scale
+    for il in design.illuminations:
+        same = [lf for lf in lfs if lf.envmap == il.envmap]
+        assert len(same) == 1 and same[0].kind == il.kind and same[0].scale == il.scale
+
+
+def _with_imagestats(tmp_path, text: str):
+    src = default_design_path().read_text(encoding="utf-8")
+    start, end = src.index("[imagestats]"), src.index("[render]")
+    path = tmp_path / "design.toml"
+    path.write_text(src[:start] + text + "\n" + src[end:], encoding="utf-8")
+    return path
+
+
+_ONE = '[imagestats]\nn_arrays = 2\nlight_fields = [\n{{ name = "a", kind = "{k}", envmap = "x.hdr", scale = {s} }}{more}]\n'
+
+
+@pytest.mark.parametrize("text, match", [
+    ("[imagestats]\nn_light_fields = 11\nn_arrays = 22\n", "n_light_fields is gone"),
+    (_ONE.format(k="indoor", s=1.0, more=',\n{ name = "b", kind = "indoor", envmap = "x.hdr", '
+                 'scale = 1.0 }'), "files repeat"),
+    (_ONE.format(k="indoor", s=0.0, more=""), "scale must be"),
+    (_ONE.format(k="attic", s=1.0, more=""), "indoor' or 'outdoor"),
+])
+def test_bad_light_fields_are_refused_with_the_fix(tmp_path, text, match):
+    with pytest.raises(DesignError, match=match):
+        load_design(_with_imagestats(tmp_path, text))
 
 
 def test_display_matches_seed(design):
