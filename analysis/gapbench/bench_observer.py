@@ -68,9 +68,10 @@ CATALOGUE_ADDED = {"illumination_gain": 0.3, "label_rounding": 0.4, "lapses": 0.
 #: Pairs of catalogue effects a case may add together: rounding toward the slider's labels (a
 #: pull a share of the way to the nearest label, none landing on it; an outside check's
 #: generator) beside serial dependence, which was found as serial dependence alone (issue 29).
-PAIRS = {"labels_and_serial": {"label_pull": 0.4, "serial_dependence": 0.3}}
+PAIRS = {"labels_and_serial": {"label_pull": 0.4, "serial_dependence": 0.3},
+         "labels_then_serial": {"label_pull": 0.5, "setting_pull": 0.25}}
 #: The candidate an added effect of a pair is found as, where its name differs.
-CANDIDATE_OF = {"label_pull": "label_rounding"}
+CANDIDATE_OF = {"label_pull": "label_rounding", "setting_pull": "serial_dependence"}
 #: One pair case per this many cases of the schedule, run after them (their draws come after
 #: the schedule's, so the other cases of a seed stay as they were).
 PAIR_EVERY = 10
@@ -176,6 +177,11 @@ def generate_sessions(design, case: HarderCase, n_participants: int,
                     v = np.round(v)
                 if "label_pull" in a:
                     v = v + a["label_pull"] * (np.round(v) - v)
+                if "setting_pull" in a and k and ses[k] == ses[k - 1]:
+                    # The setting, once made, pulled toward the previous one (after the pull
+                    # toward a label: the hand stops short of where it aimed).
+                    v = v + a["setting_pull"] * (resp[r][k - 1] - v)
+                    m_pop = m_pop + a["setting_pull"] * (resp[r][k - 1] - m_pop)
                 if rng.random() < a.get("lapses", 0.0):
                     v = rng.uniform(lo, hi)
                 resp[r][k] = min(max(v, lo), hi)

@@ -15,15 +15,23 @@ from the data), not an assumed noise of an ideal observer.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 from scipy.special import ndtr
 
-from analysis.gap.observer.model import RESP, _fit_sigma, _gauss_share, _nll, _phi, predict
+from analysis.gap.observer.model import (
+    RESP,
+    _aim_frame,
+    _fit_sigma,
+    _gauss_share,
+    _nll,
+    _phi,
+    predict,
+)
 
-__all__ = ["Ceiling", "ceiling_floor", "ceiling_loss", "fit_ceiling"]
+__all__ = ["Ceiling", "ceiling_floor", "ceiling_loss", "ceiling_prediction", "fit_ceiling"]
 
 
 _FLOOR_DRAWS = 20  # Monte-Carlo draws per held-out trial for the ceiling's own loss
@@ -54,6 +62,8 @@ class Ceiling:
     span: float
     parts: tuple = ()
     label_pull: float = 1.0
+    label_stage: str = ""
+    serial: dict = field(default_factory=dict)
 
 
 def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
@@ -362,16 +372,19 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     lapses = sorted({0.0, 0.01, 0.03, 0.06, 0.1, 0.15, 0.2, 0.3, float(pred0["lapse"])})
     labels = sorted({0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, float(pred0["label"])})
     pull = float(pred0.get("label_pull", 1.0))
+    # A label rounding of the aimed setting, before a serial pull, stays so in the ceiling.
+    stage = {k: pred0[k] for k in ("serial", "label_stage") if k in pred0}
     for lam in lapses:
         for wl in labels:
             pred = {"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": lam, "label": wl,
-                    "label_pull": pull}
+                    "label_pull": pull, **stage}
             v = float(_nll(train, pred, sd).sum())
             if v < best[0]:
                 best = (v, lam, wl)
     return Ceiling(fitted=fitted, sigma=sigma, coef=coef, var_coef=var_coef, cells=cells,
                    ills=ills, lapse=best[1], label=best[2], mid=mid, span=span, parts=parts,
-                   label_pull=pull)
+                   label_pull=pull, label_stage=str(pred0.get("label_stage", "")),
+                   serial={r: float(v[0]) for r, v in pred0.get("serial", {}).items()})
 
 
 def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
@@ -386,7 +399,27 @@ def _ceiling_pred(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
         sd[r] = (model.sigma[r] * np.broadcast_to(base["sd"][r], mu[r].shape)
                  * np.sqrt(np.exp(vx @ model.var_coef[r])))
     return ({"mu": mu, "sd": {r: 1.0 for r in RESP}, "lapse": model.lapse,
-             "label": model.label, "label_pull": model.label_pull}, sd)
+             "label": model.label, "label_pull": model.label_pull,
+             **_stage(model, data)}, sd)
+
+
+def _stage(model: Ceiling, data: pd.DataFrame) -> dict:
+    """The ceiling's label stage and serial pull on ``data`` (its previous responses), as
+    :func:`analysis.gap.observer.model.predict` gives them."""
+    if not model.serial:
+        return {}
+    out = {"serial": {r: (s, data[f"{r}_prev"].to_numpy(float))
+                      for r, s in model.serial.items()}}
+    if model.label_stage:
+        out["label_stage"] = model.label_stage
+    return out
+
+
+def ceiling_prediction(model: Ceiling, data: pd.DataFrame) -> tuple[dict, dict]:
+    """The ceiling's predicted settings on ``data``: per response the mean and the noise SD
+    (slider units, shape (n_trials,)), before its lapses and label rounding."""
+    pred, sd = _ceiling_pred(model, data)
+    return pred["mu"], sd
 
 
 def ceiling_loss(model: Ceiling, data: pd.DataFrame) -> np.ndarray:
@@ -407,8 +440,11 @@ def ceiling_floor(model: Ceiling, data: pd.DataFrame, rng: np.random.Generator,
     for _ in range(n_draws):
         for r in RESP:
             v = pred["mu"][r] + sd[r] * rng.standard_normal(len(data))
-            rounded = (np.round(v) if model.label_pull >= 1.0
-                       else v + model.label_pull * (np.round(v) - v))
+            shift, scale = _aim_frame(pred, r, len(data))
+            a = (v - shift) / scale
+            a = (np.round(a) if model.label_pull >= 1.0
+                 else a + model.label_pull * (np.round(a) - a))
+            rounded = a * scale + shift
             v = np.where(rng.random(len(data)) < model.label, rounded, v)
             v = np.where(rng.random(len(data)) < model.lapse, rng.uniform(lo, hi, len(data)), v)
             sim[f"{r}_match"] = np.clip(v, lo, hi)
