@@ -24,7 +24,8 @@ illumination_depth the depth response is shifted by +s under one illumination, -
 
 A further kind of case, run after the schedule's (one per :data:`PAIR_EVERY` cases), adds a
 pair of catalogue effects (:data:`PAIRS`): responses pulled toward the slider's labels beside
-serial dependence; both must be found.
+serial dependence, or settings pulled halfway to the labels and then a quarter of the way
+toward the previous setting (issue 38); both must be found.
 
 Scores (:func:`run_harder_observer`): top-1 (the added catalogue effect among the chosen, at
 its moderate strength), both effects of a pair found, exact verdicts (the chosen set is the base's effects plus the added
@@ -67,7 +68,10 @@ CATALOGUE_ADDED = {"illumination_gain": 0.3, "label_rounding": 0.4, "lapses": 0.
                    "serial_dependence": 0.3}
 #: Pairs of catalogue effects a case may add together: rounding toward the slider's labels (a
 #: pull a share of the way to the nearest label, none landing on it; an outside check's
-#: generator) beside serial dependence, which was found as serial dependence alone (issue 29).
+#: generator) beside serial dependence, which was found as serial dependence alone (issue 29);
+#: and the setting, once pulled toward a label, pulled toward the previous setting
+#: (``setting_pull``: after the noise and the rounding), also found as serial dependence
+#: alone (issue 38, item 4).
 PAIRS = {"labels_and_serial": {"label_pull": 0.4, "serial_dependence": 0.3},
          "labels_then_serial": {"label_pull": 0.5, "setting_pull": 0.25}}
 #: The candidate an added effect of a pair is found as, where its name differs.

@@ -11,7 +11,16 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap.engine import Candidate, ParamDoc, register
-from analysis.gap.observer.model import RESP, _fit_sigma, _gauss_share, _nll, predict
+from analysis.gap.observer.model import (
+    _AIM_SHARES,
+    _LABEL_PULLS,
+    _PULL_WEIGHTS,
+    RESP,
+    _fit_sigma,
+    _gauss_share,
+    _nll,
+    predict,
+)
 
 __all__ = ["OBSERVER_CANDIDATES"]
 
@@ -177,16 +186,6 @@ def _fit_mixture(name: str, key: str, grid):
     return fit
 
 
-#: Shares of the way to a label a rounding may pull responses (1: snapped onto it), and the
-#: weights tried with a pull: an outside check's observers pulled toward the labels (none on
-#: a label) beside serial dependence, and were found as serial dependence alone (label
-#: rounding's held-out gain 0.015 nats per trial with snapping as its only form; issue 29).
-#: At most 0.9: a weight of 1 gives no density outside the pulled windows, and a held-out
-#: trial there cost 690 nats (observers pulled halfway to the labels, then a quarter of the
-#: way toward their previous setting, seed 3 of the pair's dev seeds: one fold fitted
-#: weight 1 and lost 4.8 nats per held-out trial instead of gaining 0.9; issue 38).
-_LABEL_PULLS = (0.6, 0.45, 0.3)
-_PULL_WEIGHTS = (0.25, 0.5, 0.75, 0.9)
 
 
 def _fit_label(train, chosen):
@@ -204,8 +203,11 @@ def _fit_label(train, chosen):
         if best is None or nll < best[0]:
             best = (nll, {"weight": float(v)}, sigma)
     # Beside serial dependence, also the rounding of the aimed setting, before the pull
-    # toward the previous response (stage "aim"; model._aim_frame).
-    stages = ({}, {"stage": "aim"}) if any(n == "serial_dependence" for n, _ in chosen) else ({},)
+    # toward the previous response (stage "aim"; model._aim_frame), with its own share of
+    # that pull (see _AIM_SHARES).
+    stages = [{}]
+    if any(n == "serial_dependence" for n, _ in chosen):
+        stages += [{"stage": "aim", "share": a} for a in _AIM_SHARES]
     pulls = [{"weight": w, "pull": s, **st} for st in stages for s in _LABEL_PULLS
              for w in _PULL_WEIGHTS]
     screened = [_nll(train, predict(train, list(chosen) + [("label_rounding", p)]),
@@ -220,6 +222,8 @@ def _apply_label(data, pred, p):
         out["label_pull"] = float(p["pull"])
     if p.get("stage") == "aim":
         out["label_stage"] = "aim"
+        if "share" in p:
+            out["label_share"] = float(p["share"])
     return out
 
 
@@ -275,7 +279,11 @@ OBSERVER_CANDIDATES = [register("observer", c) for c in (
               truth=lambda s, **_: [("label_rounding", {"weight": float(s)})],
               params={"weight": ParamDoc("responses snapped to (or pulled toward) a tick "
                                          "label", "fraction of responses"),
-                      "pull": ParamDoc("pull toward the label", "share of the way to it")}),
+                      "pull": ParamDoc("pull toward the label", "share of the way to it"),
+                      "stage": ParamDoc("rounded", "'aim': the setting aimed at, before the "
+                                        "pull toward the previous response"),
+                      "share": ParamDoc("pull toward the previous response after the "
+                                        "rounding", "share of the way to it")}),
     Candidate("lapses", _fit_mixture("lapses", "rate", np.linspace(0.0, 0.3, 16)),
               "random responses anywhere on the slider", apply=_apply_lapses,
               inject=_inject_lapses, default_strength=0.15, units="lapse rate",
