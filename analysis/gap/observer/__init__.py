@@ -32,6 +32,11 @@ Where things are
     :func:`ceiling_floor`.
 ``where.py``
     Where the remaining gap lies: :func:`observer_where`, :func:`localise_observer`.
+``misfit.py``
+    How far, in slider units and the study's units (gloss %, depth cm): the plain and the
+    chosen model's predicted settings against the flexible model's, and the settings' scatter
+    about the latter (:func:`observer_misfit`); the chosen model's is held to the design's
+    ``[gap] observer_tolerance_slider``.
 ``candidates.py``
     The catalogue, one registered :class:`Candidate` per effect
     (:data:`OBSERVER_CANDIDATES`).
@@ -119,7 +124,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
 
     The floor of each fold is the noise of the ceiling over the plain simulation (data-driven,
     drawn from ``rng``); the ceiling of the chosen model is what a flexible extension of it
-    still gains.
+    still gains. What remains counts as a gap only where the chosen model's settings also lie
+    at least the design's ``[gap] observer_tolerance_slider`` from the ceiling's
+    (:func:`observer_misfit`, in slider units; the Diagnosis's ``misfit_*`` fields).
     """
     _same_path(real, sim)
     if study is not None:

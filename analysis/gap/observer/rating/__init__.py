@@ -6,7 +6,9 @@ The same parts as the two-response layer, for one response: ``data.py`` (the stu
 the simulation's file, the held-out scheme), ``model.py`` (the simulation's prediction and
 ordered-probit likelihood on the scale's own steps, the noise floor), ``ceiling.py`` (the
 flexible model), ``where.py`` (stimulus to stimulus, the split-half consistency),
-``candidates.py`` (the catalogue's effects that make sense for one response). :func:`plan`
+``candidates.py`` (the catalogue's effects that make sense for one response), ``misfit.py``
+(how far, in the rating scale's units, held to the design's tolerance as a share of the
+scale). :func:`plan`
 is the layer's face to the engine; :func:`analysis.gap.observer.plan` hands over to it when a
 study is given.
 """
