@@ -158,8 +158,12 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     def size(fits):
         # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
         # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
-        sizes.update(observer_misfit(fits, ceilings, design.slider))
-        return sizes.get("misfit_after", float("nan"))
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = observer_misfit(fits, ceilings, design.slider)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
                                size=size, unit_ids=observer_unit_ids)

@@ -104,8 +104,12 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
     def size(fits):
         # The misfits against the ceilings just fitted on each fold's chosen model, kept for
         # the Diagnosis (sizes); the chosen model's is held to the tolerance.
-        sizes.update(rating_misfit(fits, ceilings, BY_NAME, unit))
-        return sizes.get("misfit_after", float("nan"))
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
 
     def localise(diag, rng):
         chosen = ([(s["added"], s["params"]) for s in diag.steps]
