@@ -551,6 +551,14 @@ class GapSpec:
         statistically significant *and* at least this large, as an RMS over the sphere's pixels
         in % of the photos' RMS luminance; a smaller one is reported with its size but not
         flagged. In (0, 20]. Default 1.0 (see the shipped design.toml for why).
+    observer_tolerance_slider : float
+        The observer layer's tolerance, in slider units: what the catalogue leaves counts as a
+        gap beyond it only if it is statistically significant *and* the chosen model's
+        predicted settings lie at least this far (RMS over held-out trials, gloss and depth
+        together) from a flexible model of the data. In (0, 2]. Default 0.25 (2.5 % gloss,
+        0.1 cm depth in the shipped slider; see the shipped design.toml for why). Another
+        lab's rating study is held to the same share of its own scale (0.25 of the slider's
+        span of 10 is 2.5 % of the scale's span).
 
     A design written before this section existed has no ``[gap]``: it takes these defaults,
     so an older lab design still runs sessions and renders (the diagnosis reports the
@@ -558,11 +566,15 @@ class GapSpec:
     """
 
     render_tolerance_pct: float = 1.0
+    observer_tolerance_slider: float = 0.25
 
     def __post_init__(self) -> None:
         _require(0.0 < float(self.render_tolerance_pct) <= 20.0,
                  f"gap.render_tolerance_pct must lie in (0, 20] (% of the photos' RMS "
                  f"luminance), got {self.render_tolerance_pct}")
+        _require(0.0 < float(self.observer_tolerance_slider) <= 2.0,
+                 f"gap.observer_tolerance_slider must lie in (0, 2] (slider units, RMS), got "
+                 f"{self.observer_tolerance_slider}")
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from analysis.gap.engine import LAYER_NAMES, Diagnosis, GapError, catalogue, diagnose_losses
+from analysis.gap.engine import (
+    LAYER_NAMES,
+    Diagnosis,
+    GapError,
+    catalogue,
+    diagnose_losses,
+    summarise,
+)
 
 __all__ = ["LAYERS", "diagnose"]
 
@@ -32,7 +39,9 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
                            folds=plan.folds, loss_info=plan.loss_info, split=plan.split,
                            warnings=plan.warnings, not_identifiable=plan.not_identifiable)
     if plan.sizes is not None:
+        # Words again: the sizes (the misfit in the data's units) are part of the verdict.
         diag = replace(diag, **plan.sizes(diag))
+        diag = replace(diag, summary=summarise(diag))
     return diag, plan.localise(diag, rng)
 
 

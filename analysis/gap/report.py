@@ -87,9 +87,9 @@ def lead_figure(d: Diagnosis) -> str:
     -> after in nats per unit and the share the chosen effects explain (with a ceiling: of what
     the ceiling removes, the summary's share)."""
     if no_significant_gap(d):
-        return _lead([("no significant gap", "")])
+        return _lead([("no significant gap", "")] + _misfit_lead(d))
     items = [(f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
-              "nats per unit above the noise floor, before \u2192 after")]
+              "nats per unit above the noise floor, before \u2192 after")] + _misfit_lead(d)
     if d.steps:
         # With a ceiling the share is of what a flexible model of the data removes (as the
         # summary says), which may be far more than the share of the gap before -> after.
@@ -99,6 +99,15 @@ def lead_figure(d: Diagnosis) -> str:
     else:
         items.append(("none", "of the gap explained by the catalogue"))
     return _lead(items)
+
+
+def _misfit_lead(d: Diagnosis) -> list[tuple[str, str]]:
+    """The misfit in the data's own units before -> after, where the layer measures it (the
+    observer layer's ``misfit_*``), as a lead item; else none."""
+    if not math.isfinite(d.misfit_before):
+        return []
+    return [(f"{format_sig(d.misfit_before)} \u2192 {format_sig(d.misfit_after)}",
+             f"{d.misfit_unit}, RMS misfit of the predicted responses, before \u2192 after")]
 
 
 def _verdict_block(lead: str, words: str) -> str:

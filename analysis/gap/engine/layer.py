@@ -40,8 +40,8 @@ class LayerPlan:
     candidates the candidates that apply to this data (Candidate objects, in the order
                their terms apply); empty: the layer's whole catalogue
     sizes      ``sizes(diag) -> dict``: :class:`Diagnosis` fields measured once the chosen
-               effects are known (the render layer's ``misfit_pct_before`` / ``_after``),
-               or None
+               effects are known (the render layer's ``misfit_pct_before`` / ``_after``, the
+               observer layer's ``misfit_*``), or None; the words are written again after
     not_identifiable  ``{effect: reason}``: catalogue effects the data cannot identify (left
                out of the ranking, named in the words)
     ========== =========================================================================

@@ -49,6 +49,12 @@ class Diagnosis:
     ``misfit_pct_before`` / ``misfit_pct_after`` (render layer; NaN elsewhere): the held-out
     RMS misfit of the plain simulation / with the chosen effects, in % of the held-out data's
     RMS (noise included).
+    ``misfit_before`` / ``misfit_after`` / ``misfit_ceiling`` (observer layer; NaN elsewhere):
+    how far the plain simulation's / the chosen model's predicted responses lie from a
+    flexible model of the data's, and how far held-out responses scatter about the latter
+    (their noise), RMS over held-out trials in ``misfit_unit`` (slider units; a rating
+    study's scale units); ``misfit_by_response`` the same per response in the study's units
+    (``unit``, ``before``, ``after``, ``ceiling``; ``*_slider`` in slider units).
     """
 
     layer: str
@@ -80,6 +86,11 @@ class Diagnosis:
     misfit_pct_before: float = float("nan")
     misfit_pct_after: float = float("nan")
     not_identifiable: dict = field(default_factory=dict)
+    misfit_before: float = float("nan")
+    misfit_after: float = float("nan")
+    misfit_ceiling: float = float("nan")
+    misfit_unit: str = ""
+    misfit_by_response: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:

@@ -24,6 +24,8 @@ def summarise(d: Diagnosis) -> str:
     """The verdict in one or two plain sentences (no markup), then one per effect the data
     cannot identify."""
     text = _verdict_words(d)
+    misfit = _misfit_words(d)
+    text += f" {misfit}" if misfit else ""
     if d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
@@ -40,6 +42,27 @@ def _effect_words(layer: str, step: dict) -> str:
     except GapError:
         return ""
     return cand.words(step["params"]) if cand.words is not None else ""
+
+
+def _misfit_words(d: Diagnosis) -> str:
+    """'Misfit of the predicted responses, RMS over held-out trials: 0.92 slider units (gloss
+    9.1 %, depth 0.21 cm) before -> 0.04 after the chosen effects; held-out responses scatter
+    1.3 slider units about a flexible model of the data (their noise).' from the
+    ``misfit_*`` fields (a layer that measures them: the observer layer), or ''."""
+    if not np.isfinite(d.misfit_before):
+        return ""
+    by = d.misfit_by_response or {}
+
+    def each(key):
+        parts = [f"{name} {v[key]:.2g} {v['unit']}" for name, v in by.items()
+                 if np.isfinite(v.get(key, float("nan")))]
+        return f" ({', '.join(parts)})" if len(parts) > 1 else ""
+    after = ("the same after (nothing chosen)" if not d.steps else
+             f"{d.misfit_after:.2g}{each('after')} after the chosen effects")
+    return (f"Misfit of the predicted responses against a flexible model of the data, RMS over "
+            f"held-out trials: {d.misfit_before:.2g} {d.misfit_unit}{each('before')} before -> "
+            f"{after}; held-out responses scatter {d.misfit_ceiling:.2g} {d.misfit_unit} "
+            "about that model (their noise).")
 
 
 def _verdict_words(d: Diagnosis) -> str:

@@ -32,6 +32,11 @@ Where things are
     :func:`ceiling_floor`.
 ``where.py``
     Where the remaining gap lies: :func:`observer_where`, :func:`localise_observer`.
+``misfit.py``
+    How far, in slider units and the study's units (gloss %, depth cm): the plain and the
+    chosen model's predicted settings against the flexible model's, and the settings' scatter
+    about the latter (:func:`observer_misfit`); the chosen model's is held to the design's
+    ``[gap] observer_tolerance_slider``.
 ``candidates.py``
     The catalogue, one registered :class:`Candidate` per effect
     (:data:`OBSERVER_CANDIDATES`).
@@ -59,6 +64,7 @@ from analysis.gap.observer.data import (
     observer_unit_ids,
     read_session_csvs,
 )
+from analysis.gap.observer.misfit import OBSERVER_SIZE_UNIT, observer_misfit
 from analysis.gap.observer.model import (
     OBSERVER_MIN_GAIN,
     ObserverBase,
@@ -74,6 +80,7 @@ from analysis.gap.observer.where import localise_observer, observer_where
 __all__ = [
     "OBSERVER_CANDIDATES",
     "OBSERVER_MIN_GAIN",
+    "OBSERVER_SIZE_UNIT",
     "ObserverBase",
     "adapt_base",
     "base_from_params",
@@ -87,6 +94,7 @@ __all__ = [
     "observer_folds",
     "observer_frame",
     "observer_loss",
+    "observer_misfit",
     "observer_nll",
     "observer_unit_ids",
     "observer_where",
@@ -116,7 +124,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
 
     The floor of each fold is the noise of the ceiling over the plain simulation (data-driven,
     drawn from ``rng``); the ceiling of the chosen model is what a flexible extension of it
-    still gains.
+    still gains. What remains counts as a gap only where the chosen model's settings also lie
+    at least the design's ``[gap] observer_tolerance_slider`` from the ceiling's
+    (:func:`observer_misfit`, in slider units; the Diagnosis's ``misfit_*`` fields).
     """
     _same_path(real, sim)
     if study is not None:
@@ -139,15 +149,32 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         model = fit_ceiling(tr, by_participant=shared[id(te)])
         floor[id(te)] = ceiling_floor(model, te, rng)
 
+    ceilings, sizes = {}, {}
+
     def ceiling(tr, te, fitted):
-        return ceiling_loss(fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted), te)
+        ceilings[id(te)] = fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted)
+        return ceiling_loss(ceilings[id(te)], te)
+
+    def size(fits):
+        # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
+        # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = observer_misfit(fits, ceilings, design.slider)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
-                               unit_ids=observer_unit_ids)
+                               size=size, unit_ids=observer_unit_ids)
+    settings = DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN,
+                                 min_size=design.gap.observer_tolerance_slider,
+                                 size_unit=OBSERVER_SIZE_UNIT,
+                                 size_source="the design's [gap] observer_tolerance_slider")
     return LayerPlan(
-        functions, DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN),
+        functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, warnings=notes,
+        folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes),
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})

@@ -11,7 +11,16 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap.engine import Candidate, ParamDoc, register
-from analysis.gap.observer.model import RESP, _fit_sigma, _gauss_share, _nll, predict
+from analysis.gap.observer.model import (
+    _AIM_SHARES,
+    _LABEL_PULLS,
+    _PULL_WEIGHTS,
+    RESP,
+    _fit_sigma,
+    _gauss_share,
+    _nll,
+    predict,
+)
 
 __all__ = ["OBSERVER_CANDIDATES"]
 
@@ -144,7 +153,11 @@ def _fit_serial(train, chosen):
 
 
 def _apply_serial(data, pred, p):
-    return _with_mu(pred, {r: pred["mu"][r] + p[r] * _prev_x(data, pred, r) for r in RESP})
+    # The pull and the previous responses are kept: a label rounding of the aimed setting
+    # (label_rounding's stage "aim") is undone through them (model._aim_frame).
+    out = _with_mu(pred, {r: pred["mu"][r] + p[r] * _prev_x(data, pred, r) for r in RESP})
+    out["serial"] = {r: (float(p[r]), data[f"{r}_prev"].to_numpy(float)) for r in RESP}
+    return out
 
 
 def _inject_serial(ctx, s, rng):
@@ -173,12 +186,6 @@ def _fit_mixture(name: str, key: str, grid):
     return fit
 
 
-#: Shares of the way to a label a rounding may pull responses (1: snapped onto it), and the
-#: weights tried with a pull: an outside check's observers pulled toward the labels (none on
-#: a label) beside serial dependence, and were found as serial dependence alone (label
-#: rounding's held-out gain 0.015 nats per trial with snapping as its only form; issue 29).
-_LABEL_PULLS = (0.6, 0.3)
-_PULL_WEIGHTS = (0.25, 0.5, 0.75, 1.0)
 
 
 def _fit_label(train, chosen):
@@ -195,7 +202,14 @@ def _fit_label(train, chosen):
         nll, sigma = full({"weight": float(v)})
         if best is None or nll < best[0]:
             best = (nll, {"weight": float(v)}, sigma)
-    pulls = [{"weight": w, "pull": s} for s in _LABEL_PULLS for w in _PULL_WEIGHTS]
+    # Beside serial dependence, also the rounding of the aimed setting, before the pull
+    # toward the previous response (stage "aim"; model._aim_frame), with its own share of
+    # that pull (see _AIM_SHARES).
+    stages = [{}]
+    if any(n == "serial_dependence" for n, _ in chosen):
+        stages += [{"stage": "aim", "share": a} for a in _AIM_SHARES]
+    pulls = [{"weight": w, "pull": s, **st} for st in stages for s in _LABEL_PULLS
+             for w in _PULL_WEIGHTS]
     screened = [_nll(train, predict(train, list(chosen) + [("label_rounding", p)]),
                      best[2]).sum() for p in pulls]
     pulled = pulls[int(np.argmin(screened))]
@@ -206,6 +220,10 @@ def _apply_label(data, pred, p):
     out = {**pred, "label": 1 - (1 - pred["label"]) * (1 - p["weight"])}
     if "pull" in p:
         out["label_pull"] = float(p["pull"])
+    if p.get("stage") == "aim":
+        out["label_stage"] = "aim"
+        if "share" in p:
+            out["label_share"] = float(p["share"])
     return out
 
 
@@ -261,7 +279,11 @@ OBSERVER_CANDIDATES = [register("observer", c) for c in (
               truth=lambda s, **_: [("label_rounding", {"weight": float(s)})],
               params={"weight": ParamDoc("responses snapped to (or pulled toward) a tick "
                                          "label", "fraction of responses"),
-                      "pull": ParamDoc("pull toward the label", "share of the way to it")}),
+                      "pull": ParamDoc("pull toward the label", "share of the way to it"),
+                      "stage": ParamDoc("rounded", "'aim': the setting aimed at, before the "
+                                        "pull toward the previous response"),
+                      "share": ParamDoc("pull toward the previous response after the "
+                                        "rounding", "share of the way to it")}),
     Candidate("lapses", _fit_mixture("lapses", "rate", np.linspace(0.0, 0.3, 16)),
               "random responses anywhere on the slider", apply=_apply_lapses,
               inject=_inject_lapses, default_strength=0.15, units="lapse rate",

@@ -88,10 +88,19 @@ def test_ceiling_over_a_right_model_costs_next_to_nothing_on_held_out_observers(
 
 
 def test_noise_growing_with_depth_is_a_remaining_gap_in_the_spread_of_depth():
+    """Found by the ceiling (significant, in the depth response's spread); its size, about
+    0.13 slider units (the noise SD from 0.6 to 1.4 times 0.7 slider units over the depths,
+    the means right), is under the design's tolerance of 0.25 slider units: reported with
+    its size and place, not counted (issue 38; before the tolerance it was counted)."""
     diag = _diagnose_case({"depth_noise": 0.6}, seed=1)
     assert {s["added"] for s in diag.steps} == {"central_tendency", "crosstalk"}
-    assert diag.unexplained_remains
-    assert diag.remaining["where"] == "in the spread of the depth response, rising with depth"
+    rem = diag.remaining
+    assert rem["p"] < 0.05 and rem["gap"] >= diag.min_gain
+    assert rem["where"] == "in the spread of the depth response, rising with depth"
+    assert rem["within_tolerance"] and rem["size"] == pytest.approx(0.13, abs=0.05)
+    assert not diag.unexplained_remains
+    assert diag.misfit_by_response["depth"]["after_slider"] > 3 * (
+        diag.misfit_by_response["gloss"]["after_slider"])
 
 
 def test_lapses_alone_leave_no_remaining_gap():
@@ -142,11 +151,14 @@ def test_noise_growing_with_depth_beside_label_rounding_is_a_remaining_gap():
     ceiling's noise fitted to what offsets fitted to the same responses leave, a depth-
     dependent noise beside it came out at 0.015 nats per trial, below the 0.02 a remaining
     gap needs (harder benchmark draw, seed 200); fitted to what offsets fitted without each
-    response leave, 0.026."""
+    response leave, 0.026. Its size, about 0.12 slider units, is under the design's
+    tolerance (0.25): found and placed, not counted (issue 38)."""
     diag = _diagnose_case({"label_rounding": 0.4, "depth_noise": 0.6}, seed=200)
     assert "label_rounding" in {s["added"] for s in diag.steps}
-    assert diag.unexplained_remains
-    assert diag.remaining["where"].startswith("in the spread of the depth response")
+    rem = diag.remaining
+    assert rem["p"] < 0.05 and rem["gap"] >= diag.min_gain
+    assert rem["where"].startswith("in the spread of the depth response")
+    assert rem["within_tolerance"] and rem["size"] < 0.25 and not diag.unexplained_remains
 
 
 def test_ceiling_noise_is_that_of_responses_its_offsets_were_not_fitted_to():

@@ -99,6 +99,9 @@ def _diagnose_synthetic(tmp_path, seed, **effects):
 def test_a_shared_stimulus_bias_is_a_gap_stimulus_to_stimulus_and_none_is_none(tmp_path):
     d, local = _diagnose_synthetic(tmp_path / "bias", 2, stimulus_bias=0.8)
     assert not d.steps and d.unexplained_remains
+    # In the scale's units: about the bias's SD (0.8 rating units), above the tolerance.
+    assert d.misfit_unit == "rating units" and 0.4 < d.misfit_after < 1.2
+    assert d.remaining["size"] == d.misfit_after > d.remaining["tolerance"]
     assert "from stimulus to stimulus, consistently across participants" in d.remaining["where"]
     assert set(local["axis"]) == {"stimulus (by true_gloss)"} and len(local) == 40
     d, _ = _diagnose_synthetic(tmp_path / "null", 2)
@@ -136,6 +139,13 @@ def test_storrs_ratings_a_gap_stimulus_to_stimulus_outside_the_catalogue(tmp_pat
     assert "from stimulus to stimulus, consistently across participants" in rem["where"]
     r = float(rem["where"].split("split-half r ")[1].split()[0])
     assert r > 0.7
+    # In the scale's own units (issue 38): the expected ratings 0.58-0.76 rating units (RMS)
+    # off the flexible model's, beside the stimuli's deviation SD the words give; far above
+    # the tolerance, 2.5 % of the 1-6 scale.
+    assert d["misfit_unit"] == "rating units" and rem["size_unit"] == "rating units"
+    assert 0.4 < d["misfit_before"] == d["misfit_after"] < 1.0
+    assert rem["tolerance"] == pytest.approx(0.125) and rem["size"] > 3 * rem["tolerance"]
+    assert f"{d['misfit_before']:.2g} rating units before" in d["summary"]
 
 
 def test_nan_in_a_rating_observers_file_is_refused_and_leaves_no_report_folder(tmp_path):

@@ -46,6 +46,12 @@ def test_harder_benchmark_scores_remaining_gaps_and_seed_agreement():
     assert r["seed_agreement"][0] == pytest.approx(5 / 6)
     assert r["shrink_error"][0] == pytest.approx(0.05 / 0.55)
     assert "NOT met" in format_harder(r)
+    # A remainder reported within the design's tolerance is found, not counted (issue 38).
+    within = {**rec("out", {"depth_noise": 0.6}, base, False), "within": True}
+    r = score_harder([within, rec("out", {"interaction": 0.06}, base, True)])
+    assert r["unexplained_out"] == (0.5, 2) and r["found_out"] == (1.0, 2)
+    assert "found: a gap, or a remainder reported within the design's tolerance" in (
+        format_harder(r))
 
 
 def test_benchmark_small():

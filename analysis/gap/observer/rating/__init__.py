@@ -6,7 +6,9 @@ The same parts as the two-response layer, for one response: ``data.py`` (the stu
 the simulation's file, the held-out scheme), ``model.py`` (the simulation's prediction and
 ordered-probit likelihood on the scale's own steps, the noise floor), ``ceiling.py`` (the
 flexible model), ``where.py`` (stimulus to stimulus, the split-half consistency),
-``candidates.py`` (the catalogue's effects that make sense for one response). :func:`plan`
+``candidates.py`` (the catalogue's effects that make sense for one response), ``misfit.py``
+(how far, in the rating scale's units, held to the design's tolerance as a share of the
+scale). :func:`plan`
 is the layer's face to the engine; :func:`analysis.gap.observer.plan` hands over to it when a
 study is given.
 """
@@ -17,7 +19,11 @@ import numpy as np
 
 from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
 from analysis.gap.observer.rating.candidates import BY_NAME, rating_candidates
-from analysis.gap.observer.rating.ceiling import rating_ceiling_floor, rating_ceiling_loss
+from analysis.gap.observer.rating.ceiling import (
+    rating_ceiling_fit,
+    rating_ceiling_floor,
+    rating_ceiling_loss,
+)
 from analysis.gap.observer.rating.data import (
     check_rating_sim,
     load_rating_sim,
@@ -26,6 +32,7 @@ from analysis.gap.observer.rating.data import (
     rating_unit_ids,
     read_rating_study,
 )
+from analysis.gap.observer.rating.misfit import rating_misfit, rating_tolerance, rating_unit
 from analysis.gap.observer.rating.model import (
     RatingBase,
     adapt_rating_base,
@@ -56,7 +63,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
     """The study's trials at ``real`` (described by ``study``, a study.toml) against the rating
     observer of ``sim``, cross-fitted over folds of each participant's trials (by repeat).
 
-    ``design`` is not used (the study describes itself); ``participants`` keeps only those.
+    The study describes itself; ``design`` gives only the tolerance (its ``[gap]
+    observer_tolerance_slider`` as a share of the scale, :func:`rating_tolerance`; the
+    shipped design's where None). ``participants`` keeps only those.
 
     Raises
     ------
@@ -80,8 +89,27 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         floor[id(te)] = rating_ceiling_floor(tr, te, BY_NAME)
     adapt_rating_base(data, data.iloc[:0].copy(), base)
 
+    ceilings, sizes = {}, {}
+    unit = rating_unit(st)
+    if design is None:
+        from studydesign import load_design
+
+        design = load_design()
+    tolerance, source = rating_tolerance(design, st)
+
     def ceiling(tr, te, fitted):
-        return rating_ceiling_loss(tr, te, fitted, BY_NAME)
+        ceilings[id(te)] = rating_ceiling_fit(tr, fitted, BY_NAME)
+        return rating_ceiling_loss(tr, te, fitted, BY_NAME, ceilings[id(te)])
+
+    def size(fits):
+        # The misfits against the ceilings just fitted on each fold's chosen model, kept for
+        # the Diagnosis (sizes); the chosen model's is held to the tolerance.
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
 
     def localise(diag, rng):
         chosen = ([(s["added"], s["params"]) for s in diag.steps]
@@ -89,10 +117,12 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         return localise_rating(data, chosen, BY_NAME, rng, n_boot=min(n_boot, 500))
     functions = LayerFunctions(
         loss=rating_loss(BY_NAME), floor=lambda te: floor[id(te)], ceiling=ceiling,
-        ceiling_given_chosen=True, unit_ids=rating_unit_ids,
+        ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size,
         where=lambda fits: rating_where(fits, BY_NAME, st.estimates))
+    settings = DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN, min_size=tolerance,
+                                 size_unit=unit, size_source=source)
     return LayerPlan(
-        functions, DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN),
+        functions, settings, sizes=lambda _diag: dict(sizes),
         localise=localise, folds=folds, split=text, warnings=tuple(notes),
         candidates=tuple(rating_candidates(labels_ok)),
         loss_info={"base": {"kind": "rating", "source": base.source,

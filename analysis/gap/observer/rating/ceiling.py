@@ -23,7 +23,8 @@ from analysis.gap.observer.rating.model import (
     rating_predict,
 )
 
-__all__ = ["rating_ceiling_floor", "rating_ceiling_loss", "working_residuals"]
+__all__ = ["rating_ceiling_fit", "rating_ceiling_floor", "rating_ceiling_loss",
+           "working_residuals"]
 
 _RIDGE = 1e-2  # per unit weight, on columns scaled to unit mean square
 _ROUNDS = 3   # backfitting rounds of the two corrections
@@ -88,13 +89,24 @@ def _corrected(data, fitted, cands, offsets, coef, parts):
     return {**pred, "mu": pred["mu"] + add}
 
 
-def rating_ceiling_loss(train: pd.DataFrame, test: pd.DataFrame, fitted: list,
-                        cands: dict) -> np.ndarray:
-    """Per held-out trial NLL (nats) of the ceiling built on the chosen model ``fitted``."""
+def rating_ceiling_fit(train: pd.DataFrame, fitted: list, cands: dict):
+    """The ceiling built on the chosen model ``fitted``, fitted on ``train``:
+    ``predict(data) -> (pred, sigma)``, its prediction on ``data`` (as
+    :func:`rating_predict`'s, the latent mean corrected) and its noise SD (scale units)."""
     offsets, coef, parts = _fit(train, fitted, cands)
-    pred_tr = _corrected(train, fitted, cands, offsets, coef, parts)
-    sigma = _fit_sigma(train, pred_tr)
-    return rating_nll_of(test, _corrected(test, fitted, cands, offsets, coef, parts), sigma)
+    sigma = _fit_sigma(train, _corrected(train, fitted, cands, offsets, coef, parts))
+
+    def on(data):
+        return _corrected(data, fitted, cands, offsets, coef, parts), sigma
+    return on
+
+
+def rating_ceiling_loss(train: pd.DataFrame, test: pd.DataFrame, fitted: list,
+                        cands: dict, model=None) -> np.ndarray:
+    """Per held-out trial NLL (nats) of the ceiling built on the chosen model ``fitted``
+    (``model``: that ceiling, :func:`rating_ceiling_fit`, where already fitted)."""
+    pred, sigma = (model or rating_ceiling_fit(train, fitted, cands))(test)
+    return rating_nll_of(test, pred, sigma)
 
 
 def rating_ceiling_floor(train: pd.DataFrame, test: pd.DataFrame, cands: dict) -> np.ndarray:
