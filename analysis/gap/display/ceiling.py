@@ -13,7 +13,8 @@ import numpy as np
 import pandas as pd
 from scipy import linalg
 
-from analysis.gap.display.model import _bspline, display_nll
+from analysis.gap.display.model import display_nll
+from analysis.gap.display.noise import _bspline
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
 _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
