@@ -445,6 +445,13 @@ class GapSpec:
         statistically significant *and* at least this large, as an RMS over the sphere's pixels
         in % of the photos' RMS luminance; a smaller one is reported with its size but not
         flagged. In (0, 20]. Default 1.0 (see the shipped design.toml for why).
+    display_tolerance_pct : float
+        The display layer's tolerance: a remaining misfit between a check's photometer
+        readings and the calibration (with the effects the diagnosis chose) counts as a gap
+        only if it is statistically significant *and* its systematic RMS, in % of each
+        reading's luminance (readings above near black), is at least this large; a smaller one
+        is "no gap that matters", reported with its size and where it lies. In (0, 20].
+        Default 1.0 (see the shipped design.toml for why).
 
     A design written before this section existed has no ``[gap]``: it takes these defaults,
     so an older lab design still runs sessions and renders (the diagnosis reports the
@@ -452,11 +459,15 @@ class GapSpec:
     """
 
     render_tolerance_pct: float = 1.0
+    display_tolerance_pct: float = 1.0
 
     def __post_init__(self) -> None:
         _require(0.0 < float(self.render_tolerance_pct) <= 20.0,
                  f"gap.render_tolerance_pct must lie in (0, 20] (% of the photos' RMS "
                  f"luminance), got {self.render_tolerance_pct}")
+        _require(0.0 < float(self.display_tolerance_pct) <= 20.0,
+                 f"gap.display_tolerance_pct must lie in (0, 20] (% of luminance), got "
+                 f"{self.display_tolerance_pct}")
 
 
 @dataclass(frozen=True)

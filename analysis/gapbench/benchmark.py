@@ -25,6 +25,7 @@ import pandas as pd
 
 from analysis.gap import (
     NO_GAP,
+    NO_GAP_THAT_MATTERS,
     OutOfCatalogue,
     candidate,
     catalogue,
@@ -120,7 +121,7 @@ def _layer(layer: str):
 
 
 def _top(diag) -> str:
-    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP)
+    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS)
             else diag.verdict.split(" + ")[0])
 
 

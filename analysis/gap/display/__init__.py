@@ -86,6 +86,12 @@ from analysis.gap.display.candidates import (
 )
 from analysis.gap.display.ceiling import display_ceiling, display_floor
 from analysis.gap.display.data import load_display
+from analysis.gap.display.misfit import (
+    DISPLAY_SIZE_UNIT,
+    NEAR_BLACK_FRACTION,
+    display_misfit,
+    display_misfit_size,
+)
 from analysis.gap.display.model import (
     display_folds,
     display_frame,
@@ -104,6 +110,8 @@ __all__ = [
     "DISPLAY_CANDIDATES",
     "DISPLAY_MIN_GAIN",
     "DISPLAY_MIN_SHARE",
+    "DISPLAY_SIZE_UNIT",
+    "NEAR_BLACK_FRACTION",
     "display_ceiling",
     "display_floor",
     "display_folds",
@@ -112,6 +120,8 @@ __all__ = [
     "display_loss",
     "display_loss_given",
     "display_loss_info",
+    "display_misfit",
+    "display_misfit_size",
     "display_nll",
     "display_unit_ids",
     "display_where",
@@ -127,14 +137,21 @@ __all__ = [
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> LayerPlan:
     """Photometer readings (``readings.csv``, its folder or a frame) against the calibration
     (``calibration.json``, its folder or a Calibration), cross-fitted over folds of readings
-    drawn from ``rng``. ``design`` is not used: the calibration is the display's simulation."""
+    drawn from ``rng``. The calibration is the display's simulation; from ``design`` (the
+    shipped design's when None) only ``[gap] display_tolerance_pct``: a significant remainder
+    whose systematic misfit is smaller (:func:`display_misfit_size`) is no gap that matters.
+    The misfit in the lab's units (:func:`display_misfit`) is recorded in the diagnosis."""
+    if design is None:
+        from studydesign import load_design
+
+        design = load_design()
     readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
     data = display_frame(readings, cal)
     folds, text = display_folds(data, rng)
     bits, note = quantisation_resolution(data)
     functions = LayerFunctions(loss=display_loss_given, floor=display_floor,
                                ceiling=display_ceiling, where=display_where,
-                               unit_ids=display_unit_ids)
+                               size=display_misfit_size, unit_ids=display_unit_ids)
     # The noise variance measured from n pairs is known to a relative SD of sqrt(2 / n) (a
     # chi-square's), so the floor, 0.5 log(2 pi sd^2) + 0.5 per reading, to 0.5 sqrt(2 / n)
     # nats: the floor is called mis-estimated only beyond that (an assumed noise: 0).
@@ -142,8 +159,13 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     floor_sd = 0.5 * float(np.sqrt(2.0 / pairs)) if pairs else 0.0
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
-                                     min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd),
+                                     min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd,
+                                     min_size=design.gap.display_tolerance_pct,
+                                     size_unit=DISPLAY_SIZE_UNIT,
+                                     size_source="the design's [gap] display_tolerance_pct"),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text,
         loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},
-        warnings=(note,) if note else (), not_identifiable=display_identifiability(data))
+        warnings=(note,) if note else (), not_identifiable=display_identifiability(data),
+        sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
+                                                  for st in diag.steps]))

@@ -22,7 +22,7 @@ from analysis.gap.display.noise import _foot, fit_noise_drift, meter_noise, zero
 from analysis.gap.engine import candidate, split_held_out
 
 __all__ = ["calibration_jacobian", "display_folds", "display_frame", "display_loss",
-           "display_loss_given", "display_loss_info", "display_nll", "display_unit_ids",
+           "display_loss_given", "display_loss_info", "display_mean_given", "display_nll", "display_unit_ids",
            "fit_noise_drift", "lack_of_fit_sd", "split_display"]
 
 # --- the data frame the engine works on -------------------------------------------------------
@@ -110,16 +110,22 @@ def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:
     return np.linalg.lstsq((j.T * w) @ j + prec, (j.T * w) @ r, rcond=None)[0]
 
 
+def display_mean_given(train: pd.DataFrame, data: pd.DataFrame, fitted: list) -> np.ndarray:
+    """The prediction (cd/m^2) for ``data``'s readings of the simulation extended by
+    ``fitted``, its calibration moved within its uncertainty to fit ``train``
+    (:func:`_calibration_shift`)."""
+    mean = _mean(data, fitted)
+    delta = _calibration_shift(train, fitted)
+    if delta is not None:
+        mean = mean + data.attrs["cal_jac"][data.index.to_numpy()] @ delta
+    return mean
+
+
 def display_loss_given(train: pd.DataFrame):
     """The engine's loss for a fold trained on ``train``: ``loss(data, fitted)``, the NLL of
-    the simulation extended by ``fitted``, its calibration moved within its uncertainty to fit
-    ``train`` (:func:`_calibration_shift`)."""
+    :func:`display_mean_given`."""
     def loss(data: pd.DataFrame, fitted: list) -> np.ndarray:
-        mean = _mean(data, fitted)
-        delta = _calibration_shift(train, fitted)
-        if delta is not None:
-            mean = mean + data.attrs["cal_jac"][data.index.to_numpy()] @ delta
-        return display_nll(data, mean)
+        return display_nll(data, display_mean_given(train, data, fitted))
     return loss
 
 

@@ -32,7 +32,9 @@ class Diagnosis:
     held-out unit).
 
     ``verdict`` names the chosen candidates (``a + b``), or is ``'no_significant_gap'`` (nothing
-    chosen and no significant gap: what the words then say) or ``'unexplained'``; ``summary``
+    chosen and no significant gap: what the words then say), ``'no_gap_that_matters'`` (nothing
+    chosen; what remains is significant but within the layer's practical tolerance) or
+    ``'unexplained'``; ``summary``
     is the plain-language sentence. ``not_identifiable`` maps effects the data given cannot
     identify (left out of the ranking) to the reason, in words. ``remaining`` (with a ceiling) holds the chosen model's
     held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
@@ -46,9 +48,11 @@ class Diagnosis:
     removes (so a share never exceeds what a flexible model of the data allows; all of it
     where the ceiling removes nothing and the chosen candidates remove something);
     ``ceiling_share`` is the share of the gap above the floor that the ceiling removes.
-    ``misfit_pct_before`` / ``misfit_pct_after`` (render layer; NaN elsewhere): the held-out
-    RMS misfit of the plain simulation / with the chosen effects, in % of the held-out data's
-    RMS (noise included).
+    ``misfit_pct_before`` / ``misfit_pct_after`` (render and display layers; NaN elsewhere):
+    the held-out RMS misfit of the plain simulation / with the chosen effects, in % of the
+    held-out data's RMS (render) or of each reading's luminance (display), noise included.
+    ``misfit`` (display layer; else empty): the same and more in the lab's units, keyed as the
+    layer documents (e.g. ``worst_pct_after``, ``ceiling_pct``, ``black_cd_m2_before``).
     """
 
     layer: str
@@ -80,6 +84,7 @@ class Diagnosis:
     misfit_pct_before: float = float("nan")
     misfit_pct_after: float = float("nan")
     not_identifiable: dict = field(default_factory=dict)
+    misfit: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:

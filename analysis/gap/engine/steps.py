@@ -28,6 +28,7 @@ from analysis.gap.engine.stats import PairedTest, holm
 
 __all__ = [
     "NO_GAP",
+    "NO_GAP_THAT_MATTERS",
     "Combination",
     "GapMeasures",
     "apply_tolerance",
@@ -46,6 +47,12 @@ __all__ = [
 #: sound, nothing significant beyond the ceiling or, without one, no gap above tolerance): the
 #: JSON's ``verdict`` says what the words say.
 NO_GAP = "no_significant_gap"
+
+#: The verdict of a diagnosis whose remainder is statistically significant but smaller than
+#: the layer's practical tolerance (nothing attributed, the floor sound, ``remaining``
+#: ``within_tolerance``): a difference the data can see and a lab need not act on. Reported
+#: with its size and where it lies.
+NO_GAP_THAT_MATTERS = "no_gap_that_matters"
 
 
 def with_added(chosen: list[list], name: str, params: list) -> list[list]:
@@ -327,11 +334,14 @@ def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
     return bool(gap_before_ci) and gap_before_ci[0] <= max(min_gain, 0.0)
 
 
-def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False) -> str:
+def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False,
+               within_tolerance: bool = False) -> str:
     """The chosen candidates' names (``a + b``); :data:`NO_GAP` when ``no_gap`` (nothing
-    chosen and no significant gap: :func:`no_gap`); else ``'unexplained'`` (none chosen, or
-    they explain less than ``min_share`` of the gap; a NaN share does not refuse them)."""
+    chosen and no significant gap: :func:`no_gap`), :data:`NO_GAP_THAT_MATTERS` when moreover
+    a significant remainder lies within the tolerance (``within_tolerance``); else
+    ``'unexplained'`` (none chosen, or they explain less than ``min_share`` of the gap; a NaN
+    share does not refuse them)."""
     explained = bool(steps) and (share >= min_share if np.isfinite(share) else True)
     if not steps and no_gap:
-        return NO_GAP
+        return NO_GAP_THAT_MATTERS if within_tolerance else NO_GAP
     return " + ".join(s["added"] for s in steps) if explained else "unexplained"

@@ -11,7 +11,7 @@ import numpy as np
 from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.registry import candidate
 from analysis.gap.engine.result import Diagnosis
-from analysis.gap.engine.steps import NO_GAP
+from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS
 
 __all__ = ["summarise", "with_summary"]
 
@@ -24,7 +24,7 @@ def summarise(d: Diagnosis) -> str:
     """The verdict in one or two plain sentences (no markup), then one per effect the data
     cannot identify."""
     text = _verdict_words(d)
-    if d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
+    if d.verdict not in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS) and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
             text += f" {st['added'].replace('_', ' ').capitalize()}: {said}." if said else ""
@@ -110,7 +110,8 @@ def _nothing_chosen_words(d: Diagnosis, rem: dict, further: str, within: str) ->
     if further:
         return f"No catalogue effect explains the gap; {further}."
     if within:
-        return f"No catalogue effect improves the simulation; {within}."
+        return (f"No gap that matters: no catalogue effect improves the simulation; "
+                f"{within}.")
     if rem:
         return (f"No significant gap: the simulation predicts the held-out data as well as "
                 f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
