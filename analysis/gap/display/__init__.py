@@ -157,12 +157,21 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     # nats: the floor is called mis-estimated only beyond that (an assumed noise: 0).
     pairs = data.attrs["noise"]["n_pairs"]
     floor_sd = 0.5 * float(np.sqrt(2.0 / pairs)) if pairs else 0.0
+    # The calibration model's misfit (the readings' ``lof``) is the same at a level in every
+    # pass, so the calibration's allowed shift, fitted on one half, removes part of it from the
+    # other: the floor lies between the one that counts it in full and the one without it (the
+    # mean of 0.5 lof^2 / sd^2 per reading lower). Called mis-estimated only below both: that
+    # range is a further 1.96 SDs of the floor's own error.
+    lof_share = float(np.mean(0.5 * data["lof"].to_numpy(float) ** 2
+                              / data["sd"].to_numpy(float) ** 2))
+    floor_sd = float(np.hypot(floor_sd, lof_share / 1.96))
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
                                      min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd,
                                      min_size=design.gap.display_tolerance_pct,
                                      size_unit=DISPLAY_SIZE_UNIT,
-                                     size_source="the design's [gap] display_tolerance_pct"),
+                                     size_source="the design's [gap] display_tolerance_pct",
+                                     tolerate_chosen=True),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text,
         loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},

@@ -18,9 +18,10 @@ at or below the meter's floor (censored) carry no number and are left out.
 
 The RMS figures include the meter's noise (what a direct comparison of two passes shows); the
 ``size`` held to the tolerance (:func:`display_misfit_size`) is the systematic part alone: the
-mean square of the relative misfit less the mean square the noise model gives (each
-reading's SD, the calibration's own misfit included), so a clean check reads about 0 whatever
-its meter's noise.
+mean square of the relative misfit less the mean square the meter's noise gives (with the
+calibration's own misfit; not the change between passes, which is the display's and is what a
+lab wants the size of), so a check no further off than a repeat reads about 0 whatever its
+meter's noise.
 """
 
 from __future__ import annotations
@@ -56,7 +57,8 @@ def _parts(data: pd.DataFrame, pred: np.ndarray):
     bright = use & (pred >= _near_black(data)) & (pred > 0)
     dark = use & ~bright
     rel = (lum[bright] - pred[bright]) / pred[bright]
-    sd = data["sd"].to_numpy(float)[bright] / pred[bright]
+    var = data["var_expected"] if "var_expected" in data else data["sd"] ** 2
+    sd = np.sqrt(var.to_numpy(float)[bright]) / pred[bright]
     return rel, sd, data["cell"].to_numpy()[bright], lum[dark] - pred[dark]
 
 

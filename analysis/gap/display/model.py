@@ -71,6 +71,7 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     out["censored"] = (lum <= floor) | (lum <= 0)
     out["floor_at"] = np.where(lum <= 0, zero, floor)
     lof = lack_of_fit_sd(cal, out["mu0"].to_numpy(float), noise["rel"], cal_rows)
+    out["lof"] = lof
     out["sd"], out["var_expected"] = _reading_sd(out, noise, lof)
     jac, prec = calibration_jacobian(cal, out["level"].to_numpy(float), noise["rel"],
                                      noise.get("shot", 0.0))
@@ -85,14 +86,34 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     return out
 
 
+#: SD of the display's gain from one pass to the next (fraction of the light above black): the
+#: prior for what repeats seconds apart cannot show. A display's white and a meter's reading of
+#: it move between passes minutes apart by more than between consecutive readings (an LCD's
+#: backlight and an OLED's panel settle with temperature by tenths of a % over minutes; the
+#: meter is re-aimed or re-focused); 0.3 % is the middle of that range. Where pairs show a
+#: drift between repeats, their drift (``drift_pct``) counts when larger.
+PASS_GAIN_SD = 0.003
+
+
 def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.ndarray]:
-    """SD of each reading about the calibration's prediction, cd/m^2: the photometer's noise
-    ``a^2 + s L + (b L)^2`` (L at least the floor) and the calibration model's own misfit ``lof``
-    (:func:`lack_of_fit_sd`); and its square (the floor's expected squared deviation)."""
+    """SD of each reading about the calibration's prediction, cd/m^2, and the floor's expected
+    squared deviation.
+
+    The SD holds the photometer's noise ``a^2 + s L + (b L)^2`` (L at least the floor), the
+    calibration model's own misfit ``lof`` (:func:`lack_of_fit_sd`) and the change of the
+    display between passes, ``(g (L - Lmin))^2`` with ``g`` :data:`PASS_GAIN_SD` (or half
+    the drift the pairs show, if larger): a check is another pass than the calibration, so its
+    readings differ from the calibration's by that gain too (each reading's marginal). The
+    expected squared deviation of a model right up to noise (the floor) leaves the pass term
+    out: a check no further from its calibration than a repeat reads at the floor, and a gain
+    change between passes reads above it by its own size, not by the meter's precision alone
+    (was: a second pass with a PR-670, 0.05 % repeats, hundreds of nats per reading)."""
     lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
     var = (noise["abs"] ** 2 + noise.get("shot", 0.0) * lum + (noise["rel"] * lum) ** 2
            + np.asarray(lof, float) ** 2)
-    return np.sqrt(var), var
+    g = max(PASS_GAIN_SD, 0.5 * float(noise.get("drift_pct", 0.0)) / 100)
+    above = np.maximum(lum - data["lmin"].to_numpy(float), 0.0)
+    return np.sqrt(var + (g * above) ** 2), var
 
 
 def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:

@@ -16,6 +16,7 @@ from analysis.gap.engine.result import Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import PairedTest, boot_idx
 from analysis.gap.engine.steps import (
+    chosen_within_tolerance,
     combine_greedily,
     explained_shares,
     measure_gap,
@@ -120,7 +121,9 @@ def _record(layer, ranking, combination, gap, remaining, share, ceiling_share, s
         ranking=tuple(asdict(s) for s in ranking),
         steps=tuple(combination.steps),
         verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none,
-                           within_tolerance=bool((remaining or {}).get("within_tolerance"))),
+                           within_tolerance=bool((remaining or {}).get("within_tolerance"))
+                           or chosen_within_tolerance(combination.steps, gap.floor_status,
+                                                      remaining, settings.min_size)),
         explained_share=share,
         min_share=float(settings.min_share),
         min_gain=float(settings.min_gain),

@@ -33,6 +33,7 @@ __all__ = [
     "GapMeasures",
     "apply_tolerance",
     "backfit",
+    "chosen_within_tolerance",
     "combine_greedily",
     "explained_shares",
     "mean_params",
@@ -274,6 +275,11 @@ def remaining_gap(cv: CrossFit, combination: Combination, test: PairedTest,
            "loss_ceiling": float(ceil.mean()), "where": ""}
     if functions.size is not None:
         rem.update(apply_tolerance(detected, float(functions.size(fits)), settings))
+        if settings.tolerate_chosen and any(combination.chosen):
+            # The plain simulation's own misfit, for a verdict on chosen effects that are
+            # smaller than the tolerance.
+            rem["size_before"] = float(functions.size([(tr, te, [], cf)
+                                                       for tr, te, _, cf in fits]))
     if detected and functions.where is not None:
         rem["where"] = functions.where(fits)
     return rem, ceil
@@ -321,6 +327,17 @@ def explained_shares(gap: GapMeasures, base: np.ndarray, current: np.ndarray,
     return share, ceiling_share
 
 
+def chosen_within_tolerance(steps, floor_status: str, remaining: dict | None,
+                            min_size: float) -> bool:
+    """True when effects were chosen, the floor is sound, nothing significant remains beyond
+    them and the plain simulation's own misfit (``remaining['size_before']``, set with
+    ``tolerate_chosen``) is below the tolerance ``min_size``: a change smaller than what
+    matters."""
+    rem = remaining or {}
+    return bool(steps and floor_status == "ok" and not rem.get("significant")
+                and "size_before" in rem and rem["size_before"] < min_size)
+
+
 def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
            min_gain: float) -> bool:
     """True when there is no significant gap: nothing attributed, the floor sound, and either
@@ -338,10 +355,13 @@ def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = Fa
                within_tolerance: bool = False) -> str:
     """The chosen candidates' names (``a + b``); :data:`NO_GAP` when ``no_gap`` (nothing
     chosen and no significant gap: :func:`no_gap`), :data:`NO_GAP_THAT_MATTERS` when moreover
-    a significant remainder lies within the tolerance (``within_tolerance``); else
+    a significant remainder lies within the tolerance (``within_tolerance``; with chosen
+    effects: the whole difference, :func:`chosen_within_tolerance`); else
     ``'unexplained'`` (none chosen, or they explain less than ``min_share`` of the gap; a NaN
     share does not refuse them)."""
     explained = bool(steps) and (share >= min_share if np.isfinite(share) else True)
     if not steps and no_gap:
         return NO_GAP_THAT_MATTERS if within_tolerance else NO_GAP
+    if steps and within_tolerance:
+        return NO_GAP_THAT_MATTERS
     return " + ".join(s["added"] for s in steps) if explained else "unexplained"

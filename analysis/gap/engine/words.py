@@ -24,7 +24,7 @@ def summarise(d: Diagnosis) -> str:
     """The verdict in one or two plain sentences (no markup), then one per effect the data
     cannot identify."""
     text = _verdict_words(d)
-    if d.verdict not in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS) and d.floor_status == "ok":
+    if d.steps and d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
             text += f" {st['added'].replace('_', ' ').capitalize()}: {said}." if said else ""
@@ -50,6 +50,13 @@ def _verdict_words(d: Diagnosis) -> str:
     further, within = _remaining_words(rem)
     if not d.steps:
         return _nothing_chosen_words(d, rem, further, within)
+    if d.verdict == NO_GAP_THAT_MATTERS:
+        one = len(d.steps) == 1
+        size = dict(rem, size=rem["size_before"])
+        return (f"No gap that matters: {_names(d.steps)} {'is' if one else 'are'} "
+                "statistically significant, but the plain simulation leaves "
+                f"{_size_words(size, 'below')}; nothing significant remains beyond "
+                f"{'it' if one else 'them'}.")
     share = (f"{100 * d.explained_share:.0f} %" if np.isfinite(d.explained_share)
              else "all")
     if d.verdict == "unexplained":
