@@ -84,14 +84,15 @@ from analysis.gap.display.candidates import (
     display_identifiability,
     quantisation_resolution,
 )
-from analysis.gap.display.ceiling import display_ceiling, display_floor
-from analysis.gap.display.data import load_display
-from analysis.gap.display.misfit import (
+from analysis.gap.display.ceiling import (
     DISPLAY_SIZE_UNIT,
     NEAR_BLACK_FRACTION,
+    display_ceiling,
+    display_floor,
     display_misfit,
     display_misfit_size,
 )
+from analysis.gap.display.data import load_display
 from analysis.gap.display.model import (
     display_folds,
     display_frame,

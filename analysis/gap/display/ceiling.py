@@ -1,10 +1,24 @@
-"""Display layer, the ceiling and the floor: how well any model of the readings could do.
+"""Display layer, the ceiling and the floor: how well any model of the readings could do, and
+how far the readings are, in the lab's units.
 
 The floor (:func:`display_floor`) is the loss of a model right up to the photometer's noise,
 ``0.5 log(2 pi sd^2) + 0.5`` per reading. The ceiling (:func:`display_ceiling`) is the held-out
 loss of a penalised smooth of level, position and time fitted to the plain simulation's
 residuals; a chosen model that stays significantly above it leaves a gap the catalogue does
 not explain.
+
+How far (:func:`display_misfit`, :func:`display_misfit_size`): a reading's misfit is
+``L - prediction`` (cd/m^2), the prediction held out as the diagnosis scores it (each reading
+predicted by the fold that did not see it, the calibration moved within its own uncertainty:
+:func:`~analysis.gap.display.model.display_mean_given`); censored readings carry no number.
+``% of luminance`` is ``100 (L - prediction) / prediction`` over the readings above
+:data:`NEAR_BLACK_FRACTION` of the calibration's white (a lab reads it as the Weber fraction:
+about 1 % is the smallest step of luminance seen at photopic levels); near black the misfit is
+in cd/m^2 (the eye's threshold there is no longer a constant fraction, and the meter's
+absolute noise dominates). RMS figures include the meter's noise (what a comparison of two
+passes shows); the ``size`` held to the tolerance takes the noise's mean square out (the
+meter's, with the calibration's own misfit; not the change between passes, which is the
+display's), so a check no further off than a repeat reads about 0.
 """
 
 from __future__ import annotations
@@ -13,8 +27,11 @@ import numpy as np
 import pandas as pd
 from scipy import linalg
 
-from analysis.gap.display.model import display_nll
-from analysis.gap.display.noise import _bspline
+from analysis.gap.display.model import display_mean_given, display_nll
+from analysis.gap.display.null.noise import _bspline
+
+__all__ = ["DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction", "display_ceiling",
+           "display_floor", "display_misfit", "display_misfit_size"]
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
 _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
@@ -185,3 +202,111 @@ def ceiling_prediction(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 
         return test["mu0"].to_numpy(float)
     beta = _solve(x_tr, r, w, pen)
     return test["mu0"].to_numpy(float) + x_te @ beta
+
+
+# --- how far, in the lab's units ------------------------------------------------------------
+
+#: Readings predicted below this fraction of the calibration's white count as near black:
+#: their misfit is given in cd/m^2, not in % (5 % of a 100 cd/m^2 white is 5 cd/m^2, where
+#: photopic contrast thresholds begin to rise above the Weber fraction).
+NEAR_BLACK_FRACTION = 0.05
+
+#: The unit of the display layer's misfit and tolerance, in words (the summary's).
+DISPLAY_SIZE_UNIT = "% of luminance (systematic RMS over the readings above near black)"
+
+
+def _near_black(data: pd.DataFrame) -> float:
+    """The light (cd/m^2) below which a reading counts as near black."""
+    return NEAR_BLACK_FRACTION * float(data.attrs["cal"].max_luminance_cd_m2)
+
+
+def _parts(data: pd.DataFrame, pred: np.ndarray) -> dict:
+    """Above near black: relative misfit ``rel``, relative noise SD ``sd``, ``cell`` and
+    screen position ``pos``; near black: misfit ``dark`` and noise SD ``dark_sd`` (cd/m^2);
+    uncensored readings only; ``black_below``, where near black ends (cd/m^2)."""
+    lum, pred = data["L"].to_numpy(float), np.asarray(pred, float)
+    use = ~data["censored"].to_numpy(bool) & np.isfinite(pred)
+    bright = use & (pred >= _near_black(data)) & (pred > 0)
+    dark = use & ~bright
+    var = (data["var_expected"] if "var_expected" in data else data["sd"] ** 2).to_numpy(float)
+    pos = np.array([f"{x:+.3f},{y:+.3f}" for x, y in zip(data["x_norm"], data["y_norm"])])
+    return {"rel": (lum[bright] - pred[bright]) / pred[bright],
+            "sd": np.sqrt(var[bright]) / pred[bright], "cell": data["cell"].to_numpy()[bright],
+            "pos": pos[bright], "dark": lum[dark] - pred[dark], "dark_sd": np.sqrt(var[dark]),
+            "black_below": _near_black(data)}
+
+
+def _systematic(r: np.ndarray, sd: np.ndarray) -> float:
+    """RMS of ``r`` with the noise's mean square (``sd``) taken out (0 if noise explains it)."""
+    return float(np.sqrt(max(np.mean(r**2 - sd**2), 0.0))) if r.size else float("nan")
+
+
+def _summary(parts: list) -> dict:
+    """RMS %, systematic % (overall and at the worst screen position), worst patch %, near-black
+    RMS and systematic cd/m^2, and the size held to the tolerance, of folds' ``_parts``."""
+    p = {k: np.concatenate([q[k] for q in parts]) for k in ("rel", "sd", "cell", "pos", "dark",
+                                                            "dark_sd")}
+    rel, sd = p["rel"], p["sd"]
+    out = dict.fromkeys(("rms_pct", "systematic_pct", "worst_pct", "position_pct"),
+                        float("nan"))
+    if rel.size:
+        out["rms_pct"] = float(100 * np.sqrt(np.mean(rel**2)))
+        out["systematic_pct"] = 100 * _systematic(rel, sd)
+        out["worst_pct"] = float(100 * pd.Series(rel).groupby(p["cell"]).mean().abs().max())
+        out["position_pct"] = max(100 * _systematic(rel[p["pos"] == q], sd[p["pos"] == q])
+                                  for q in np.unique(p["pos"]))
+    dark = p["dark"]
+    out["black_cd_m2"] = float(np.sqrt(np.mean(dark**2))) if dark.size else float("nan")
+    out["black_systematic_cd_m2"] = _systematic(dark, p["dark_sd"])
+    # Near black a misfit is held to the tolerance's fraction of where near black ends (the
+    # Weber fraction at the lowest light it still holds for): in % of that light.
+    black_pct = 100 * out["black_systematic_cd_m2"] / parts[0]["black_below"]
+    out["size_pct"] = float(np.nanmax([out["position_pct"], black_pct, 0.0]))
+    return out
+
+
+def display_misfit_size(fits: list) -> float:
+    """The engine's ``size`` (% of luminance, the meter's noise taken out) of what the chosen
+    model leaves on the held-out readings: the larger of the systematic RMS misfit at the
+    worst screen position (readings above near black; a misfit confined to one region is not
+    diluted by the others) and the systematic near-black misfit in % of the light where near
+    black ends (a black offset shows there alone). ``fits``: per fold
+    ``(train, test, fitted, ceiling_loss)``."""
+    return _summary([_parts(te, display_mean_given(tr, te, list(ch)))
+                     for tr, te, ch, _ in fits])["size_pct"]
+
+
+def display_misfit(folds: list, chosen: list) -> dict:
+    """The held-out misfit in the lab's units before, after the chosen effects and of the
+    ceiling (:func:`~analysis.gap.display.ceiling.ceiling_prediction`), pooled over the
+    cross-fitting ``folds`` ``[(train, test), ...]`` (each reading held out once).
+
+    Parameters
+    ----------
+    folds : list of (DataFrame, DataFrame)
+    chosen : list of (name, params)
+        The chosen effects with their (fold-mean) parameters.
+
+    Returns
+    -------
+    dict
+        ``misfit_pct_before``, ``misfit_pct_after`` (RMS % of luminance, noise included: the
+        :class:`~analysis.gap.engine.Diagnosis` fields) and ``misfit``: ``unit``,
+        ``ceiling_pct``; each ``_before`` / ``_after``: ``systematic_pct`` (noise removed),
+        ``position_pct`` (the same at the worst screen position), ``worst_pct`` (the patch
+        whose mean misfit is largest, noise included), ``black_cd_m2`` (RMS near black),
+        ``black_systematic_cd_m2`` (noise removed), ``size_pct`` (what the tolerance is held
+        to: :func:`display_misfit_size`); ``ceiling_black_cd_m2`` and ``black_below_cd_m2``
+        (where near black ends). NaN where no reading qualifies.
+    """
+    before = _summary([_parts(te, display_mean_given(tr, te, [])) for tr, te in folds])
+    after = _summary([_parts(te, display_mean_given(tr, te, chosen)) for tr, te in folds])
+    ceil = _summary([_parts(te, ceiling_prediction(tr, te)) for tr, te in folds])
+    misfit = {"unit": "of luminance", "ceiling_pct": ceil["rms_pct"],
+              "black_below_cd_m2": _near_black(folds[0][1]),
+              "ceiling_black_cd_m2": ceil["black_cd_m2"]}
+    for key in ("systematic_pct", "position_pct", "worst_pct", "black_cd_m2",
+                "black_systematic_cd_m2", "size_pct"):
+        misfit[f"{key}_before"], misfit[f"{key}_after"] = before[key], after[key]
+    return {"misfit_pct_before": before["rms_pct"], "misfit_pct_after": after["rms_pct"],
+            "misfit": misfit}

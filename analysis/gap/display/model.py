@@ -16,9 +16,9 @@ import numpy as np
 import pandas as pd
 from scipy.special import log_ndtr
 
-from analysis.gap.display.calerror import calibration_jacobian, lack_of_fit_sd, map_jacobian
 from analysis.gap.display.data import _has_pairs, _seconds, _timed
-from analysis.gap.display.noise import _foot, fit_noise_drift, meter_noise, zero_floor
+from analysis.gap.display.null.calerror import calibration_jacobian, lack_of_fit_sd, map_jacobian
+from analysis.gap.display.null.noise import _foot, fit_noise_drift, meter_noise, zero_floor
 from analysis.gap.engine import candidate, split_held_out
 
 __all__ = ["calibration_jacobian", "display_folds", "display_frame", "display_loss",

@@ -126,7 +126,7 @@ def test_a_zero_is_censored_below_the_meters_floor_not_below_the_next_level(tmp_
 
 @pytest.mark.parametrize("device, floor", [("ls100", 0.001), ("pr670", None)])
 def test_a_zeros_floor_is_the_meters_documented_one_where_known(device, floor):
-    from analysis.gap.display.noise import zero_floor
+    from analysis.gap.display.null.noise import zero_floor
 
     value, source = zero_floor(device, {"floor_cd_m2": 0.02})
     assert value == (floor if floor is not None else 0.02)
