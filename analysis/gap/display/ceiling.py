@@ -30,7 +30,7 @@ from scipy import linalg
 from analysis.gap.display.model import display_mean_given, display_nll
 from analysis.gap.display.null.noise import _bspline
 
-__all__ = ["DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction", "display_ceiling",
+__all__ = ["DARK_LIGHT_CD_M2", "DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction", "display_ceiling",
            "display_floor", "display_misfit", "display_misfit_size"]
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
@@ -211,8 +211,16 @@ def ceiling_prediction(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 
 #: photopic contrast thresholds begin to rise above the Weber fraction).
 NEAR_BLACK_FRACTION = 0.05
 
-#: The unit of the display layer's misfit and tolerance, in words (the summary's).
-DISPLAY_SIZE_UNIT = "% of luminance (systematic RMS over the readings above near black)"
+#: The eye's dark light, cd/m^2: a luminance step is seen when it is about the Weber fraction
+#: of ``L + DARK_LIGHT_CD_M2`` (Weber's law at photopic levels, thresholds that level off in
+#: cd/m^2 toward black; with 1 cd/m^2 the fraction at 0.5 cd/m^2 is 3 times that at 100, as
+#: contrast thresholds on displays are, e.g. the DICOM grayscale function's). The tolerance
+#: is held to misfits in % of that light.
+DARK_LIGHT_CD_M2 = 1.0
+
+#: The unit of the display layer's tolerance, in words (the summary's).
+DISPLAY_SIZE_UNIT = ("% of luminance (systematic RMS at the worst screen position or fifth of "
+                     "the drive range, near black in % of the light plus 1 cd/m^2)")
 
 
 def _near_black(data: pd.DataFrame) -> float:
@@ -230,9 +238,14 @@ def _parts(data: pd.DataFrame, pred: np.ndarray) -> dict:
     dark = use & ~bright
     var = (data["var_expected"] if "var_expected" in data else data["sd"] ** 2).to_numpy(float)
     pos = np.array([f"{x:+.3f},{y:+.3f}" for x, y in zip(data["x_norm"], data["y_norm"])])
+    band = np.digitize(data["level"].to_numpy(float), [0.2, 0.4, 0.6, 0.8]).astype(str)
+    seen = pred[use] + DARK_LIGHT_CD_M2
     return {"rel": (lum[bright] - pred[bright]) / pred[bright],
             "sd": np.sqrt(var[bright]) / pred[bright], "cell": data["cell"].to_numpy()[bright],
-            "pos": pos[bright], "dark": lum[dark] - pred[dark], "dark_sd": np.sqrt(var[dark]),
+            "dark": lum[dark] - pred[dark], "dark_sd": np.sqrt(var[dark]),
+            "seen": (lum[use] - pred[use]) / seen, "seen_sd": np.sqrt(var[use]) / seen,
+            "group": np.concatenate([np.char.add("pos ", pos[use]),
+                                     np.char.add("band ", band[use])]),
             "black_below": _near_black(data)}
 
 
@@ -244,33 +257,35 @@ def _systematic(r: np.ndarray, sd: np.ndarray) -> float:
 def _summary(parts: list) -> dict:
     """RMS %, systematic % (overall and at the worst screen position), worst patch %, near-black
     RMS and systematic cd/m^2, and the size held to the tolerance, of folds' ``_parts``."""
-    p = {k: np.concatenate([q[k] for q in parts]) for k in ("rel", "sd", "cell", "pos", "dark",
-                                                            "dark_sd")}
+    p = {k: np.concatenate([q[k] for q in parts])
+         for k in ("rel", "sd", "cell", "dark", "dark_sd", "seen", "seen_sd")}
+    # Each reading is in two groups (its screen position, its fifth of the drive range).
+    group = np.concatenate([q["group"] for q in parts])
+    seen = np.concatenate([p["seen"], p["seen"]])
+    seen_sd = np.concatenate([p["seen_sd"], p["seen_sd"]])
     rel, sd = p["rel"], p["sd"]
-    out = dict.fromkeys(("rms_pct", "systematic_pct", "worst_pct", "position_pct"),
-                        float("nan"))
+    out = dict.fromkeys(("rms_pct", "systematic_pct", "worst_pct"), float("nan"))
     if rel.size:
         out["rms_pct"] = float(100 * np.sqrt(np.mean(rel**2)))
         out["systematic_pct"] = 100 * _systematic(rel, sd)
         out["worst_pct"] = float(100 * pd.Series(rel).groupby(p["cell"]).mean().abs().max())
-        out["position_pct"] = max(100 * _systematic(rel[p["pos"] == q], sd[p["pos"] == q])
-                                  for q in np.unique(p["pos"]))
     dark = p["dark"]
     out["black_cd_m2"] = float(np.sqrt(np.mean(dark**2))) if dark.size else float("nan")
     out["black_systematic_cd_m2"] = _systematic(dark, p["dark_sd"])
-    # Near black a misfit is held to the tolerance's fraction of where near black ends (the
-    # Weber fraction at the lowest light it still holds for): in % of that light.
-    black_pct = 100 * out["black_systematic_cd_m2"] / parts[0]["black_below"]
-    out["size_pct"] = float(np.nanmax([out["position_pct"], black_pct, 0.0]))
+    sizes = {q: 100 * _systematic(seen[group == q], seen_sd[group == q])
+             for q in np.unique(group)}
+    where = max(sizes, key=sizes.get) if sizes else ""
+    out["size_pct"] = float(sizes[where]) if sizes else float("nan")
+    out["size_where"] = where.replace("band ", "drive band ").replace("pos ", "position ")
     return out
 
 
 def display_misfit_size(fits: list) -> float:
-    """The engine's ``size`` (% of luminance, the meter's noise taken out) of what the chosen
-    model leaves on the held-out readings: the larger of the systematic RMS misfit at the
-    worst screen position (readings above near black; a misfit confined to one region is not
-    diluted by the others) and the systematic near-black misfit in % of the light where near
-    black ends (a black offset shows there alone). ``fits``: per fold
+    """The engine's ``size`` (%, the meter's noise taken out) of what the chosen model leaves
+    on the held-out readings: each reading's misfit in % of its light plus the eye's dark
+    light (:data:`DARK_LIGHT_CD_M2`), systematic RMS over each screen position and each fifth
+    of the drive range, the largest of these (a misfit confined to one region or to the dark
+    levels, a black offset, is not diluted by the rest). ``fits``: per fold
     ``(train, test, fitted, ceiling_loss)``."""
     return _summary([_parts(te, display_mean_given(tr, te, list(ch)))
                      for tr, te, ch, _ in fits])["size_pct"]
@@ -293,10 +308,10 @@ def display_misfit(folds: list, chosen: list) -> dict:
         ``misfit_pct_before``, ``misfit_pct_after`` (RMS % of luminance, noise included: the
         :class:`~analysis.gap.engine.Diagnosis` fields) and ``misfit``: ``unit``,
         ``ceiling_pct``; each ``_before`` / ``_after``: ``systematic_pct`` (noise removed),
-        ``position_pct`` (the same at the worst screen position), ``worst_pct`` (the patch
-        whose mean misfit is largest, noise included), ``black_cd_m2`` (RMS near black),
-        ``black_systematic_cd_m2`` (noise removed), ``size_pct`` (what the tolerance is held
-        to: :func:`display_misfit_size`); ``ceiling_black_cd_m2`` and ``black_below_cd_m2``
+        ``worst_pct`` (the patch whose mean misfit is largest, noise included),
+        ``black_cd_m2`` (RMS near black), ``black_systematic_cd_m2`` (noise removed),
+        ``size_pct`` and ``size_where`` (what the tolerance is held to and where:
+        :func:`display_misfit_size`); ``ceiling_black_cd_m2`` and ``black_below_cd_m2``
         (where near black ends). NaN where no reading qualifies.
     """
     before = _summary([_parts(te, display_mean_given(tr, te, [])) for tr, te in folds])
@@ -305,8 +320,8 @@ def display_misfit(folds: list, chosen: list) -> dict:
     misfit = {"unit": "of luminance", "ceiling_pct": ceil["rms_pct"],
               "black_below_cd_m2": _near_black(folds[0][1]),
               "ceiling_black_cd_m2": ceil["black_cd_m2"]}
-    for key in ("systematic_pct", "position_pct", "worst_pct", "black_cd_m2",
-                "black_systematic_cd_m2", "size_pct"):
+    for key in ("systematic_pct", "worst_pct", "black_cd_m2", "black_systematic_cd_m2",
+                "size_pct", "size_where"):
         misfit[f"{key}_before"], misfit[f"{key}_after"] = before[key], after[key]
     return {"misfit_pct_before": before["rms_pct"], "misfit_pct_after": after["rms_pct"],
             "misfit": misfit}
