@@ -224,8 +224,6 @@ def _before_after(d: Diagnosis) -> str:
         unit = (d.misfit or {}).get("unit", "of the photos' RMS luminance")
         rows.append((f"held-out RMS misfit, % {unit}",
                      f"{d.misfit_pct_before:.2f} % before, {d.misfit_pct_after:.2f} % after"))
-        if d.misfit:
-            rows.append(("the same in the lab's units", misfit_words(d)))
     return ("<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats "
             "per unit)</h3>" + _rows_table(rows))
 
