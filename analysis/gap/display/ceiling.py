@@ -223,8 +223,8 @@ NEAR_BLACK_FRACTION = 0.05
 DARK_LIGHT_CD_M2 = 1.0
 
 #: The unit of the display layer's tolerance, in words (the summary's).
-DISPLAY_SIZE_UNIT = ("% of luminance (systematic RMS at the worst screen position or fifth of "
-                     "the drive range, near black in % of the light plus 1 cd/m^2)")
+DISPLAY_SIZE_UNIT = ("% of luminance (systematic RMS at the worst screen position or drive "
+                     "level, in % of the light plus 1 cd/m^2)")
 
 
 def _near_black(data: pd.DataFrame) -> float:
@@ -242,14 +242,14 @@ def _parts(data: pd.DataFrame, pred: np.ndarray) -> dict:
     dark = use & ~bright
     var = (data["var_expected"] if "var_expected" in data else data["sd"] ** 2).to_numpy(float)
     pos = np.array([f"{x:+.3f},{y:+.3f}" for x, y in zip(data["x_norm"], data["y_norm"])])
-    band = np.digitize(data["level"].to_numpy(float), [0.2, 0.4, 0.6, 0.8]).astype(str)
+    band = np.array([f"{v:.4f}" for v in data["level"].to_numpy(float)])
     seen = pred[use] + DARK_LIGHT_CD_M2
     return {"rel": (lum[bright] - pred[bright]) / pred[bright],
             "sd": np.sqrt(var[bright]) / pred[bright], "cell": data["cell"].to_numpy()[bright],
             "dark": lum[dark] - pred[dark], "dark_sd": np.sqrt(var[dark]),
             "seen": (lum[use] - pred[use]) / seen, "seen_sd": np.sqrt(var[use]) / seen,
             "group": np.concatenate([np.char.add("pos ", pos[use]),
-                                     np.char.add("band ", band[use])]),
+                                     np.char.add("level ", band[use])]),
             "black_below": _near_black(data)}
 
 
@@ -263,7 +263,7 @@ def _summary(parts: list) -> dict:
     RMS and systematic cd/m^2, and the size held to the tolerance, of folds' ``_parts``."""
     p = {k: np.concatenate([q[k] for q in parts])
          for k in ("rel", "sd", "cell", "dark", "dark_sd", "seen", "seen_sd")}
-    # Each reading is in two groups (its screen position, its fifth of the drive range).
+    # Each reading is in two groups (its screen position, its drive level).
     group = np.concatenate([q["group"] for q in parts])
     seen = np.concatenate([p["seen"], p["seen"]])
     seen_sd = np.concatenate([p["seen_sd"], p["seen_sd"]])
@@ -280,16 +280,16 @@ def _summary(parts: list) -> dict:
              for q in np.unique(group)}
     where = max(sizes, key=sizes.get) if sizes else ""
     out["size_pct"] = float(sizes[where]) if sizes else float("nan")
-    out["size_where"] = where.replace("band ", "drive band ").replace("pos ", "position ")
+    out["size_where"] = where.replace("level ", "drive level ").replace("pos ", "position ")
     return out
 
 
 def display_misfit_size(fits: list) -> float:
     """The engine's ``size`` (%, the meter's noise taken out) of what the chosen model leaves
     on the held-out readings: each reading's misfit in % of its light plus the eye's dark
-    light (:data:`DARK_LIGHT_CD_M2`), systematic RMS over each screen position and each fifth
-    of the drive range, the largest of these (a misfit confined to one region or to the dark
-    levels, a black offset, is not diluted by the rest). ``fits``: per fold
+    light (:data:`DARK_LIGHT_CD_M2`), systematic RMS over each screen position and each drive
+    level, the largest of these (a misfit confined to one region or to the dark levels, a
+    black offset, is not diluted by the rest). ``fits``: per fold
     ``(train, test, fitted, ceiling_loss)``."""
     return _summary([_parts(te, display_mean_given(tr, te, list(ch)))
                      for tr, te, ch, _ in fits])["size_pct"]
