@@ -475,7 +475,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
         true_shrink = _true_shrink(diag, target, real) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
     outside = [e for e in plan["effects"] if e not in cat]
-    named = [] if diag.verdict in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS) else diag.verdict.split(" + ")
+    named = ([s["added"] for s in diag.steps] if diag.verdict == NO_GAP_THAT_MATTERS
+             else [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + "))
     rem = diag.remaining or {}
     return {"layer": "display", "case": case, "effects": plan["effects"],
             "inside": inside, "outside": outside, "verdict": diag.verdict,

@@ -121,6 +121,10 @@ def _layer(layer: str):
 
 
 def _top(diag) -> str:
+    """The first effect named: of the verdict, or of the steps of a "no gap that matters"
+    verdict (an effect found and named, smaller than the layer's tolerance)."""
+    if diag.verdict == NO_GAP_THAT_MATTERS and diag.steps:
+        return diag.steps[0]["added"]
     return ("unexplained" if diag.verdict in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS)
             else diag.verdict.split(" + ")[0])
 
