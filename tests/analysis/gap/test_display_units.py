@@ -131,3 +131,22 @@ def test_a_zeros_floor_is_the_meters_documented_one_where_known(device, floor):
     value, source = zero_floor(device, {"floor_cd_m2": 0.02})
     assert value == (floor if floor is not None else 0.02)
     assert ("documented" in source) == (floor is not None)
+
+
+def test_no_gap_that_matters_is_the_engines_verdict_for_any_layer():
+    """The engine's verdict, layer-agnostic: a significant remainder within the tolerance
+    with nothing chosen (the render layer's path too), or chosen effects whose plain
+    simulation's misfit is within it; above the tolerance the verdict is as before."""
+    from analysis.gap.engine.steps import chosen_within_tolerance, verdict_of
+
+    assert verdict_of([], float("nan"), 0.8, no_gap=True, within_tolerance=True) \
+        == NO_GAP_THAT_MATTERS
+    assert verdict_of([], float("nan"), 0.8, no_gap=True) == NO_GAP
+    steps = [{"added": "gain_change"}]
+    rem = {"significant": False, "size_before": 0.6}
+    assert chosen_within_tolerance(steps, "ok", rem, 1.0)
+    assert not chosen_within_tolerance(steps, "ok", rem, 0.5)
+    assert not chosen_within_tolerance(steps, "misestimated", rem, 1.0)
+    assert not chosen_within_tolerance(steps, "ok", {"significant": False}, 1.0)
+    assert verdict_of(steps, 1.0, 0.8, within_tolerance=True) == NO_GAP_THAT_MATTERS
+    assert verdict_of(steps, 1.0, 0.8) == "gain_change"
