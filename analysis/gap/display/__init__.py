@@ -31,7 +31,8 @@ quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma 
 ====================  ====================================================================
 
 Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's noise
-``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it), the calibration's
+``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it) and a gain between
+passes (:data:`~analysis.gap.display.model.PASS_GAIN_SD` of the light above black), the calibration's
 gamma parameters moved within their own uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
 fitted from noisy readings is no gap in itself); a reading at or below the
 meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
@@ -59,7 +60,16 @@ Files (the shape every gap layer shares)
     (:func:`fit_noise_drift`), the held-out folds (:func:`split_display`,
     :func:`display_folds`) and :func:`display_unit_ids`.
 ``ceiling.py``
-    The flexible model and the floor: :func:`display_ceiling`, :func:`display_floor`.
+    The flexible model and the floor: :func:`display_ceiling`, :func:`display_floor`; how far
+    in the lab's units (:func:`display_misfit`: RMS and worst misfit in % of luminance before,
+    after and of the ceiling, cd/m^2 near black; :func:`display_misfit_size`: the size held
+    to the design's ``[gap] display_tolerance_pct``, below which a significant difference is
+    "no gap that matters").
+``null/``
+    What the null allows besides a change of the display: the meter's noise, its drift between
+    repeats and its floor (``null/noise.py``: a zero is censored below the meter's own floor,
+    never the lowest positive reading), the calibration's own uncertainty and model misfit
+    (``null/calerror.py``).
 ``where.py``
     Where the gap lies: :func:`display_where` (words), :func:`localise_display` (numbers).
 ``candidates.py``
