@@ -104,8 +104,9 @@ def test_a_gain_change_smaller_than_the_tolerance_is_no_gap_that_matters(tmp_pat
 
 def test_a_zero_is_censored_below_the_meters_floor_not_below_the_next_level(tmp_path):
     """The Dell LCD's black reads exactly 0 and its next level 1.08 cd/m^2: the zero is
-    censored below the meter's floor (the noise model's, well under 1 cd/m^2), and the 1.08
-    reading is a reading (was: the floor became 1.08 and both were censored)."""
+    censored below the meter's floor (its make is not documented here: the calibration's
+    black, at least the noise model's floor, well under 1 cd/m^2), and the 1.08 reading is a
+    reading (was: the floor became 1.08 and both were censored)."""
     from test_display_real import _calibrate, _lcd, _meter
 
     rng = np.random.default_rng(0)
@@ -128,9 +129,11 @@ def test_a_zero_is_censored_below_the_meters_floor_not_below_the_next_level(tmp_
 def test_a_zeros_floor_is_the_meters_documented_one_where_known(device, floor):
     from analysis.gap.display.null.noise import zero_floor
 
-    value, source = zero_floor(device, {"floor_cd_m2": 0.02})
-    assert value == (floor if floor is not None else 0.02)
-    assert ("documented" in source) == (floor is not None)
+    value, source = zero_floor(device, {"floor_cd_m2": 0.02}, np.array([0.01, 0.3]))
+    if floor is None:
+        assert list(value) == [0.02, 0.3] and "calibration's prediction" in source
+    else:
+        assert value == floor and "documented lowest luminance" in source
 
 
 def test_no_gap_that_matters_is_the_engines_verdict_for_any_layer():
