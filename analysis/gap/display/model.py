@@ -65,9 +65,10 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
     # A zero is censored below the meter's own floor; a positive reading only at or below the
     # floor its noise and foot show (never because a zero sits below it).
     device = (str(out["device"].iloc[0]) if "device" in out and len(out) else "") or cal.device
-    zero, out.attrs["zero_floor_source"] = zero_floor(device, noise, out["mu0"].to_numpy(float))
     lum = out["L"].to_numpy(float)
-    out.attrs["zero_floor"] = float(np.max(np.where(lum <= 0, zero, 0.0), initial=0.0))
+    zero, out.attrs["zero_floor_source"] = zero_floor(
+        device, noise, float(lum[lum > 0].min()) if (lum > 0).any() else None)
+    out.attrs["zero_floor"] = zero
     out["censored"] = (lum <= floor) | (lum <= 0)
     out["floor_at"] = np.where(lum <= 0, zero, floor)
     lof = lack_of_fit_sd(cal, out["mu0"].to_numpy(float), noise["rel"], cal_rows)
