@@ -559,6 +559,13 @@ class GapSpec:
         0.1 cm depth in the shipped slider; see the shipped design.toml for why). Another
         lab's rating study is held to the same share of its own scale (0.25 of the slider's
         span of 10 is 2.5 % of the scale's span).
+    display_tolerance_pct : float
+        The display layer's tolerance: a remaining misfit between a check's photometer
+        readings and the calibration (with the effects the diagnosis chose) counts as a gap
+        only if it is statistically significant *and* its systematic RMS, in % of each
+        reading's luminance (readings above near black), is at least this large; a smaller one
+        is "no gap that matters", reported with its size and where it lies. In (0, 20].
+        Default 1.0 (see the shipped design.toml for why).
 
     A design written before this section existed has no ``[gap]``: it takes these defaults,
     so an older lab design still runs sessions and renders (the diagnosis reports the
@@ -567,6 +574,7 @@ class GapSpec:
 
     render_tolerance_pct: float = 1.0
     observer_tolerance_slider: float = 0.25
+    display_tolerance_pct: float = 1.0
 
     def __post_init__(self) -> None:
         _require(0.0 < float(self.render_tolerance_pct) <= 20.0,
@@ -575,6 +583,9 @@ class GapSpec:
         _require(0.0 < float(self.observer_tolerance_slider) <= 2.0,
                  f"gap.observer_tolerance_slider must lie in (0, 2] (slider units, RMS), got "
                  f"{self.observer_tolerance_slider}")
+        _require(0.0 < float(self.display_tolerance_pct) <= 20.0,
+                 f"gap.display_tolerance_pct must lie in (0, 20] (% of luminance), got "
+                 f"{self.display_tolerance_pct}")
 
 
 @dataclass(frozen=True)

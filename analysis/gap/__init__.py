@@ -44,7 +44,7 @@ from analysis.gap.engine import (
     register_out_of_catalogue,
     strengths,
 )
-from analysis.gap.engine.steps import NO_GAP
+from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS
 from analysis.gap.layers import parse_layer_paths, which_layer
 from analysis.gap.observer import (
     OBSERVER_CANDIDATES,
@@ -63,6 +63,7 @@ from analysis.gap.report import write_multi_report, write_report
 __all__ = [
     "LAYERS",
     "NO_GAP",
+    "NO_GAP_THAT_MATTERS",
     "OBSERVER_CANDIDATES",
     "Candidate",
     "CandidateScore",

@@ -59,12 +59,16 @@ def _diagnose(args, design) -> int:
 def _print(diag, name: str) -> None:
     for w in diag.warnings:
         print(f"warning ({name}): {w}", file=sys.stderr)
-    from analysis.gap.report import no_significant_gap
+    from analysis.gap import NO_GAP_THAT_MATTERS
+    from analysis.gap.report import misfit_words, no_significant_gap
 
-    verdict = "no significant gap" if no_significant_gap(diag) else diag.verdict
+    verdict = ("no gap that matters" if diag.verdict == NO_GAP_THAT_MATTERS
+               else "no significant gap" if no_significant_gap(diag) else diag.verdict)
     remains = " (and a gap remains)" if diag.unexplained_remains and diag.steps else ""
-    print(f"{name}: verdict {verdict}{remains}; gap {diag.gap_before:.4f} -> "
-          f"{diag.gap_after:.4f} nats per unit; {diag.summary}", flush=True)
+    units = misfit_words(diag)
+    print(f"{name}: verdict {verdict}{remains}; {units + '; ' if units else ''}gap "
+          f"{diag.gap_before:.4f} -> {diag.gap_after:.4f} nats per unit; {diag.summary}",
+          flush=True)
 
 
 def main(argv=None) -> int:

@@ -15,12 +15,12 @@ import math
 from pathlib import Path
 
 from analysis.gap.engine import Diagnosis, GapError
-from analysis.gap.engine.steps import NO_GAP, no_gap
+from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS, no_gap
 from analysis.gap.params_table import format_sig, param_rows
 from analysis.gap.report_figures import write_figures
 from labfiles import atomic_open, atomic_write_text, write_new_file
 
-__all__ = ["lead_figure", "no_significant_gap", "params_html", "remaining_html", "verdict_text",
+__all__ = ["lead_figure", "misfit_words", "no_significant_gap", "params_html", "remaining_html", "verdict_text",
            "write_multi_report", "write_report"]
 
 #: The page's style: a readable measure, the verdict in a band with its lead figure beside it,
@@ -61,10 +61,12 @@ def verdict_text(d: Diagnosis) -> str:
     chosen effect in bold), how the data were held out, and the warnings. The gap against the
     ceiling in numbers is :func:`remaining_html`'s table."""
     text = html.escape(d.summary or d.verdict)
-    if d.steps and d.verdict not in ("unexplained", NO_GAP):
+    if d.steps and d.verdict not in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS):
         text = text.replace(html.escape(d.steps[0]["added"].replace("_", " ")),
                             f"<b>{html.escape(d.steps[0]['added'].replace('_', ' '))}</b>", 1)
     text = f"<p>{text}</p>"
+    if misfit_words(d):
+        text += f"<p>{html.escape(misfit_words(d))}.</p>"
     if d.split:
         text += f"<p><i>Held out: {html.escape(d.split)}.</i></p>"
     for w in d.warnings:
@@ -82,14 +84,46 @@ def _lead(items: list[tuple[str, str]]) -> str:
         f"{html.escape(what)}</span>" for fig, what in items) + "</div>"
 
 
+def misfit_words(d: Diagnosis) -> str:
+    """The held-out misfit in the data's own units, in words, or '' where the layer gives none:
+    'RMS misfit 3.1 % -> 0.42 % of luminance (plain -> chosen effects; a flexible model of the
+    readings 0.41 %; worst patch 0.9 %; near black 0.012 -> 0.010 cd/m^2)'."""
+    if not math.isfinite(d.misfit_pct_before):
+        return ""
+    m = d.misfit or {}
+    unit = m.get("unit", "of the photos' RMS luminance")
+    text = (f"RMS misfit {d.misfit_pct_before:.2g} % \u2192 {d.misfit_pct_after:.2g} % {unit} "
+            "(plain simulation \u2192 with the chosen effects")
+    extra = []
+    if math.isfinite(m.get("ceiling_pct", float("nan"))):
+        extra.append(f"a flexible model of the data {m['ceiling_pct']:.2g} %")
+    if math.isfinite(m.get("worst_pct_after", float("nan"))):
+        extra.append(f"worst patch {m['worst_pct_before']:.2g} % \u2192 "
+                     f"{m['worst_pct_after']:.2g} %")
+    if math.isfinite(m.get("black_cd_m2_after", float("nan"))):
+        extra.append(f"near black (below {m['black_below_cd_m2']:.2g} cd/m\u00b2) "
+                     f"{m['black_cd_m2_before']:.2g} \u2192 {m['black_cd_m2_after']:.2g} "
+                     "cd/m\u00b2 RMS")
+    return text + "".join(f"; {e}" for e in extra) + ")"
+
+
 def lead_figure(d: Diagnosis) -> str:
-    """The figure beside the verdict (HTML): 'no significant gap', or the held-out gap before
-    -> after in nats per unit and the share the chosen effects explain (with a ceiling: of what
-    the ceiling removes, the summary's share)."""
+    """The figure beside the verdict (HTML): 'no significant gap' or 'no gap that matters', or
+    the held-out gap before -> after in nats per unit and the share the chosen effects explain
+    (with a ceiling: of what the ceiling removes, the summary's share); first, where the layer
+    measures it, the held-out RMS misfit before -> after in the data's own units (%)."""
+    units = ([(f"{d.misfit_pct_before:.2g} % \u2192 {d.misfit_pct_after:.2g} %",
+               "RMS misfit " + (d.misfit or {}).get("unit", "of the photos' RMS luminance")
+               + ", before \u2192 after")]
+             if math.isfinite(d.misfit_pct_before) else [])
+    if d.verdict == NO_GAP_THAT_MATTERS:
+        return _lead([("no gap that matters", "significant, but within the tolerance"), *units,
+                      *_misfit_lead(d)])
     if no_significant_gap(d):
-        return _lead([("no significant gap", "")] + _misfit_lead(d))
-    items = [(f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
-              "nats per unit above the noise floor, before \u2192 after")] + _misfit_lead(d)
+        return _lead([("no significant gap", ""), *units, *_misfit_lead(d)])
+    items = [*units, *_misfit_lead(d),
+             (f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
+              "nats per unit above the noise floor, before \u2192 after")]
     if d.steps:
         # With a ceiling the share is of what a flexible model of the data removes (as the
         # summary says), which may be far more than the share of the gap before -> after.
@@ -198,7 +232,8 @@ def _before_after(d: Diagnosis) -> str:
     rows = [("before", f"{d.gap_before:.4f}"), ("after", f"{d.gap_after:.4f}"),
             ("shrink", shrink), ("shrink, share", share)]
     if math.isfinite(d.misfit_pct_before):
-        rows.append(("held-out RMS misfit, % of the photos' RMS luminance",
+        unit = (d.misfit or {}).get("unit", "of the photos' RMS luminance")
+        rows.append((f"held-out RMS misfit, % {unit}",
                      f"{d.misfit_pct_before:.2f} % before, {d.misfit_pct_after:.2f} % after"))
     return ("<h3>Before / after (held-out mean NLL above the simulation's noise floor, nats "
             "per unit)</h3>" + _rows_table(rows))

@@ -25,6 +25,7 @@ import pandas as pd
 
 from analysis.gap import (
     NO_GAP,
+    NO_GAP_THAT_MATTERS,
     OutOfCatalogue,
     candidate,
     catalogue,
@@ -120,7 +121,11 @@ def _layer(layer: str):
 
 
 def _top(diag) -> str:
-    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP)
+    """The first effect named: of the verdict, or of the steps of a "no gap that matters"
+    verdict (an effect found and named, smaller than the layer's tolerance)."""
+    if diag.verdict == NO_GAP_THAT_MATTERS and diag.steps:
+        return diag.steps[0]["added"]
+    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS)
             else diag.verdict.split(" + ")[0])
 
 

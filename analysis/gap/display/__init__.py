@@ -31,7 +31,8 @@ quantisation          drive rounded to a ``bits``-bit DAC grid before the gamma 
 ====================  ====================================================================
 
 Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's noise
-``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it), the calibration's
+``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it) and a gain between
+passes (:data:`~analysis.gap.display.model.PASS_GAIN_SD` of the light above black), the calibration's
 gamma parameters moved within their own uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
 fitted from noisy readings is no gap in itself); a reading at or below the
 meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
@@ -59,7 +60,16 @@ Files (the shape every gap layer shares)
     (:func:`fit_noise_drift`), the held-out folds (:func:`split_display`,
     :func:`display_folds`) and :func:`display_unit_ids`.
 ``ceiling.py``
-    The flexible model and the floor: :func:`display_ceiling`, :func:`display_floor`.
+    The flexible model and the floor: :func:`display_ceiling`, :func:`display_floor`; how far
+    in the lab's units (:func:`display_misfit`: RMS and worst misfit in % of luminance before,
+    after and of the ceiling, cd/m^2 near black; :func:`display_misfit_size`: the size held
+    to the design's ``[gap] display_tolerance_pct``, below which a significant difference is
+    "no gap that matters").
+``null/``
+    What the null allows besides a change of the display: the meter's noise, its drift between
+    repeats and its floor (``null/noise.py``: a zero is censored below the meter's own floor,
+    never the lowest positive reading), the calibration's own uncertainty and model misfit
+    (``null/calerror.py``).
 ``where.py``
     Where the gap lies: :func:`display_where` (words), :func:`localise_display` (numbers).
 ``candidates.py``
@@ -84,7 +94,14 @@ from analysis.gap.display.candidates import (
     display_identifiability,
     quantisation_resolution,
 )
-from analysis.gap.display.ceiling import display_ceiling, display_floor
+from analysis.gap.display.ceiling import (
+    DISPLAY_SIZE_UNIT,
+    NEAR_BLACK_FRACTION,
+    display_ceiling,
+    display_floor,
+    display_misfit,
+    display_misfit_size,
+)
 from analysis.gap.display.data import load_display
 from analysis.gap.display.model import (
     display_folds,
@@ -104,6 +121,8 @@ __all__ = [
     "DISPLAY_CANDIDATES",
     "DISPLAY_MIN_GAIN",
     "DISPLAY_MIN_SHARE",
+    "DISPLAY_SIZE_UNIT",
+    "NEAR_BLACK_FRACTION",
     "display_ceiling",
     "display_floor",
     "display_folds",
@@ -112,6 +131,8 @@ __all__ = [
     "display_loss",
     "display_loss_given",
     "display_loss_info",
+    "display_misfit",
+    "display_misfit_size",
     "display_nll",
     "display_unit_ids",
     "display_where",
@@ -127,23 +148,44 @@ __all__ = [
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> LayerPlan:
     """Photometer readings (``readings.csv``, its folder or a frame) against the calibration
     (``calibration.json``, its folder or a Calibration), cross-fitted over folds of readings
-    drawn from ``rng``. ``design`` is not used: the calibration is the display's simulation."""
+    drawn from ``rng``. The calibration is the display's simulation; from ``design`` (the
+    shipped design's when None) only ``[gap] display_tolerance_pct``: a significant remainder
+    whose systematic misfit is smaller (:func:`display_misfit_size`) is no gap that matters.
+    The misfit in the lab's units (:func:`display_misfit`) is recorded in the diagnosis."""
+    if design is None:
+        from studydesign import load_design
+
+        design = load_design()
     readings, cal = (load_display(real, sim) if isinstance(real, (str, Path)) else (real, sim))
     data = display_frame(readings, cal)
     folds, text = display_folds(data, rng)
     bits, note = quantisation_resolution(data)
     functions = LayerFunctions(loss=display_loss_given, floor=display_floor,
                                ceiling=display_ceiling, where=display_where,
-                               unit_ids=display_unit_ids)
+                               size=display_misfit_size, unit_ids=display_unit_ids)
     # The noise variance measured from n pairs is known to a relative SD of sqrt(2 / n) (a
     # chi-square's), so the floor, 0.5 log(2 pi sd^2) + 0.5 per reading, to 0.5 sqrt(2 / n)
     # nats: the floor is called mis-estimated only beyond that (an assumed noise: 0).
     pairs = data.attrs["noise"]["n_pairs"]
     floor_sd = 0.5 * float(np.sqrt(2.0 / pairs)) if pairs else 0.0
+    # The calibration model's misfit (the readings' ``lof``) is the same at a level in every
+    # pass, so the calibration's allowed shift, fitted on one half, removes part of it from the
+    # other: the floor lies between the one that counts it in full and the one without it (the
+    # mean of 0.5 lof^2 / sd^2 per reading lower). Called mis-estimated only below both: that
+    # range is a further 1.96 SDs of the floor's own error.
+    lof_share = float(np.mean(0.5 * data["lof"].to_numpy(float) ** 2
+                              / data["sd"].to_numpy(float) ** 2))
+    floor_sd = float(np.hypot(floor_sd, lof_share / 1.96))
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
-                                     min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd),
+                                     min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd,
+                                     min_size=design.gap.display_tolerance_pct,
+                                     size_unit=DISPLAY_SIZE_UNIT,
+                                     size_source="the design's [gap] display_tolerance_pct",
+                                     tolerate_chosen=True),
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text,
         loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},
-        warnings=(note,) if note else (), not_identifiable=display_identifiability(data))
+        warnings=(note,) if note else (), not_identifiable=display_identifiability(data),
+        sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
+                                                  for st in diag.steps]))

@@ -1,10 +1,24 @@
-"""Display layer, the ceiling and the floor: how well any model of the readings could do.
+"""Display layer, the ceiling and the floor: how well any model of the readings could do, and
+how far the readings are, in the lab's units.
 
 The floor (:func:`display_floor`) is the loss of a model right up to the photometer's noise,
 ``0.5 log(2 pi sd^2) + 0.5`` per reading. The ceiling (:func:`display_ceiling`) is the held-out
 loss of a penalised smooth of level, position and time fitted to the plain simulation's
 residuals; a chosen model that stays significantly above it leaves a gap the catalogue does
 not explain.
+
+How far (:func:`display_misfit`, :func:`display_misfit_size`): a reading's misfit is
+``L - prediction`` (cd/m^2), the prediction held out as the diagnosis scores it (each reading
+predicted by the fold that did not see it, the calibration moved within its own uncertainty:
+:func:`~analysis.gap.display.model.display_mean_given`); censored readings carry no number.
+``% of luminance`` is ``100 (L - prediction) / prediction`` over the readings above
+:data:`NEAR_BLACK_FRACTION` of the calibration's white (a lab reads it as the Weber fraction:
+about 1 % is the smallest step of luminance seen at photopic levels); near black the misfit is
+in cd/m^2 (the eye's threshold there is no longer a constant fraction, and the meter's
+absolute noise dominates). RMS figures include the meter's noise (what a comparison of two
+passes shows); the ``size`` held to the tolerance takes the noise's mean square out (the
+meter's, with the calibration's own misfit; not the change between passes, which is the
+display's), so a check no further off than a repeat reads about 0.
 """
 
 from __future__ import annotations
@@ -13,7 +27,11 @@ import numpy as np
 import pandas as pd
 from scipy import linalg
 
-from analysis.gap.display.model import _bspline, display_nll
+from analysis.gap.display.model import display_mean_given, display_nll
+from analysis.gap.display.null.noise import _bspline
+
+__all__ = ["DARK_LIGHT_CD_M2", "DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction", "display_ceiling",
+           "display_floor", "display_misfit", "display_misfit_size"]
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
 _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
@@ -106,7 +124,14 @@ def _solve(x, r, w, pen):
 
 def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
                     seed: int = 0) -> np.ndarray:
-    """Held-out loss of a flexible data-driven model of the readings: the ceiling.
+    """Held-out loss (nats per reading, shape (len(test),)) of the flexible model
+    :func:`ceiling_prediction` fitted on ``train``: the ceiling."""
+    return display_nll(test, ceiling_prediction(train, test, folds=folds, seed=seed))
+
+
+def ceiling_prediction(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
+                       seed: int = 0) -> np.ndarray:
+    """Held-out prediction (cd/m^2) of a flexible data-driven model of the readings.
 
     The residual ``L - mu0`` of the plain simulation is fitted on ``train`` by penalised
     weighted least squares (weights 1 / sd^2, the noise model) on the smooth of
@@ -130,7 +155,7 @@ def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
     Returns
     -------
     ndarray, shape (len(test),)
-        Gaussian NLL (nats) of each held-out reading under the fitted smooth.
+        The fitted smooth's prediction of each held-out reading, cd/m^2.
     """
     both = pd.concat([train, test])
     both.attrs = train.attrs
@@ -174,6 +199,133 @@ def display_ceiling(train: pd.DataFrame, test: pd.DataFrame, *, folds: int = 5,
     # simulation's prediction instead.
     zero = float(sum(np.sum(w[fold == k] * r[fold == k] ** 2) for k in range(folds)))
     if cv_error(lams) >= zero:
-        return display_nll(test, test["mu0"].to_numpy(float))
+        return test["mu0"].to_numpy(float)
     beta = _solve(x_tr, r, w, pen)
-    return display_nll(test, test["mu0"].to_numpy(float) + x_te @ beta)
+    # The smooth is fitted without censored readings and knows nothing below the meter's
+    # floor: there it predicts what the plain simulation does (its extrapolation to a zero
+    # read at black cost up to 1e4 nats per reading, a ceiling no model had to beat).
+    mu0 = test["mu0"].to_numpy(float)
+    return np.where(test["censored"].to_numpy(bool), mu0, mu0 + x_te @ beta)
+
+
+# --- how far, in the lab's units ------------------------------------------------------------
+
+#: Readings predicted below this fraction of the calibration's white count as near black:
+#: their misfit is given in cd/m^2, not in % (5 % of a 100 cd/m^2 white is 5 cd/m^2, where
+#: photopic contrast thresholds begin to rise above the Weber fraction).
+NEAR_BLACK_FRACTION = 0.05
+
+#: The eye's dark light, cd/m^2: a luminance step is seen when it is about the Weber fraction
+#: of ``L + DARK_LIGHT_CD_M2`` (Weber's law at photopic levels, thresholds that level off in
+#: cd/m^2 toward black; with 1 cd/m^2 the fraction at 0.5 cd/m^2 is 3 times that at 100, as
+#: contrast thresholds on displays are, e.g. the DICOM grayscale function's). The tolerance
+#: is held to misfits in % of that light.
+DARK_LIGHT_CD_M2 = 1.0
+
+#: The unit of the display layer's tolerance, in words (the summary's).
+DISPLAY_SIZE_UNIT = ("% of luminance (systematic RMS at the worst screen position or drive "
+                     "level, in % of the light plus 1 cd/m^2)")
+
+
+def _near_black(data: pd.DataFrame) -> float:
+    """The light (cd/m^2) below which a reading counts as near black."""
+    return NEAR_BLACK_FRACTION * float(data.attrs["cal"].max_luminance_cd_m2)
+
+
+def _parts(data: pd.DataFrame, pred: np.ndarray) -> dict:
+    """Above near black: relative misfit ``rel``, relative noise SD ``sd``, ``cell`` and
+    screen position ``pos``; near black: misfit ``dark`` and noise SD ``dark_sd`` (cd/m^2);
+    uncensored readings only; ``black_below``, where near black ends (cd/m^2)."""
+    lum, pred = data["L"].to_numpy(float), np.asarray(pred, float)
+    use = ~data["censored"].to_numpy(bool) & np.isfinite(pred)
+    bright = use & (pred >= _near_black(data)) & (pred > 0)
+    dark = use & ~bright
+    var = (data["var_expected"] if "var_expected" in data else data["sd"] ** 2).to_numpy(float)
+    pos = np.array([f"{x:+.3f},{y:+.3f}" for x, y in zip(data["x_norm"], data["y_norm"])])
+    band = np.array([f"{v:.4f}" for v in data["level"].to_numpy(float)])
+    seen = pred[use] + DARK_LIGHT_CD_M2
+    return {"rel": (lum[bright] - pred[bright]) / pred[bright],
+            "sd": np.sqrt(var[bright]) / pred[bright], "cell": data["cell"].to_numpy()[bright],
+            "dark": lum[dark] - pred[dark], "dark_sd": np.sqrt(var[dark]),
+            "seen": (lum[use] - pred[use]) / seen, "seen_sd": np.sqrt(var[use]) / seen,
+            "group": np.concatenate([np.char.add("pos ", pos[use]),
+                                     np.char.add("level ", band[use])]),
+            "black_below": _near_black(data)}
+
+
+def _systematic(r: np.ndarray, sd: np.ndarray) -> float:
+    """RMS of ``r`` with the noise's mean square (``sd``) taken out (0 if noise explains it)."""
+    return float(np.sqrt(max(np.mean(r**2 - sd**2), 0.0))) if r.size else float("nan")
+
+
+def _summary(parts: list) -> dict:
+    """RMS %, systematic % (overall and at the worst screen position), worst patch %, near-black
+    RMS and systematic cd/m^2, and the size held to the tolerance, of folds' ``_parts``."""
+    p = {k: np.concatenate([q[k] for q in parts])
+         for k in ("rel", "sd", "cell", "dark", "dark_sd", "seen", "seen_sd")}
+    # Each reading is in two groups (its screen position, its drive level).
+    group = np.concatenate([q["group"] for q in parts])
+    seen = np.concatenate([p["seen"], p["seen"]])
+    seen_sd = np.concatenate([p["seen_sd"], p["seen_sd"]])
+    rel, sd = p["rel"], p["sd"]
+    out = dict.fromkeys(("rms_pct", "systematic_pct", "worst_pct"), float("nan"))
+    if rel.size:
+        out["rms_pct"] = float(100 * np.sqrt(np.mean(rel**2)))
+        out["systematic_pct"] = 100 * _systematic(rel, sd)
+        out["worst_pct"] = float(100 * pd.Series(rel).groupby(p["cell"]).mean().abs().max())
+    dark = p["dark"]
+    out["black_cd_m2"] = float(np.sqrt(np.mean(dark**2))) if dark.size else float("nan")
+    out["black_systematic_cd_m2"] = _systematic(dark, p["dark_sd"])
+    sizes = {q: 100 * _systematic(seen[group == q], seen_sd[group == q])
+             for q in np.unique(group)}
+    where = max(sizes, key=sizes.get) if sizes else ""
+    out["size_pct"] = float(sizes[where]) if sizes else float("nan")
+    out["size_where"] = where.replace("level ", "drive level ").replace("pos ", "position ")
+    return out
+
+
+def display_misfit_size(fits: list) -> float:
+    """The engine's ``size`` (%, the meter's noise taken out) of what the chosen model leaves
+    on the held-out readings: each reading's misfit in % of its light plus the eye's dark
+    light (:data:`DARK_LIGHT_CD_M2`), systematic RMS over each screen position and each drive
+    level, the largest of these (a misfit confined to one region or to the dark levels, a
+    black offset, is not diluted by the rest). ``fits``: per fold
+    ``(train, test, fitted, ceiling_loss)``."""
+    return _summary([_parts(te, display_mean_given(tr, te, list(ch)))
+                     for tr, te, ch, _ in fits])["size_pct"]
+
+
+def display_misfit(folds: list, chosen: list) -> dict:
+    """The held-out misfit in the lab's units before, after the chosen effects and of the
+    ceiling (:func:`~analysis.gap.display.ceiling.ceiling_prediction`), pooled over the
+    cross-fitting ``folds`` ``[(train, test), ...]`` (each reading held out once).
+
+    Parameters
+    ----------
+    folds : list of (DataFrame, DataFrame)
+    chosen : list of (name, params)
+        The chosen effects with their (fold-mean) parameters.
+
+    Returns
+    -------
+    dict
+        ``misfit_pct_before``, ``misfit_pct_after`` (RMS % of luminance, noise included: the
+        :class:`~analysis.gap.engine.Diagnosis` fields) and ``misfit``: ``unit``,
+        ``ceiling_pct``; each ``_before`` / ``_after``: ``systematic_pct`` (noise removed),
+        ``worst_pct`` (the patch whose mean misfit is largest, noise included),
+        ``black_cd_m2`` (RMS near black), ``black_systematic_cd_m2`` (noise removed),
+        ``size_pct`` and ``size_where`` (what the tolerance is held to and where:
+        :func:`display_misfit_size`); ``ceiling_black_cd_m2`` and ``black_below_cd_m2``
+        (where near black ends). NaN where no reading qualifies.
+    """
+    before = _summary([_parts(te, display_mean_given(tr, te, [])) for tr, te in folds])
+    after = _summary([_parts(te, display_mean_given(tr, te, chosen)) for tr, te in folds])
+    ceil = _summary([_parts(te, ceiling_prediction(tr, te)) for tr, te in folds])
+    misfit = {"unit": "of luminance", "ceiling_pct": ceil["rms_pct"],
+              "black_below_cd_m2": _near_black(folds[0][1]),
+              "ceiling_black_cd_m2": ceil["black_cd_m2"]}
+    for key in ("systematic_pct", "worst_pct", "black_cd_m2", "black_systematic_cd_m2",
+                "size_pct", "size_where"):
+        misfit[f"{key}_before"], misfit[f"{key}_after"] = before[key], after[key]
+    return {"misfit_pct_before": before["rms_pct"], "misfit_pct_after": after["rms_pct"],
+            "misfit": misfit}

@@ -16,6 +16,7 @@ from analysis.gap.engine.result import Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import PairedTest, boot_idx
 from analysis.gap.engine.steps import (
+    chosen_within_tolerance,
     combine_greedily,
     explained_shares,
     measure_gap,
@@ -111,14 +112,18 @@ def diagnose_losses(
 def _record(layer, ranking, combination, gap, remaining, share, ceiling_share, settings,
             **recorded) -> Diagnosis:
     """The Diagnosis with its verdict (:func:`verdict_of`; :data:`NO_GAP` where
-    :func:`no_gap`) and its words."""
+    :func:`no_gap`, :data:`NO_GAP_THAT_MATTERS` where what remains is within the tolerance)
+    and its words."""
     none = no_gap(combination.steps, gap.floor_status, remaining, gap.gap_before_ci,
                   settings.min_gain)
     return with_summary(Diagnosis(
         layer=layer,
         ranking=tuple(asdict(s) for s in ranking),
         steps=tuple(combination.steps),
-        verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none),
+        verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none,
+                           within_tolerance=bool((remaining or {}).get("within_tolerance"))
+                           or chosen_within_tolerance(combination.steps, gap.floor_status,
+                                                      remaining, settings.min_size)),
         explained_share=share,
         min_share=float(settings.min_share),
         min_gain=float(settings.min_gain),

@@ -32,7 +32,9 @@ class Diagnosis:
     held-out unit).
 
     ``verdict`` names the chosen candidates (``a + b``), or is ``'no_significant_gap'`` (nothing
-    chosen and no significant gap: what the words then say) or ``'unexplained'``; ``summary``
+    chosen and no significant gap: what the words then say), ``'no_gap_that_matters'`` (nothing
+    chosen; what remains is significant but within the layer's practical tolerance) or
+    ``'unexplained'``; ``summary``
     is the plain-language sentence. ``not_identifiable`` maps effects the data given cannot
     identify (left out of the ranking) to the reason, in words. ``remaining`` (with a ceiling) holds the chosen model's
     held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
@@ -55,6 +57,11 @@ class Diagnosis:
     (their noise), RMS over held-out trials in ``misfit_unit`` (slider units; a rating
     study's scale units); ``misfit_by_response`` the same per response in the study's units
     (``unit``, ``before``, ``after``, ``ceiling``; ``*_slider`` in slider units).
+    ``misfit_pct_before`` / ``misfit_pct_after`` (render and display layers; NaN elsewhere):
+    the held-out RMS misfit of the plain simulation / with the chosen effects, in % of the
+    held-out data's RMS (render) or of each reading's luminance (display), noise included.
+    ``misfit`` (display layer; else empty): the same and more in the lab's units, keyed as the
+    layer documents (e.g. ``worst_pct_after``, ``ceiling_pct``, ``black_cd_m2_before``).
     """
 
     layer: str
@@ -91,6 +98,7 @@ class Diagnosis:
     misfit_ceiling: float = float("nan")
     misfit_unit: str = ""
     misfit_by_response: dict = field(default_factory=dict)
+    misfit: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:

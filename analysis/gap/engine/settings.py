@@ -130,6 +130,11 @@ class DiagnosisSettings:
                                       luminance")
     size_source  str          ""      where the tolerance is set (e.g. "the design's [gap]
                                       render_tolerance_pct"), for the summary
+    tolerate_chosen bool      False   hold the plain simulation's misfit to the tolerance
+                                      too: where its ``size`` (``size_before``) is below
+                                      ``min_size`` and nothing significant remains, chosen
+                                      effects are reported but the verdict is no gap that
+                                      matters (a change smaller than the tolerance)
     floor_sd     float        0.0     SD (>= 0) of the floor's mean from its own estimation
                                       (e.g. a noise measured from n pairs of repeats): a gap is
                                       called below the floor only beyond it and its CI
@@ -151,6 +156,7 @@ class DiagnosisSettings:
     size_unit: str = ""
     size_source: str = ""
     floor_sd: float = 0.0
+    tolerate_chosen: bool = False
 
     def __post_init__(self):
         _check_real("alpha", self.alpha, 0.0, 1.0, "in (0, 1)", open_low=True, open_high=True)
@@ -162,6 +168,9 @@ class DiagnosisSettings:
         _check_int("refit_rounds", self.refit_rounds, 0)
         _check_real("min_size", self.min_size, 0.0, math.inf, ">= 0 and finite")
         _check_real("floor_sd", self.floor_sd, 0.0, math.inf, ">= 0 and finite")
+        if not isinstance(self.tolerate_chosen, bool):
+            raise GapError(f"DiagnosisSettings: tolerate_chosen must be True or False; got "
+                           f"{self.tolerate_chosen!r}")
         for name in ("size_unit", "size_source"):
             if not isinstance(getattr(self, name), str):
                 raise GapError(f"DiagnosisSettings: {name} must be a string; got "

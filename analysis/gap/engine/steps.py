@@ -28,10 +28,12 @@ from analysis.gap.engine.stats import PairedTest, holm
 
 __all__ = [
     "NO_GAP",
+    "NO_GAP_THAT_MATTERS",
     "Combination",
     "GapMeasures",
     "apply_tolerance",
     "backfit",
+    "chosen_within_tolerance",
     "combine_greedily",
     "explained_shares",
     "mean_params",
@@ -46,6 +48,12 @@ __all__ = [
 #: sound, nothing significant beyond the ceiling or, without one, no gap above tolerance): the
 #: JSON's ``verdict`` says what the words say.
 NO_GAP = "no_significant_gap"
+
+#: The verdict of a diagnosis whose remainder is statistically significant but smaller than
+#: the layer's practical tolerance (nothing attributed, the floor sound, ``remaining``
+#: ``within_tolerance``): a difference the data can see and a lab need not act on. Reported
+#: with its size and where it lies.
+NO_GAP_THAT_MATTERS = "no_gap_that_matters"
 
 
 def with_added(chosen: list[list], name: str, params: list) -> list[list]:
@@ -267,6 +275,11 @@ def remaining_gap(cv: CrossFit, combination: Combination, test: PairedTest,
            "loss_ceiling": float(ceil.mean()), "where": ""}
     if functions.size is not None:
         rem.update(apply_tolerance(detected, float(functions.size(fits)), settings))
+        if settings.tolerate_chosen and any(combination.chosen):
+            # The plain simulation's own misfit, for a verdict on chosen effects that are
+            # smaller than the tolerance.
+            rem["size_before"] = float(functions.size([(tr, te, [], cf)
+                                                       for tr, te, _, cf in fits]))
     if detected and functions.where is not None:
         rem["where"] = functions.where(fits)
     return rem, ceil
@@ -314,6 +327,17 @@ def explained_shares(gap: GapMeasures, base: np.ndarray, current: np.ndarray,
     return share, ceiling_share
 
 
+def chosen_within_tolerance(steps, floor_status: str, remaining: dict | None,
+                            min_size: float) -> bool:
+    """True when effects were chosen, the floor is sound, nothing significant remains beyond
+    them and the plain simulation's own misfit (``remaining['size_before']``, set with
+    ``tolerate_chosen``) is below the tolerance ``min_size``: a change smaller than what
+    matters."""
+    rem = remaining or {}
+    return bool(steps and floor_status == "ok" and not rem.get("significant")
+                and "size_before" in rem and rem["size_before"] < min_size)
+
+
 def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
            min_gain: float) -> bool:
     """True when there is no significant gap: nothing attributed, the floor sound, and either
@@ -327,11 +351,17 @@ def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
     return bool(gap_before_ci) and gap_before_ci[0] <= max(min_gain, 0.0)
 
 
-def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False) -> str:
+def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False,
+               within_tolerance: bool = False) -> str:
     """The chosen candidates' names (``a + b``); :data:`NO_GAP` when ``no_gap`` (nothing
-    chosen and no significant gap: :func:`no_gap`); else ``'unexplained'`` (none chosen, or
-    they explain less than ``min_share`` of the gap; a NaN share does not refuse them)."""
+    chosen and no significant gap: :func:`no_gap`), :data:`NO_GAP_THAT_MATTERS` when moreover
+    a significant remainder lies within the tolerance (``within_tolerance``; with chosen
+    effects: the whole difference, :func:`chosen_within_tolerance`); else
+    ``'unexplained'`` (none chosen, or they explain less than ``min_share`` of the gap; a NaN
+    share does not refuse them)."""
     explained = bool(steps) and (share >= min_share if np.isfinite(share) else True)
     if not steps and no_gap:
-        return NO_GAP
+        return NO_GAP_THAT_MATTERS if within_tolerance else NO_GAP
+    if steps and within_tolerance:
+        return NO_GAP_THAT_MATTERS
     return " + ".join(s["added"] for s in steps) if explained else "unexplained"

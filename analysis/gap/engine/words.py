@@ -11,7 +11,7 @@ import numpy as np
 from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.registry import candidate
 from analysis.gap.engine.result import Diagnosis
-from analysis.gap.engine.steps import NO_GAP
+from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS
 
 __all__ = ["summarise", "with_summary"]
 
@@ -26,7 +26,7 @@ def summarise(d: Diagnosis) -> str:
     text = _verdict_words(d)
     misfit = _misfit_words(d)
     text += f" {misfit}" if misfit else ""
-    if d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
+    if d.steps and d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
             text += f" {st['added'].replace('_', ' ').capitalize()}: {said}." if said else ""
@@ -73,6 +73,13 @@ def _verdict_words(d: Diagnosis) -> str:
     further, within = _remaining_words(rem)
     if not d.steps:
         return _nothing_chosen_words(d, rem, further, within)
+    if d.verdict == NO_GAP_THAT_MATTERS:
+        one = len(d.steps) == 1
+        size = dict(rem, size=rem["size_before"])
+        return (f"No gap that matters: {_names(d.steps)} {'is' if one else 'are'} "
+                "statistically significant, but the plain simulation leaves "
+                f"{_size_words(size, 'below')}; nothing significant remains beyond "
+                f"{'it' if one else 'them'}.")
     share = (f"{100 * d.explained_share:.0f} %" if np.isfinite(d.explained_share)
              else "all")
     if d.verdict == "unexplained":
@@ -133,7 +140,8 @@ def _nothing_chosen_words(d: Diagnosis, rem: dict, further: str, within: str) ->
     if further:
         return f"No catalogue effect explains the gap; {further}."
     if within:
-        return f"No catalogue effect improves the simulation; {within}."
+        return (f"No gap that matters: no catalogue effect improves the simulation; "
+                f"{within}.")
     if rem:
         return (f"No significant gap: the simulation predicts the held-out data as well as "
                 f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
