@@ -133,7 +133,8 @@ def params_html(layer: str, effect: str, params: dict) -> str:
     body = []
     for r, n_name, n_unit in zip(rows, names, units):
         name = f'<th rowspan="{n_name}">{html.escape(r.name)}</th>' if n_name else ""
-        where = f"<td>{html.escape(r.where)}</td>" if per else ""
+        # A single value beside per-level ones holds for all of them.
+        where = f"<td>{html.escape(r.where or 'all')}</td>" if per else ""
         unit = f'<td rowspan="{n_unit}">{html.escape(r.unit)}</td>' if n_unit else ""
         body.append(f'<tr>{name}{where}<td class="num">{html.escape(r.value)}</td>{unit}</tr>')
     return f'<table class="params">{head}{"".join(body)}</table>'

@@ -233,14 +233,31 @@ def _tail_width_unit(width) -> str:
         return "px, SD of a Gaussian blur of the lobe"
     if width > 0:
         return "power the lobe is raised to (a wider Ward lobe)"
-    return "-px, half width of a GTR1 haze kernel"
+    return "px, half width w of a GTR1 haze kernel 1 / (1 + (r / w)²)"
 
 
 def _glare_unit(spread) -> str:
     """What the veiling glare's spread is (:data:`_GLARE_SIGMAS`, ``_glare_blur``)."""
     if isinstance(spread, Number) and spread < 0:
-        return "-x image width, core of a power-law kernel"
-    return "x image width, SD of a Gaussian kernel"
+        return "× image width, core w of a power-law kernel (1 + (r / w)²)^(−3/2)"
+    return "× image width, SD of a Gaussian kernel"
+
+
+def _magnitude(code):
+    """A width as the table shows it: the fits code the kernel's form in the width's sign
+    (``_TAIL_WIDTHS``, ``_GLARE_SIGMAS``), the unit names the form, the value is its size."""
+    return abs(code) if isinstance(code, Number) else code
+
+
+#: Where the diffuse light entered the coat (``_COAT_ENTRY``), in words.
+_ENTRY_WORDS = {"surround": "a uniform surround (its entry loss in the diffuse albedo)",
+                "view": "along the view (a light at the camera)",
+                "lights": "the lights fitted to the diffuse shading (or each photo's own light)",
+                "mirror": "the room as the glossiest level's specular render mirrors it"}
+
+
+def _entry_unit(entry) -> str:
+    return f"form chosen from {len(_COAT_ENTRY)}: {_ENTRY_WORDS.get(entry, entry)}"
 
 
 #: Every render candidate refits the gloss fit's diffuse and specular scales per level.
@@ -264,20 +281,21 @@ register("render", Candidate(
     # The amount per level; the form (blur or power) has no counterpart in the injector.
     truth=lambda s: {"c": float(s)},
     params={"c": ParamDoc("haze share", "share of the lobe's energy in the haze"),
-            "width": ParamDoc("wing form", _tail_width_unit), "scale": _SCALE}))
+            "width": ParamDoc("wing form", _tail_width_unit, shown=_magnitude),
+            "scale": _SCALE}))
 register("render", Candidate(
     "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
     "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
     apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
     units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)},
-    params={"entry": ParamDoc("where the diffuse light entered the coat"),
+    params={"entry": ParamDoc("where the diffuse light entered the coat", _entry_unit),
             "c": ParamDoc("diffuse light through the coat", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
     "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
     "lens glare: a blurred copy of the image added", apply=_apply_glare,
     inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
     truth=lambda s: {"c": float(s)},
-    params={"sigma_frac": ParamDoc("glare spread", _glare_unit),
+    params={"sigma_frac": ParamDoc("glare spread", _glare_unit, shown=_magnitude),
             "c": ParamDoc("light in the glare", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
     "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
