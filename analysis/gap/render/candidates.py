@@ -10,6 +10,8 @@ or the camera), its default strength and the parameters a right fit recovers.
 
 from __future__ import annotations
 
+import copy
+import weakref
 from numbers import Number
 
 import numpy as np
@@ -151,6 +153,24 @@ def _fit_long_tail(train, chosen):
     return params
 
 
+def _remembered_fit(fit):
+    """``fit(train, chosen)``, computed once per training data and chosen list: the engine
+    fits every candidate alone when it scores them and again, given nothing chosen, at the
+    greedy combination's first step, and backfitting re-fits the candidate just added given
+    the same others; each fit is deterministic, so the second is the first's copy. Held per
+    training view (a weak reference: dropped with it); ``chosen`` compared by its repr (floats
+    to the last bit)."""
+    memo: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    def remembered(train, chosen):
+        table = memo.setdefault(train, {})
+        key = repr(chosen)
+        if key not in table:
+            table[key] = fit(train, chosen)
+        return copy.deepcopy(table[key])
+    return remembered
+
+
 # --- the catalogue: each effect's fit, term, injector, default strength and truth -----------
 # An injector makes the photo's noiseless luminance of one gloss level with the effect:
 # ``inject(studio, level, strength, rng)``. ``studio`` is the benchmark's renderer (Mitsuba
@@ -268,14 +288,14 @@ _SCALE = ParamDoc("scale", "× the gloss fit's component",
 # Registered in the order their terms apply (_basis): the material's terms on the specular
 # and diffuse components, then the camera's glare and vignetting, then the shift.
 register("render", Candidate(
-    "fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
+    "fresnel", _remembered_fit(_fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS)),
     "specular reflectance rising towards grazing angles (Schlick)", apply=_apply_fresnel,
     inject=_inject_fresnel, default_strength=6.0, units="Schlick gain (1 - F0) / F0",
     truth=lambda s: {"c": float(s)},
     params={"kappa": ParamDoc("cap on the view cosine (0: plain Schlick)", "cosine"),
             "c": ParamDoc("Fresnel rise", "Schlick gain (1 − F0) / F0"), "scale": _SCALE}))
 register("render", Candidate(
-    "long_tail", _fit_long_tail, "highlight lobe with longer tails than Ward's",
+    "long_tail", _remembered_fit(_fit_long_tail), "highlight lobe with longer tails than Ward's",
     apply=_apply_long_tail, inject=_inject_long_tail, default_strength=0.6,
     units="share of the lobe's energy in the haze",
     # The amount per level; the form (blur or power) has no counterpart in the injector.
@@ -284,21 +304,23 @@ register("render", Candidate(
             "width": ParamDoc("wing form", _tail_width_unit, shown=_magnitude),
             "scale": _SCALE}))
 register("render", Candidate(
-    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
+    "clearcoat", _remembered_fit(_fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY)),
     "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
     apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
     units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)},
     params={"entry": ParamDoc("where the diffuse light entered the coat", _entry_unit),
             "c": ParamDoc("diffuse light through the coat", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
-    "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
+    "veiling_glare",
+    _remembered_fit(_fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS)),
     "lens glare: a blurred copy of the image added", apply=_apply_glare,
     inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
     truth=lambda s: {"c": float(s)},
     params={"sigma_frac": ParamDoc("glare spread", _glare_unit, shown=_magnitude),
             "c": ParamDoc("light in the glare", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
-    "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
+    "vignetting", _remembered_fit(_fit_vignetting),
+    "the camera darkens towards the image corners",
     apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
     units="vignetting coefficient",
     # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
@@ -307,7 +329,8 @@ register("render", Candidate(
                           "fraction (ρ: distance from the image centre, 1 at the corners)"),
             "c2": ParamDoc("darkening ∝ ρ⁴", "fraction (ρ as above)"), "scale": _SCALE}))
 register("render", Candidate(
-    "misregistration", _fit_misregistration, "photo and render still offset after registration",
+    "misregistration", _remembered_fit(_fit_misregistration),
+    "photo and render still offset after registration",
     apply=_apply_misregistration, inject=_inject_misregistration, default_strength=0.6,
     units="px", truth=lambda s: {"shift_norm_px": float(s)},
     params={"shift_px": ParamDoc("shift", "px", parts=("render shift down",
@@ -334,7 +357,7 @@ def _inject_broad_lobe(studio, level, s, rng):
 #: Registered apart ("render_lights"): its form needs each photo's light direction, which
 #: only a directional-light set has; a panorama's levels keep the render catalogue.
 register("render_lights", Candidate(
-    "broad_lobe", _fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS),
+    "broad_lobe", _remembered_fit(_fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS)),
     "a second, broad specular lobe beside the fitted one (light scattered about the mirror "
     "direction, not evenly as Lambert's)", apply=_apply_broad_lobe, inject=_inject_broad_lobe,
     default_strength=0.1, units="share of the diffuse albedo in the broad lobe",

@@ -13,6 +13,7 @@ the photo's noise (``model.noise_model``) and the checkerboard of held-out block
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from pathlib import Path
@@ -167,7 +168,7 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
     radius = np.sqrt(sph.sum() / np.pi) + 1.0
     r = np.hypot(yy - cy, xx - cx) / radius
     cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
-    fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
+    fres5, coat, cover = _sphere_factors((h, w), cy, cx, radius)
     if coat_lights:
         coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
                                       (xx - cx) / radius, cover, distance)
@@ -177,6 +178,8 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
     m = re.search(r"(\d+(?:\.\d+)?)", name)
     R0 = B + D + S
     noise = noise_model(P - R0, R0, valid & sph)
+    for image in (P, B, D, S):  # never changed: the fits' blurs remember them by identity
+        image.flags.writeable = False
     return {"name": name, "gloss": float(m.group(1)) if m else np.nan,
             "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
             "coat": coat, "cover": cover, "rho2": rho2,
@@ -256,6 +259,23 @@ def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:
     k = r0 / r1
     coords = np.array([cy0 + (yy - cy1) * k, cx0 + (xx - cx1) * k])
     return dst["cover"] * ndimage.map_coordinates(rad, coords, order=1, mode="nearest")
+
+
+@functools.lru_cache(maxsize=8)
+def _sphere_factors_once(shape: tuple, cy: float, cx: float, radius: float):
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
+    out = _subpixel_factors(yy, xx, cy, cx, radius)
+    for part in (*out[0].values(), *out[1].values(), out[2]):
+        part.flags.writeable = False
+    return out
+
+
+def _sphere_factors(shape: tuple, cy: float, cx: float, radius: float):
+    """:func:`_subpixel_factors` of a sphere in an image of ``shape``, computed once per
+    sphere: the photos of one set under many lights show one sphere (arrays read-only; the
+    dicts fresh, as each level adds its own coat entries)."""
+    fres5, coat, cover = _sphere_factors_once(tuple(shape), float(cy), float(cx), float(radius))
+    return dict(fres5), dict(coat), cover
 
 
 def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):

@@ -20,6 +20,9 @@ measures the noise with it).
 
 from __future__ import annotations
 
+import hashlib
+import weakref
+from collections import OrderedDict
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -107,16 +110,17 @@ def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
     of Burley (2012, eq. 4), whose tails fall as the square of the angle (tan^-2) where a Ward
     lobe's fall as a Gaussian -- with angle ~ distance on the sphere near the highlight."""
     if width < 0:
-        h, w = S.shape
-        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
-        kern = 1 / (1 + (yy**2 + xx**2) / width**2)
-        kern /= kern.sum()
-        blurred = signal.fftconvolve(S * inside, kern, mode="same")
-        weight = signal.fftconvolve(inside, kern, mode="same")
-        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
-    if width >= 1:
-        blurred = ndimage.gaussian_filter(S * inside, width)
-        weight = ndimage.gaussian_filter(inside, width)
+        def blur(im):
+            h, w = im.shape
+            yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+            kern = 1 / (1 + (yy**2 + xx**2) / width**2)
+            return signal.fftconvolve(im, kern / kern.sum(), mode="same")
+    elif width >= 1:
+        def blur(im):
+            return ndimage.gaussian_filter(im, width)
+    if width < 0 or width >= 1:  # each image blurred once (_remembered)
+        blurred = _remembered("wings", width, S * inside, blur)
+        weight = _remembered("wings", width, inside, blur)
         return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
     top = float(S.max())
     if top <= 0:
@@ -139,12 +143,62 @@ def _wider_lobe(lv: dict, S: np.ndarray, other: str) -> np.ndarray:
     return wide * (float((S * lv["cover"]).sum()) / max(float(wide.sum()), 1e-30))
 
 
+#: The blurs' results by (form, width, the image's content), least recently used dropped
+#: beyond _BLUR_CACHE_BYTES: a fit evaluates an amplitude many times on the same images (the
+#: glare's R + c G(R) needs G(R) once per image and width, not once per c), and the held-out
+#: losses blur the same test images again. Keyed by a 128-bit digest of the pixels, so an
+#: image changed by an earlier term is a new key. Values are read-only.
+_BLUR_CACHE: OrderedDict = OrderedDict()
+_BLUR_CACHE_BYTES = 256 * 2**20
+_BLUR_HELD = [0]  # bytes held in _BLUR_CACHE
+_DIGESTS: dict = {}  # id -> (weak reference, digest) of read-only images
+
+
+def _digest(img: np.ndarray) -> bytes:
+    """A 128-bit digest of the pixels of ``img``, remembered for a read-only array (the
+    levels' own images, which every evaluation passes again)."""
+    if img.flags.writeable:
+        return hashlib.blake2b(np.ascontiguousarray(img).data, digest_size=16).digest()
+    held = _DIGESTS.get(id(img))
+    if held is not None and held[0]() is img:
+        return held[1]
+    digest = hashlib.blake2b(np.ascontiguousarray(img).data, digest_size=16).digest()
+    key = id(img)
+    _DIGESTS[key] = (weakref.ref(img, lambda _, k=key: _DIGESTS.pop(k, None)), digest)
+    return digest
+
+
+def _remembered(form: str, width: float, img: np.ndarray, blur) -> np.ndarray:
+    """``blur(img)``, computed once per (``form``, ``width``, pixels) (:data:`_BLUR_CACHE`)."""
+    img = np.asarray(img, dtype=float)
+    key = (form, float(width), img.shape, _digest(img))
+    hit = _BLUR_CACHE.get(key)
+    if hit is not None:
+        _BLUR_CACHE.move_to_end(key)
+        return hit
+    out = np.asarray(blur(img), dtype=float)
+    out.flags.writeable = False
+    _BLUR_CACHE[key] = out
+    _BLUR_HELD[0] += out.nbytes
+    while _BLUR_HELD[0] > _BLUR_CACHE_BYTES and len(_BLUR_CACHE) > 1:
+        _BLUR_HELD[0] -= _BLUR_CACHE.popitem(last=False)[1].nbytes
+    return out
+
+
 def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
     """``img`` spread by a unit-sum glare kernel, zero outside the frame: a Gaussian of SD
     ``width_px`` (> 0), or (< 0) a power law (1 + (r / w)^2)^(-3/2) of core w = -width_px: a
     lens's stray light falls off as a power of the angle with a narrow core (inverse-cube
     spread functions, e.g. the CIE 1999 glare spread function's dominant term), which no one
-    Gaussian follows both near and far."""
+    Gaussian follows both near and far. Each image and width blurred once
+    (:func:`_remembered`); a black image (the background of a directional-light set) stays
+    black."""
+    if not np.any(img):
+        return np.zeros(np.shape(img))
+    return _remembered("glare", width_px, img, lambda im: _glare_kernel(im, width_px))
+
+
+def _glare_kernel(img: np.ndarray, width_px: float) -> np.ndarray:
     if width_px > 0:
         return ndimage.gaussian_filter(img, width_px, mode="constant")
     h, w = img.shape
@@ -278,31 +332,53 @@ def _scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
         return _shared_scaled_fit(train, fitted)
     residuals, scale = [], {}
     for lv in train.levels:
-        m = lv["use"]
-        D, S, B = _basis(lv, fitted)
-        w = 1 / lv["sd"][m]
-        a = np.c_[D[m], S[m]] * w[:, None]
-        y = (lv["P"] - B)[m] * w
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        a, y = _weighted_columns(lv, fitted)
+        coef = _two_scales(a.T @ a, a.T @ y, a, y)
         scale[lv["name"]] = (float(coef[0]), float(coef[1]))
         residuals.append(y - a @ coef)
     return residuals, scale
 
 
+def _weighted_columns(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
+    """One level's least-squares problem for the scales: the columns (D, S) and the target
+    P - B on its pixels in use, each weighted by 1 / sd; shapes (n, 2) and (n,)."""
+    m, w, pw = _weights(lv)
+    D, S, B = _basis(lv, fitted)
+    a = np.empty((w.size, 2))
+    a[:, 0], a[:, 1] = D.ravel()[m] * w, S.ravel()[m] * w
+    return a, pw - B.ravel()[m] * w
+
+
+def _weights(lv: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The level's pixels in use (flat indices), their weights 1 / sd and the weighted photo
+    P / sd, computed once per view (the fits evaluate them hundreds of times)."""
+    use = lv["use"]
+    held = lv.get("_weights")
+    if held is None or held[0] is not use:
+        m = np.flatnonzero(use)
+        w = 1 / lv["sd"].ravel()[m]
+        held = lv["_weights"] = (use, m, w, lv["P"].ravel()[m] * w)
+    return held[1:]
+
+
+def _two_scales(ata: np.ndarray, aty: np.ndarray, a, y) -> np.ndarray:
+    """The two scales from the normal equations (A^T A) x = A^T y (2 x 2); by an SVD of the
+    stacked ``a``, ``y`` (a list of blocks or one array) where A^T A is near singular (a
+    component black on the pixels in use), as lstsq would."""
+    if np.linalg.cond(ata) < 1e8:
+        return np.linalg.solve(ata, aty)
+    a = np.concatenate(a) if isinstance(a, list) else a
+    y = np.concatenate(y) if isinstance(y, list) else y
+    return np.linalg.lstsq(a, y, rcond=None)[0]
+
+
 def _shared_scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
     """:func:`_scaled_fit` with one diffuse and one specular scale for all levels."""
-    rows, ys, sizes = [], [], []
-    for lv in train.levels:
-        m = lv["use"]
-        D, S, B = _basis(lv, fitted)
-        w = 1 / lv["sd"][m]
-        rows.append(np.c_[D[m], S[m]] * w[:, None])
-        ys.append((lv["P"] - B)[m] * w)
-        sizes.append(int(m.sum()))
-    a, y = np.concatenate(rows), np.concatenate(ys)
-    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-    res = y - a @ coef
-    return list(np.split(res, np.cumsum(sizes)[:-1])), {"*": (float(coef[0]), float(coef[1]))}
+    blocks = [_weighted_columns(lv, fitted) for lv in train.levels]
+    ata = sum(a.T @ a for a, _ in blocks)
+    aty = sum(a.T @ y for a, y in blocks)
+    coef = _two_scales(ata, aty, [a for a, _ in blocks], [y for _, y in blocks])
+    return [y - a @ coef for a, y in blocks], {"*": (float(coef[0]), float(coef[1]))}
 
 
 def _scaled_sse(train: RenderData, fitted: list):
