@@ -3,7 +3,7 @@
 fresnel, long_tail, clearcoat, veiling_glare, vignetting and misregistration, registered in
 the order their terms apply (``model._basis``). Each has its term (``_apply_*``, with the forms
 of ``model``; the package's docstring tabulates them), its fit (one bounded amplitude and a
-form from a grid, ``model._fit_amp``, or its own: ``_fit_long_tail``, ``_fit_vignetting``,
+form from a grid, ``_fit_amp``, or its own: ``_fit_long_tail``, ``_fit_vignetting``,
 ``_fit_misregistration``), its injector (``_inject_*``: the effect built into a Mitsuba material
 or the camera), its default strength and the parameters a right fit recovers.
 """
@@ -21,12 +21,11 @@ from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
 from analysis.gap.render.data import _FRESNEL_CAPS, BROAD_ALPHAS, RenderData
 from analysis.gap.render.model import (
     _basis,
-    _best_on_grid,
-    _fit_amp,
     _glare_blur,
     _scaled_residuals,
     _scaled_sse,
     _shift_scene,
+    _weights,
     _wider_lobe,
     _wings,
 )
@@ -82,6 +81,80 @@ def _apply_misregistration(lv, im, q):
 
 
 # --- the fits of their own ------------------------------------------------------------------
+
+def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
+    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
+    best = None
+    for g in grid:
+        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
+                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+        if best is None or res.fun < best[0]:
+            best = (res.fun, float(res.x), g)
+    return best[1], best[2]
+
+
+def _fit_amp(name, lo, hi, key=None, grid=(None,)):
+    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
+    re-fitted. Where the extended render is affine in the amplitude (:func:`_affine_sse`)
+    each trial amplitude costs a few dot products instead of a render's extension."""
+    def fit(train, chosen):
+        base = [f for f in chosen if f[0] != name]
+
+        def params_of(c, g):
+            if key is None:
+                return {"c": c}
+            return {key: g if isinstance(g, str) else float(g), "c": c}
+        fast = {}
+
+        def sse(c, g):
+            if g not in fast:
+                fast[g] = _affine_sse(train, base, name, lambda c: params_of(c, g), lo, hi)
+            if fast[g] is not None:
+                return fast[g](c)
+            return _scaled_sse(train, base + [(name, params_of(c, g))])[0]
+        c, g = _best_on_grid(sse, lo, hi, grid)
+        params = params_of(c, g)
+        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
+        return params
+    return fit
+
+
+def _affine_sse(train, base, name, params_at, lo: float, hi: float):
+    """The weighted SSE of :func:`_scaled_sse` as a function of the amplitude c alone, or None.
+
+    The fresnel, clearcoat, glare and broad-lobe terms are affine in c (R + c X), and so is
+    every later term of the render (linear blurs, shifts, vignetting) except a long tail's
+    power form: then each level's weighted columns are p + c q, and the SSE after the scales'
+    least squares is y'y - b' M^-1 b with every product a quadratic in c from one 6 x 6 Gram
+    matrix of (y, D, S) at c = lo and their slopes. The extension is rendered at c = lo, hi
+    and a third amplitude; None (the caller renders each c) where the third departs from the
+    line by more than 1e-9 of the images' scale."""
+    mid, grams = lo + 0.37 * (hi - lo), []
+    for lv in train.levels:
+        at = [_basis(lv, base + [(name, params_at(c))]) for c in (lo, hi, mid)]
+        for x0, x1, xm in zip(*at):
+            if np.max(np.abs(xm - x0 - 0.37 * (x1 - x0)), initial=0.0) > 1e-9 * (
+                    np.max(np.abs(x0), initial=0.0) + np.max(np.abs(x1), initial=0.0) + 1e-300):
+                return None
+        m, w, pw = _weights(lv)
+        (d0, s0, b0), (d1, s1, b1) = ((x.ravel()[m] * w for x in xs) for xs in at[:2])
+        vecs = np.stack([pw - b0, (b0 - b1) / (hi - lo), d0, (d1 - d0) / (hi - lo), s0,
+                         (s1 - s0) / (hi - lo)])
+        grams.append(vecs @ vecs.T)
+    if all(lv.get("shared") for lv in train.levels):
+        grams = [sum(grams)]
+
+    def sse(c):
+        u = np.array([1.0, c - lo])
+        total = 0.0
+        for g in grams:
+            blocks = u @ g.reshape(3, 2, 3, 2).transpose(0, 2, 1, 3) @ u  # (3, 3): y, D, S
+            mat, rhs = blocks[1:, 1:], blocks[1:, 0]
+            coef = np.linalg.lstsq(mat, rhs, rcond=None)[0]
+            total += float(blocks[0, 0] - rhs @ coef)
+        return total
+    return sse
+
 
 def _fit_misregistration(train, chosen):
     base = [f for f in chosen if f[0] != "misregistration"]
@@ -143,10 +216,17 @@ def _fit_long_tail(train, chosen):
     base = [f for f in chosen if f[0] != "long_tail"]
     cs, widths = {}, {}
     for lv in train.levels:
-        name, one = lv["name"], RenderData([lv])
-        c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
-            one, base + [("long_tail", {"c": {name: c}, "width": {name: g}})])[0],
-            0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
+        name, one, fast = lv["name"], RenderData([lv]), {}
+
+        def sse(c, g, name=name, one=one, fast=fast):
+            def params(c):
+                return {"c": {name: c}, "width": {name: g}}
+            if g not in fast:  # the tail S + c (W - S) is affine in c (see _affine_sse)
+                fast[g] = _affine_sse(one, base, "long_tail", params, 0.0, 1.0)
+            if fast[g] is not None:
+                return fast[g](c)
+            return _scaled_sse(one, base + [("long_tail", params(c))])[0]
+        c, g = _best_on_grid(sse, 0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
         cs[name], widths[name] = c, g if isinstance(g, str) else float(g)
     params = {"c": cs, "width": widths}
     params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]

@@ -23,6 +23,7 @@ from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
 from analysis.gap.render.model import (
+    _coat_entry_ratios,
     _coat_t,
     _fill,
     _sharpness,
@@ -168,7 +169,8 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
     radius = np.sqrt(sph.sum() / np.pi) + 1.0
     r = np.hypot(yy - cy, xx - cx) / radius
     cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
-    fres5, coat, cover = _sphere_factors((h, w), cy, cx, radius)
+    fres5, coat, cover = _subpixel_factors((h, w), float(cy), float(cx), float(radius))
+    fres5, coat = dict(fres5), dict(coat)
     if coat_lights:
         coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
                                       (xx - cx) / radius, cover, distance)
@@ -262,27 +264,14 @@ def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=8)
-def _sphere_factors_once(shape: tuple, cy: float, cx: float, radius: float):
-    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
-    out = _subpixel_factors(yy, xx, cy, cx, radius)
-    for part in (*out[0].values(), *out[1].values(), out[2]):
-        part.flags.writeable = False
-    return out
-
-
-def _sphere_factors(shape: tuple, cy: float, cx: float, radius: float):
-    """:func:`_subpixel_factors` of a sphere in an image of ``shape``, computed once per
-    sphere: the photos of one set under many lights show one sphere (arrays read-only; the
-    dicts fresh, as each level adds its own coat entries)."""
-    fres5, coat, cover = _sphere_factors_once(tuple(shape), float(cy), float(cx), float(radius))
-    return dict(fres5), dict(coat), cover
-
-
-def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
+def _subpixel_factors(shape: tuple, cy: float, cx: float, radius: float, n: int = 8):
     """Per-pixel means of the Fresnel rise (1 - max(cos t, kappa))^5 (one image per kappa of
     ``_FRESNEL_CAPS``) and of the coat's transmission T(t) / T(0) over the part of each pixel
     the sphere covers (n x n sub-pixels): at the rim cos t changes steeply within one pixel,
-    and the pixel's value averages it. Also returns the covered share of each pixel."""
+    and the pixel's value averages it. Also returns the covered share of each pixel. Computed
+    once per sphere (a set under many lights shows one): the images are read-only, and the
+    caller copies the dicts before adding to them."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     offs = (np.arange(n) + 0.5) / n - 0.5
     fres = {k: np.zeros(yy.shape) for k in _FRESNEL_CAPS}
     coat = {k: np.zeros(yy.shape) for k in _COAT_PATHS}
@@ -299,18 +288,11 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
             cover += inside
     share = cover / n**2
     cover = np.maximum(cover, 1)
-    return ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
-            share)
-
-
-def _coat_entry_ratios(n: int = 2000) -> tuple[float, float]:
-    """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
-    0 and 1 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
-    dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
-    eq. 8, with the transmission in the kernel)."""
-    mu = (np.arange(n) + 0.5) / n
-    t = _coat_t(mu)
-    return float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t))
+    out = ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
+           share)
+    for image in (*out[0].values(), *out[1].values(), share):
+        image.flags.writeable = False
+    return out
 
 
 def _sphere_view(y: np.ndarray, x: np.ndarray, distance: float | None = None):

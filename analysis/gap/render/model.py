@@ -11,8 +11,8 @@ the photos are under that prediction.
   (:func:`render_loss`);
 - the pixel units and the held-out split (:func:`render_unit_ids`, :func:`split_render`);
 - the fit helpers the candidates share: the scales' least-squares fit (``_scaled_fit``,
-  ``_scaled_sse``, ``_scaled_residuals``) and one bounded amplitude with a form from a grid
-  (``_best_on_grid``, ``_fit_amp``).
+  ``_scaled_sse``, ``_scaled_residuals``); one bounded amplitude with a form from a grid is
+  ``candidates._fit_amp``.
 
 The bottom of the layer: it imports nothing else of it at run time (the reader, ``data``,
 measures the noise with it).
@@ -20,12 +20,14 @@ measures the noise with it).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import weakref
 from collections import OrderedDict
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import ndimage, optimize, signal
 
 from analysis.gap.engine import GapError, catalogue
@@ -199,24 +201,51 @@ def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
 
 
 def _glare_kernel(img: np.ndarray, width_px: float) -> np.ndarray:
-    if width_px > 0:
-        return ndimage.gaussian_filter(img, width_px, mode="constant")
+    """``img`` convolved with the glare kernel (:func:`_glare_spectrum`), zero outside the
+    frame, by FFT with the kernel's spectrum computed once per image size and width."""
     h, w = img.shape
-    yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
-    kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
-    return signal.fftconvolve(img, kern / kern.sum(), mode="same")
+    fshape, spectrum = _glare_spectrum((h, w), float(width_px))
+    full = sp_fft.irfftn(sp_fft.rfftn(img, fshape) * spectrum, fshape)
+    return full[h:2 * h, w:2 * w]
 
 
+@functools.lru_cache(maxsize=32)
+def _glare_spectrum(shape: tuple, width_px: float):
+    """The glare kernel on a (2h + 1) x (2w + 1) window (every offset within the frame) and its
+    spectrum at a fast FFT size: a Gaussian of SD ``width_px`` (> 0) as ``ndimage.
+    gaussian_filter`` builds it (truncated at 4 SD and normalised there; its taps beyond the
+    frame meet only the zeros outside it), or (< 0) the power law (1 + (r / w)^2)^(-3/2)
+    normalised over the window."""
+    h, w = shape
+    if width_px > 0:
+        def taps(n):
+            r = int(4.0 * width_px + 0.5)
+            x = np.arange(-r, r + 1, dtype=float)
+            g = np.exp(-0.5 / width_px**2 * x**2)
+            g /= g.sum()
+            return np.pad(g, max(n - r, 0))[max(r - n, 0):max(r - n, 0) + 2 * n + 1]
+        kern = np.outer(taps(h), taps(w))
+    else:
+        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+        kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
+        kern /= kern.sum()
+    fshape = tuple(sp_fft.next_fast_len(3 * n, real=True) for n in shape)
+    return fshape, sp_fft.rfftn(kern, fshape)
+
+
+@functools.lru_cache(maxsize=64)
 def _coverage(shape, cy: float, cx: float, radius: float, n: int = 8) -> np.ndarray:
     """Share of each pixel (centres at integers) inside the sphere's silhouette (n x n
-    sub-pixels)."""
+    sub-pixels); computed once per silhouette (read-only)."""
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     offs = (np.arange(n) + 0.5) / n - 0.5
     cover = np.zeros(shape)
     for oy in offs:
         for ox in offs:
             cover += ((yy + oy - cy) ** 2 + (xx + ox - cx) ** 2) < radius**2
-    return cover / n**2
+    cover /= n**2
+    cover.flags.writeable = False
+    return cover
 
 
 def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -237,13 +266,17 @@ def _shift_scene(lv: dict, images: list, dy: float, dx: float) -> list:
     cubic-spline interpolation, and the shares recomputed at the shifted silhouette."""
     cy, cx, radius = lv["geometry"]
     cov = lv["cover"]
-    cov_s = _coverage(cov.shape, cy + dy, cx + dx, radius)
+    cov_s = _coverage(cov.shape, float(cy + dy), float(cx + dx), float(radius))
     out = []
     for k, img in enumerate(images):
         share, share_s = (cov, cov_s) if k < 2 else (1 - cov, 1 - cov_s)
-        known = share > 0.5
-        rad = _fill(np.where(known, img / np.maximum(share, 1e-6), 0.0), known)
-        out.append(share_s * ndimage.shift(rad, (dy, dx), order=3, mode="nearest"))
+
+        def shifted(im, share=share):  # each image shifted once (_remembered)
+            known = share > 0.5
+            rad = _fill(np.where(known, im / np.maximum(share, 1e-6), 0.0), known)
+            return ndimage.shift(rad, (dy, dx), order=3, mode="nearest")
+        form = f"shift {lv['geometry']!r} {dy!r} {dx!r} {'sphere' if k < 2 else 'surround'}"
+        out.append(share_s * _remembered(form, 0.0, img, shifted))
     return out
 
 
@@ -392,35 +425,6 @@ def _scaled_residuals(train: RenderData, fitted: list) -> np.ndarray:
     return np.concatenate(_scaled_fit(train, fitted)[0])
 
 
-def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
-    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
-    best = None
-    for g in grid:
-        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
-                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
-        if best is None or res.fun < best[0]:
-            best = (res.fun, float(res.x), g)
-    return best[1], best[2]
-
-
-def _fit_amp(name, lo, hi, key=None, grid=(None,)):
-    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
-    re-fitted."""
-    def fit(train, chosen):
-        base = [f for f in chosen if f[0] != name]
-
-        def params_of(c, g):
-            if key is None:
-                return {"c": c}
-            return {key: g if isinstance(g, str) else float(g), "c": c}
-        c, g = _best_on_grid(
-            lambda c, g: _scaled_sse(train, base + [(name, params_of(c, g))])[0], lo, hi, grid)
-        params = params_of(c, g)
-        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
-        return params
-    return fit
-
-
 _COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
 
 
@@ -439,6 +443,16 @@ def _coat_t(cos_t, paths: float = 1.0):
     surround (its own transmission, averaged over the directions, goes into rho_d), 2 when it
     enters along the view (a light at the camera)."""
     return ((1 - _fresnel_coat(cos_t)) / (1 - _fresnel_coat(1.0))) ** paths
+
+
+def _coat_entry_ratios(n: int = 2000) -> tuple[float, float]:
+    """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
+    0 and 1 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
+    dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
+    eq. 8, with the transmission in the kernel)."""
+    mu = (np.arange(n) + 0.5) / n
+    t = _coat_t(mu)
+    return float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t))
 
 
 def _unit_at_centre(factor: np.ndarray, r2: np.ndarray, on: np.ndarray) -> np.ndarray:
