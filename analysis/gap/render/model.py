@@ -178,7 +178,7 @@ def _remembered(form: str, width: float, img: np.ndarray, blur) -> np.ndarray:
     if hit is not None:
         _BLUR_CACHE.move_to_end(key)
         return hit
-    out = np.asarray(blur(img), dtype=float)
+    out = np.array(blur(img), dtype=float)  # a copy: a view would keep its base alive
     out.flags.writeable = False
     _BLUR_CACHE[key] = out
     _BLUR_HELD[0] += out.nbytes
