@@ -11,7 +11,15 @@ mkdir -p "$RUN"
 RUN=$(cd "$RUN" && pwd)  # absolute: the session app refuses a relative --data
 ln -sfn "$(basename "$RUN")" "$OUT/latest"
 t0=$(date +%s)
-step() { echo; echo "== $* ($(( $(date +%s) - t0 )) s)"; }
+STEP_NAME=""; STEP_T=$t0; STEP_TIMES=()
+# Each step's heading with the time since the start; at the end, each step's own time and the
+# pipeline's (issue 38: the demo says how long it took).
+step() {
+  local now; now=$(date +%s)
+  [ -n "$STEP_NAME" ] && STEP_TIMES+=("$(printf '%5d s  %s' $(( now - STEP_T )) "${STEP_NAME%%:*}")")
+  STEP_NAME=$*; STEP_T=$now
+  echo; echo "== $* ($(( now - t0 )) s)"
+}
 
 # --- design ---
 step "study design"
@@ -207,5 +215,8 @@ echo "blind benchmarks (not run here; the render layer renders with Mitsuba and 
 # --- end sim-to-real gap ---
 
 step "done"
+echo "step times:"; printf '  %s\n' "${STEP_TIMES[@]}"
+total=$(( $(date +%s) - t0 ))
+echo "demo pipeline time: ${total} s ($(( total / 60 )) min $(( total % 60 )) s)"
 echo "demo output: $RUN"
 if [ -f "$RUN/report/index.html" ]; then echo "report: $RUN/report/index.html"; fi

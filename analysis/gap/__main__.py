@@ -43,17 +43,27 @@ def _diagnose(args, design) -> int:
         results = diagnose("all", parse_layer_paths(args.real), parse_layer_paths(args.sim),
                            design, seed=args.seed, **opts)
         which = which_layer({n: d for n, (d, _) in results.items()})
-        path = write_multi_report(results, which, args.out)
+        notes: list[str] = []
+        path = write_multi_report(results, which, args.out, notes=notes)
         for name, (diag, _) in results.items():
             _print(diag, name)
+        _print_notes(notes)
         print(f"{which['text']}\nreport {path}")
         return 0
 
     diag, local = diagnose(args.layer, args.real, args.sim, design, seed=args.seed, **opts)
-    path = write_report(diag, local, args.out)
+    notes: list[str] = []
+    path = write_report(diag, local, args.out, notes=notes)
     _print(diag, diag.layer)
+    _print_notes(notes)
     print(f"report {path}")
     return 0
+
+
+def _print_notes(notes: list[str]) -> None:
+    """The report's figures that failed to draw (the verdict and diagnosis.json are written)."""
+    for line in notes:
+        print(f"warning: {line}", file=sys.stderr)
 
 
 def _print(diag, name: str) -> None:

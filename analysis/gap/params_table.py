@@ -87,25 +87,38 @@ def _rows(spec: ParamDoc, value, where: tuple[str, ...]) -> list[ParamRow]:
     if isinstance(value, dict):
         out = []
         for k, v in value.items():
+            k = _KEY_WORDS.get(str(k), k)
             out += _rows(spec, v, (*where, spec.where.format(k) if not where else str(k)))
         return out
     if isinstance(value, (list, tuple)):
         if spec.parts and len(spec.parts) == len(value):
             return [row for part, v in zip(spec.parts, value)
-                    for row in _rows(ParamDoc(part, spec.unit), v, where)]
+                    for row in _rows(ParamDoc(part, spec.unit, shown=spec.shown), v, where)]
         return [row for i, v in enumerate(value)
                 for row in _rows(spec, v, (*where, f"[{i}]"))]
     unit = spec.unit(value) if callable(spec.unit) else spec.unit
-    return [ParamRow(spec.name, " / ".join(where), format_sig(value), unit)]
+    shown = spec.shown(value) if spec.shown is not None else value
+    return [ParamRow(spec.name, " / ".join(where), format_sig(shown), unit)]
+
+
+#: What a nested key means where it is not a name: ``*`` holds the one value that every level
+#: shares (a directional-light set's photos are of one material: one pair of scales).
+_KEY_WORDS = {"*": "every photo (one material)"}
+#: Catalogues registered apart from a layer's own whose candidates its diagnoses may choose
+#: (the render layer's broad lobe needs each photo's light: ``render_lights``).
+_MORE_CATALOGUES = {"render": ("render_lights",)}
 
 
 def _docs(layer: str, effect: str) -> dict:
-    """The registered candidate's :class:`ParamDoc` per key, or {} for an effect no registered
-    candidate of ``layer`` has (a report built by hand, an unknown layer)."""
-    try:
-        return candidate(layer, effect).params
-    except GapError:
-        return {}
+    """The registered candidate's :class:`ParamDoc` per key (in ``layer``'s catalogue or one
+    registered apart for it), or {} for an effect no registered candidate has (a report built
+    by hand, an unknown layer)."""
+    for name in (layer, *_MORE_CATALOGUES.get(layer, ())):
+        try:
+            return candidate(name, effect).params
+        except GapError:
+            continue
+    return {}
 
 
 def param_rows(layer: str, effect: str, params: dict) -> list[ParamRow]:

@@ -176,7 +176,8 @@ def params_html(layer: str, effect: str, params: dict) -> str:
     body = []
     for r, n_name, n_unit in zip(rows, names, units):
         name = f'<th rowspan="{n_name}">{html.escape(r.name)}</th>' if n_name else ""
-        where = f"<td>{html.escape(r.where)}</td>" if per else ""
+        # A single value beside per-level ones holds for all of them.
+        where = f"<td>{html.escape(r.where or 'all')}</td>" if per else ""
         unit = f'<td rowspan="{n_unit}">{html.escape(r.unit)}</td>' if n_unit else ""
         body.append(f'<tr>{name}{where}<td class="num">{html.escape(r.value)}</td>{unit}</tr>')
     return f'<table class="params">{head}{"".join(body)}</table>'
@@ -285,22 +286,41 @@ def _write_parts(folder: Path, diag: Diagnosis, local) -> None:
         local.to_csv(fh, index=False)
 
 
-def _check_new(out: Path) -> None:
-    if (out / "index.html").exists():
-        raise GapError(f"report {out / 'index.html'} exists; pass a new --out folder")
+def _check_new(out: Path, layers=()) -> None:
+    """Refuse a folder that holds a report, or a diagnosis written before its figures (a run
+    stopped while drawing): nothing recorded is overwritten."""
+    for path in (out / "index.html", out / "diagnosis.json",
+                 *(out / name / "diagnosis.json" for name in layers)):
+        if path.exists():
+            raise GapError(f"report {path} exists; pass a new --out folder")
     out.mkdir(parents=True, exist_ok=True)
 
 
-def write_report(diag: Diagnosis, local, out_dir: str | Path) -> Path:
-    """Write ``out_dir/index.html`` (+ figure, JSON, localisation CSV). Refuses an existing
-    report."""
+def _figure_lines(failed: list[str]) -> str:
+    """The figures that failed to draw, as warning lines of the page."""
+    return "".join(f'<p class="warning"><b>Figure not drawn:</b> {html.escape(f)}</p>'
+                   for f in failed)
+
+
+def write_report(diag: Diagnosis, local, out_dir: str | Path, *,
+                 notes: list | None = None) -> Path:
+    """Write ``out_dir/index.html`` (+ figures, JSON, localisation CSV). Refuses an existing
+    report.
+
+    ``diagnosis.json`` and ``localisation.csv`` are written first, then the figures, then the
+    page: a figure that fails to draw never costs the verdict; it is left out of the page
+    with a warning line there, and the same line is appended to ``notes`` (a list, for the
+    caller to print) when given."""
     out = Path(out_dir)
     _check_new(out)
-    maps = write_figures(local, out)
+    _write_parts(out, diag, local)
+    figs, failed = write_figures(local, out)
+    if notes is not None:
+        notes.extend(failed)
     page = _page(f"Sim-to-real gap: {diag.layer}",
                  f"<h1>Sim-to-real gap, {html.escape(diag.layer)} layer</h1>\n"
-                 f"{diagnosis_html(diag, maps=maps)}\n<p>seed {diag.seed}</p>")
-    _write_parts(out, diag, local)
+                 f"{diagnosis_html(diag, figs['localisation'] or None, figs['maps'])}"
+                 f"{_figure_lines(failed)}\n<p>seed {diag.seed}</p>")
     return _atomic_page(out, page)
 
 
@@ -313,20 +333,26 @@ def _which_lead(which: dict) -> str:
                   (format_sig(gap), "nats per unit")])
 
 
-def write_multi_report(results: dict, which: dict, out_dir: str | Path) -> Path:
+def write_multi_report(results: dict, which: dict, out_dir: str | Path, *,
+                       notes: list | None = None) -> Path:
     """``out_dir/index.html`` with the carrying layer and each layer's section (figures in
-    ``out_dir/<layer>/``)."""
+    ``out_dir/<layer>/``). Every layer's ``diagnosis.json`` is written before any figure is
+    drawn; a figure that fails is said as in :func:`write_report`."""
     out = Path(out_dir)
-    _check_new(out)
+    _check_new(out, results)
+    for name, (diag, local) in results.items():
+        (out / name).mkdir(exist_ok=True)
+        _write_parts(out / name, diag, local)
     sections = []
     for name, (diag, local) in results.items():
-        sub = out / name
-        sub.mkdir(exist_ok=True)
-        maps = write_figures(local, sub)
-        _write_parts(sub, diag, local)
+        figs, failed = write_figures(local, out / name)
+        if notes is not None:
+            notes.extend(failed)
         sections.append(f"<h2>{html.escape(name)} layer</h2>"
-                        + diagnosis_html(diag, f"{name}/localisation.png",
-                                         f"{name}/{maps}" if maps else ""))
+                        + diagnosis_html(diag, f"{name}/{figs['localisation']}"
+                                         if figs["localisation"] else None,
+                                         f"{name}/{figs['maps']}" if figs["maps"] else "")
+                        + _figure_lines(failed))
     rows = "".join(f'<tr><td>{html.escape(n)}</td><td class="num">{g[0]:.4f}</td>'
                    f'<td class="num">[{g[1]:.4f}, {g[2]:.4f}]</td></tr>'
                    for n, g in which["gaps"].items())

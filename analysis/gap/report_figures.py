@@ -35,9 +35,16 @@ def _save(fig, path, dpi: int) -> None:
 
 
 def _errorbars(ax, sub, labels):
+    """Each cell's mean with its CI as error bars. A CI that does not contain its mean is
+    drawn from the mean to its far end only: a cell of one resampled block has a CI of one
+    value that differs from the pixels' mean in the last bits (a negative bar matplotlib
+    refuses, issue 40 item 4), and a percentile bootstrap of a ratio can exclude its own
+    point estimate. The CSV keeps the CI as computed."""
     x = range(len(sub))
-    ax.errorbar(x, sub["mean_residual"], yerr=[sub["mean_residual"] - sub["ci_low"],
-                sub["ci_high"] - sub["mean_residual"]], fmt="o")
+    mean = sub["mean_residual"].to_numpy(float)
+    below = np.fmax(mean - sub["ci_low"].to_numpy(float), 0.0)
+    above = np.fmax(sub["ci_high"].to_numpy(float) - mean, 0.0)
+    ax.errorbar(x, mean, yerr=[below, above], fmt="o")
     ax.axhline(0, color="k", lw=0.5)
     ax.set_xticks(list(x))
     ax.set_xticklabels(labels, rotation=90, fontsize=6)
@@ -102,15 +109,33 @@ def _plot_maps(maps: dict, path) -> None:
     _save(fig, path, 90)
 
 
-def write_figures(local, folder: Path) -> str:
+def write_figures(local, folder: Path) -> tuple[dict, list[str]]:
     """Write the layer's figures into ``folder``: ``localisation.png`` (cells of an ``axis``
     column, or the observer's gloss / depth bins) and, where ``local.attrs["maps"]`` holds
-    residual maps, ``residual_maps.png``. Returns the maps' file name, or "" if none."""
-    if "axis" in local.columns:
-        _plot_generic(local, folder / "localisation.png")
-    else:
-        _plot_observer(local, folder / "localisation.png")
+    residual maps, ``residual_maps.png``.
+
+    A figure that fails to draw is not written and costs nothing else: the report is written
+    without it (the diagnosis's JSON before any figure), and the failure is said.
+
+    Returns
+    -------
+    (dict, list of str)
+        ``{"localisation": file name or "", "maps": file name or ""}`` of the figures
+        written, and one line per figure that failed (its file, the error).
+    """
+    plot = _plot_generic if "axis" in local.columns else _plot_observer
+    jobs = [("localisation", "localisation.png", lambda path: plot(local, path))]
     if local.attrs.get("maps"):
-        _plot_maps(local.attrs["maps"], folder / "residual_maps.png")
-        return "residual_maps.png"
-    return ""
+        jobs.append(("maps", "residual_maps.png",
+                     lambda path: _plot_maps(local.attrs["maps"], path)))
+    written, failed = {"localisation": "", "maps": ""}, []
+    for key, name, draw in jobs:
+        try:
+            draw(folder / name)
+        except Exception as exc:  # noqa: BLE001 - any figure's failure: said, never fatal
+            plt.close("all")
+            failed.append(f"figure {folder / name} not drawn ({type(exc).__name__}: {exc}); "
+                          "the diagnosis and its numbers are written without it")
+        else:
+            written[key] = name
+    return written, failed

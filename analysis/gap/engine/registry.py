@@ -33,6 +33,8 @@ class ParamDoc:
                                     scale"), each then a row of its own
     where  str                      ``str.format`` pattern for what a nested key is for
                                     ("{} response"); "{}": the key itself
+    shown  ``shown(value)`` or None the value as the table shows it where the fit stores a
+                                    code (a form in its sign: the magnitude); None: as stored
     ====== ======================== ===========================================================
     """
 
@@ -40,6 +42,7 @@ class ParamDoc:
     unit: str | Callable[[object], str] = ""
     parts: tuple[str, ...] = ()
     where: str = "{}"
+    shown: Callable[[object], object] | None = None
 
 
 @dataclass(frozen=True)

@@ -24,7 +24,7 @@ from analysis.gap.engine.heldout import CrossFit
 from analysis.gap.engine.registry import Candidate
 from analysis.gap.engine.result import CandidateScore, jsonable
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
-from analysis.gap.engine.stats import PairedTest, holm
+from analysis.gap.engine.stats import PairedTest, boot_means, holm
 
 __all__ = [
     "NO_GAP",
@@ -226,11 +226,10 @@ def measure_gap(base: np.ndarray, current: np.ndarray, floor: np.ndarray,
     (independent of the units' sampling, added in quadrature), lies wholly below zero."""
     gap_b, gap_a = base - floor, current - floor
     gb, ga = float(gap_b.mean()), float(gap_a.mean())
-    gb_ci = tuple(float(x) for x in np.percentile(gap_b[idx].mean(axis=1), [2.5, 97.5]))
-    ga_ci = tuple(float(x) for x in np.percentile(gap_a[idx].mean(axis=1), [2.5, 97.5]))
     d = base - current
-    shrink_b = d[idx].mean(axis=1)
-    gap_b_boot = gap_b[idx].mean(axis=1)
+    gap_b_boot, gap_a_boot, shrink_b = boot_means(np.stack([gap_b, gap_a, d]), idx)
+    gb_ci = tuple(float(x) for x in np.percentile(gap_b_boot, [2.5, 97.5]))
+    ga_ci = tuple(float(x) for x in np.percentile(gap_a_boot, [2.5, 97.5]))
     pct_b = 100 * np.clip(shrink_b / np.maximum(gap_b_boot, 1e-12), 0.0, 1.0)
     def below(g, ci):
         return bool(ci) and g + np.hypot(ci[1] - g, 1.96 * floor_sd) < 0

@@ -3,13 +3,15 @@
 fresnel, long_tail, clearcoat, veiling_glare, vignetting and misregistration, registered in
 the order their terms apply (``model._basis``). Each has its term (``_apply_*``, with the forms
 of ``model``; the package's docstring tabulates them), its fit (one bounded amplitude and a
-form from a grid, ``model._fit_amp``, or its own: ``_fit_long_tail``, ``_fit_vignetting``,
+form from a grid, ``_fit_amp``, or its own: ``_fit_long_tail``, ``_fit_vignetting``,
 ``_fit_misregistration``), its injector (``_inject_*``: the effect built into a Mitsuba material
 or the camera), its default strength and the parameters a right fit recovers.
 """
 
 from __future__ import annotations
 
+import copy
+import weakref
 from numbers import Number
 
 import numpy as np
@@ -19,12 +21,11 @@ from analysis.gap.engine import Candidate, ParamDoc, catalogue, register
 from analysis.gap.render.data import _FRESNEL_CAPS, BROAD_ALPHAS, RenderData
 from analysis.gap.render.model import (
     _basis,
-    _best_on_grid,
-    _fit_amp,
     _glare_blur,
     _scaled_residuals,
     _scaled_sse,
     _shift_scene,
+    _weights,
     _wider_lobe,
     _wings,
 )
@@ -80,6 +81,80 @@ def _apply_misregistration(lv, im, q):
 
 
 # --- the fits of their own ------------------------------------------------------------------
+
+def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
+    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
+    best = None
+    for g in grid:
+        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
+                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
+        if best is None or res.fun < best[0]:
+            best = (res.fun, float(res.x), g)
+    return best[1], best[2]
+
+
+def _fit_amp(name, lo, hi, key=None, grid=(None,)):
+    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
+    re-fitted. Where the extended render is affine in the amplitude (:func:`_affine_sse`)
+    each trial amplitude costs a few dot products instead of a render's extension."""
+    def fit(train, chosen):
+        base = [f for f in chosen if f[0] != name]
+
+        def params_of(c, g):
+            if key is None:
+                return {"c": c}
+            return {key: g if isinstance(g, str) else float(g), "c": c}
+        fast = {}
+
+        def sse(c, g):
+            if g not in fast:
+                fast[g] = _affine_sse(train, base, name, lambda c: params_of(c, g), lo, hi)
+            if fast[g] is not None:
+                return fast[g](c)
+            return _scaled_sse(train, base + [(name, params_of(c, g))])[0]
+        c, g = _best_on_grid(sse, lo, hi, grid)
+        params = params_of(c, g)
+        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
+        return params
+    return fit
+
+
+def _affine_sse(train, base, name, params_at, lo: float, hi: float):
+    """The weighted SSE of :func:`_scaled_sse` as a function of the amplitude c alone, or None.
+
+    The fresnel, clearcoat, glare and broad-lobe terms are affine in c (R + c X), and so is
+    every later term of the render (linear blurs, shifts, vignetting) except a long tail's
+    power form: then each level's weighted columns are p + c q, and the SSE after the scales'
+    least squares is y'y - b' M^-1 b with every product a quadratic in c from one 6 x 6 Gram
+    matrix of (y, D, S) at c = lo and their slopes. The extension is rendered at c = lo, hi
+    and a third amplitude; None (the caller renders each c) where the third departs from the
+    line by more than 1e-9 of the images' scale."""
+    mid, grams = lo + 0.37 * (hi - lo), []
+    for lv in train.levels:
+        at = [_basis(lv, base + [(name, params_at(c))]) for c in (lo, hi, mid)]
+        for x0, x1, xm in zip(*at):
+            if np.max(np.abs(xm - x0 - 0.37 * (x1 - x0)), initial=0.0) > 1e-9 * (
+                    np.max(np.abs(x0), initial=0.0) + np.max(np.abs(x1), initial=0.0) + 1e-300):
+                return None
+        m, w, pw = _weights(lv)
+        (d0, s0, b0), (d1, s1, b1) = ((x.ravel()[m] * w for x in xs) for xs in at[:2])
+        vecs = np.stack([pw - b0, (b0 - b1) / (hi - lo), d0, (d1 - d0) / (hi - lo), s0,
+                         (s1 - s0) / (hi - lo)])
+        grams.append(vecs @ vecs.T)
+    if all(lv.get("shared") for lv in train.levels):
+        grams = [sum(grams)]
+
+    def sse(c):
+        u = np.array([1.0, c - lo])
+        total = 0.0
+        for g in grams:
+            blocks = u @ g.reshape(3, 2, 3, 2).transpose(0, 2, 1, 3) @ u  # (3, 3): y, D, S
+            mat, rhs = blocks[1:, 1:], blocks[1:, 0]
+            coef = np.linalg.lstsq(mat, rhs, rcond=None)[0]
+            total += float(blocks[0, 0] - rhs @ coef)
+        return total
+    return sse
+
 
 def _fit_misregistration(train, chosen):
     base = [f for f in chosen if f[0] != "misregistration"]
@@ -141,14 +216,39 @@ def _fit_long_tail(train, chosen):
     base = [f for f in chosen if f[0] != "long_tail"]
     cs, widths = {}, {}
     for lv in train.levels:
-        name, one = lv["name"], RenderData([lv])
-        c, g = _best_on_grid(lambda c, g, name=name, one=one: _scaled_sse(
-            one, base + [("long_tail", {"c": {name: c}, "width": {name: g}})])[0],
-            0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
+        name, one, fast = lv["name"], RenderData([lv]), {}
+
+        def sse(c, g, name=name, one=one, fast=fast):
+            def params(c):
+                return {"c": {name: c}, "width": {name: g}}
+            if g not in fast:  # the tail S + c (W - S) is affine in c (see _affine_sse)
+                fast[g] = _affine_sse(one, base, "long_tail", params, 0.0, 1.0)
+            if fast[g] is not None:
+                return fast[g](c)
+            return _scaled_sse(one, base + [("long_tail", params(c))])[0]
+        c, g = _best_on_grid(sse, 0.0, 1.0, _TAIL_WIDTHS + tuple(lv.get("wider", {})))
         cs[name], widths[name] = c, g if isinstance(g, str) else float(g)
     params = {"c": cs, "width": widths}
     params["scale"] = _scaled_sse(train, base + [("long_tail", params)])[1]
     return params
+
+
+def _remembered_fit(fit):
+    """``fit(train, chosen)``, computed once per training data and chosen list: the engine
+    fits every candidate alone when it scores them and again, given nothing chosen, at the
+    greedy combination's first step, and backfitting re-fits the candidate just added given
+    the same others; each fit is deterministic, so the second is the first's copy. Held per
+    training view (a weak reference: dropped with it); ``chosen`` compared by its repr (floats
+    to the last bit)."""
+    memo: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+
+    def remembered(train, chosen):
+        table = memo.setdefault(train, {})
+        key = repr(chosen)
+        if key not in table:
+            table[key] = fit(train, chosen)
+        return copy.deepcopy(table[key])
+    return remembered
 
 
 # --- the catalogue: each effect's fit, term, injector, default strength and truth -----------
@@ -233,14 +333,31 @@ def _tail_width_unit(width) -> str:
         return "px, SD of a Gaussian blur of the lobe"
     if width > 0:
         return "power the lobe is raised to (a wider Ward lobe)"
-    return "-px, half width of a GTR1 haze kernel"
+    return "px, half width w of a GTR1 haze kernel 1 / (1 + (r / w)²)"
 
 
 def _glare_unit(spread) -> str:
     """What the veiling glare's spread is (:data:`_GLARE_SIGMAS`, ``_glare_blur``)."""
     if isinstance(spread, Number) and spread < 0:
-        return "-x image width, core of a power-law kernel"
-    return "x image width, SD of a Gaussian kernel"
+        return "× image width, core w of a power-law kernel (1 + (r / w)²)^(−3/2)"
+    return "× image width, SD of a Gaussian kernel"
+
+
+def _magnitude(code):
+    """A width as the table shows it: the fits code the kernel's form in the width's sign
+    (``_TAIL_WIDTHS``, ``_GLARE_SIGMAS``), the unit names the form, the value is its size."""
+    return abs(code) if isinstance(code, Number) else code
+
+
+#: Where the diffuse light entered the coat (``_COAT_ENTRY``), in words.
+_ENTRY_WORDS = {"surround": "a uniform surround (its entry loss in the diffuse albedo)",
+                "view": "along the view (a light at the camera)",
+                "lights": "the lights fitted to the diffuse shading (or each photo's own light)",
+                "mirror": "the room as the glossiest level's specular render mirrors it"}
+
+
+def _entry_unit(entry) -> str:
+    return f"form chosen from {len(_COAT_ENTRY)}: {_ENTRY_WORDS.get(entry, entry)}"
 
 
 #: Every render candidate refits the gloss fit's diffuse and specular scales per level.
@@ -251,36 +368,39 @@ _SCALE = ParamDoc("scale", "× the gloss fit's component",
 # Registered in the order their terms apply (_basis): the material's terms on the specular
 # and diffuse components, then the camera's glare and vignetting, then the shift.
 register("render", Candidate(
-    "fresnel", _fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS),
+    "fresnel", _remembered_fit(_fit_amp("fresnel", 0.0, 50.0, "kappa", _FRESNEL_CAPS)),
     "specular reflectance rising towards grazing angles (Schlick)", apply=_apply_fresnel,
     inject=_inject_fresnel, default_strength=6.0, units="Schlick gain (1 - F0) / F0",
     truth=lambda s: {"c": float(s)},
     params={"kappa": ParamDoc("cap on the view cosine (0: plain Schlick)", "cosine"),
             "c": ParamDoc("Fresnel rise", "Schlick gain (1 − F0) / F0"), "scale": _SCALE}))
 register("render", Candidate(
-    "long_tail", _fit_long_tail, "highlight lobe with longer tails than Ward's",
+    "long_tail", _remembered_fit(_fit_long_tail), "highlight lobe with longer tails than Ward's",
     apply=_apply_long_tail, inject=_inject_long_tail, default_strength=0.6,
     units="share of the lobe's energy in the haze",
     # The amount per level; the form (blur or power) has no counterpart in the injector.
     truth=lambda s: {"c": float(s)},
     params={"c": ParamDoc("haze share", "share of the lobe's energy in the haze"),
-            "width": ParamDoc("wing form", _tail_width_unit), "scale": _SCALE}))
+            "width": ParamDoc("wing form", _tail_width_unit, shown=_magnitude),
+            "scale": _SCALE}))
 register("render", Candidate(
-    "clearcoat", _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY),
+    "clearcoat", _remembered_fit(_fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY)),
     "diffuse light leaving through a clear coat, dimmed towards grazing view (Fresnel)",
     apply=_apply_clearcoat, inject=_inject_clearcoat, default_strength=0.6,
     units="share of the diffuse light through the coat", truth=lambda s: {"c": float(s)},
-    params={"entry": ParamDoc("where the diffuse light entered the coat"),
+    params={"entry": ParamDoc("where the diffuse light entered the coat", _entry_unit),
             "c": ParamDoc("diffuse light through the coat", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
-    "veiling_glare", _fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS),
+    "veiling_glare",
+    _remembered_fit(_fit_amp("veiling_glare", 0.0, 1.0, "sigma_frac", _GLARE_SIGMAS)),
     "lens glare: a blurred copy of the image added", apply=_apply_glare,
     inject=_inject_glare, default_strength=0.15, units="share of the light in the glare",
     truth=lambda s: {"c": float(s)},
-    params={"sigma_frac": ParamDoc("glare spread", _glare_unit),
+    params={"sigma_frac": ParamDoc("glare spread", _glare_unit, shown=_magnitude),
             "c": ParamDoc("light in the glare", "fraction"), "scale": _SCALE}))
 register("render", Candidate(
-    "vignetting", _fit_vignetting, "the camera darkens towards the image corners",
+    "vignetting", _remembered_fit(_fit_vignetting),
+    "the camera darkens towards the image corners",
     apply=_apply_vignetting, inject=_inject_vignetting, default_strength=0.5,
     units="vignetting coefficient",
     # 1 / (1 + (s rho)^2)^2 = 1 - 2 s^2 rho^2 + O(rho^4).
@@ -289,7 +409,8 @@ register("render", Candidate(
                           "fraction (ρ: distance from the image centre, 1 at the corners)"),
             "c2": ParamDoc("darkening ∝ ρ⁴", "fraction (ρ as above)"), "scale": _SCALE}))
 register("render", Candidate(
-    "misregistration", _fit_misregistration, "photo and render still offset after registration",
+    "misregistration", _remembered_fit(_fit_misregistration),
+    "photo and render still offset after registration",
     apply=_apply_misregistration, inject=_inject_misregistration, default_strength=0.6,
     units="px", truth=lambda s: {"shift_norm_px": float(s)},
     params={"shift_px": ParamDoc("shift", "px", parts=("render shift down",
@@ -316,7 +437,7 @@ def _inject_broad_lobe(studio, level, s, rng):
 #: Registered apart ("render_lights"): its form needs each photo's light direction, which
 #: only a directional-light set has; a panorama's levels keep the render catalogue.
 register("render_lights", Candidate(
-    "broad_lobe", _fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS),
+    "broad_lobe", _remembered_fit(_fit_amp("broad_lobe", 0.0, 3.0, "alpha2", BROAD_ALPHAS)),
     "a second, broad specular lobe beside the fitted one (light scattered about the mirror "
     "direction, not evenly as Lambert's)", apply=_apply_broad_lobe, inject=_inject_broad_lobe,
     default_strength=0.1, units="share of the diffuse albedo in the broad lobe",

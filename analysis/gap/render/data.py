@@ -13,6 +13,7 @@ the photo's noise (``model.noise_model``) and the checkerboard of held-out block
 
 from __future__ import annotations
 
+import functools
 import json
 import re
 from pathlib import Path
@@ -22,6 +23,7 @@ from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
 from analysis.gap.render.model import (
+    _coat_entry_ratios,
     _coat_t,
     _fill,
     _sharpness,
@@ -167,7 +169,8 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
     radius = np.sqrt(sph.sum() / np.pi) + 1.0
     r = np.hypot(yy - cy, xx - cx) / radius
     cos_t = np.sqrt(np.clip(1 - r**2, 0.0, 1.0))
-    fres5, coat, cover = _subpixel_factors(yy, xx, cy, cx, radius)
+    fres5, coat, cover = _subpixel_factors((h, w), float(cy), float(cx), float(radius))
+    fres5, coat = dict(fres5), dict(coat)
     if coat_lights:
         coat["lights"] = _coat_lights(D, S, coat["surround"], (yy - cy) / radius,
                                       (xx - cx) / radius, cover, distance)
@@ -177,6 +180,8 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
     m = re.search(r"(\d+(?:\.\d+)?)", name)
     R0 = B + D + S
     noise = noise_model(P - R0, R0, valid & sph)
+    for image in (P, B, D, S):  # never changed: the fits' blurs remember them by identity
+        image.flags.writeable = False
     return {"name": name, "gloss": float(m.group(1)) if m else np.nan,
             "P": P, "B": B, "D": D, "S": S, "cos_t": cos_t, "fres5": fres5,
             "coat": coat, "cover": cover, "rho2": rho2,
@@ -258,11 +263,15 @@ def _aligned_lobe(src: dict, dst: dict) -> np.ndarray:
     return dst["cover"] * ndimage.map_coordinates(rad, coords, order=1, mode="nearest")
 
 
-def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
+@functools.lru_cache(maxsize=8)
+def _subpixel_factors(shape: tuple, cy: float, cx: float, radius: float, n: int = 8):
     """Per-pixel means of the Fresnel rise (1 - max(cos t, kappa))^5 (one image per kappa of
     ``_FRESNEL_CAPS``) and of the coat's transmission T(t) / T(0) over the part of each pixel
     the sphere covers (n x n sub-pixels): at the rim cos t changes steeply within one pixel,
-    and the pixel's value averages it. Also returns the covered share of each pixel."""
+    and the pixel's value averages it. Also returns the covered share of each pixel. Computed
+    once per sphere (a set under many lights shows one): the images are read-only, and the
+    caller copies the dicts before adding to them."""
+    yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     offs = (np.arange(n) + 0.5) / n - 0.5
     fres = {k: np.zeros(yy.shape) for k in _FRESNEL_CAPS}
     coat = {k: np.zeros(yy.shape) for k in _COAT_PATHS}
@@ -279,18 +288,11 @@ def _subpixel_factors(yy, xx, cy, cx, radius, n: int = 8):
             cover += inside
     share = cover / n**2
     cover = np.maximum(cover, 1)
-    return ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
-            share)
-
-
-def _coat_entry_ratios(n: int = 2000) -> tuple[float, float]:
-    """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
-    0 and 1 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
-    dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
-    eq. 8, with the transmission in the kernel)."""
-    mu = (np.arange(n) + 0.5) / n
-    t = _coat_t(mu)
-    return float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t))
+    out = ({k: v / cover for k, v in fres.items()}, {k: v / cover for k, v in coat.items()},
+           share)
+    for image in (*out[0].values(), *out[1].values(), share):
+        image.flags.writeable = False
+    return out
 
 
 def _sphere_view(y: np.ndarray, x: np.ndarray, distance: float | None = None):

@@ -11,8 +11,8 @@ the photos are under that prediction.
   (:func:`render_loss`);
 - the pixel units and the held-out split (:func:`render_unit_ids`, :func:`split_render`);
 - the fit helpers the candidates share: the scales' least-squares fit (``_scaled_fit``,
-  ``_scaled_sse``, ``_scaled_residuals``) and one bounded amplitude with a form from a grid
-  (``_best_on_grid``, ``_fit_amp``).
+  ``_scaled_sse``, ``_scaled_residuals``); one bounded amplitude with a form from a grid is
+  ``candidates._fit_amp``.
 
 The bottom of the layer: it imports nothing else of it at run time (the reader, ``data``,
 measures the noise with it).
@@ -20,9 +20,14 @@ measures the noise with it).
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import weakref
+from collections import OrderedDict
 from typing import TYPE_CHECKING
 
 import numpy as np
+from scipy import fft as sp_fft
 from scipy import ndimage, optimize, signal
 
 from analysis.gap.engine import GapError, catalogue
@@ -107,16 +112,17 @@ def _wings(S: np.ndarray, width: float, inside: np.ndarray) -> np.ndarray:
     of Burley (2012, eq. 4), whose tails fall as the square of the angle (tan^-2) where a Ward
     lobe's fall as a Gaussian -- with angle ~ distance on the sphere near the highlight."""
     if width < 0:
-        h, w = S.shape
-        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
-        kern = 1 / (1 + (yy**2 + xx**2) / width**2)
-        kern /= kern.sum()
-        blurred = signal.fftconvolve(S * inside, kern, mode="same")
-        weight = signal.fftconvolve(inside, kern, mode="same")
-        return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
-    if width >= 1:
-        blurred = ndimage.gaussian_filter(S * inside, width)
-        weight = ndimage.gaussian_filter(inside, width)
+        def blur(im):
+            h, w = im.shape
+            yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+            kern = 1 / (1 + (yy**2 + xx**2) / width**2)
+            return signal.fftconvolve(im, kern / kern.sum(), mode="same")
+    elif width >= 1:
+        def blur(im):
+            return ndimage.gaussian_filter(im, width)
+    if width < 0 or width >= 1:  # each image blurred once (_remembered)
+        blurred = _remembered("wings", width, S * inside, blur)
+        weight = _remembered("wings", width, inside, blur)
         return np.where(inside > 0, blurred / np.maximum(weight, 1e-6), 0.0) * inside
     top = float(S.max())
     if top <= 0:
@@ -139,30 +145,107 @@ def _wider_lobe(lv: dict, S: np.ndarray, other: str) -> np.ndarray:
     return wide * (float((S * lv["cover"]).sum()) / max(float(wide.sum()), 1e-30))
 
 
+#: The blurs' results by (form, width, the image's content), least recently used dropped
+#: beyond _BLUR_CACHE_BYTES: a fit evaluates an amplitude many times on the same images (the
+#: glare's R + c G(R) needs G(R) once per image and width, not once per c), and the held-out
+#: losses blur the same test images again. Keyed by a 128-bit digest of the pixels, so an
+#: image changed by an earlier term is a new key. Values are read-only.
+_BLUR_CACHE: OrderedDict = OrderedDict()
+_BLUR_CACHE_BYTES = 256 * 2**20
+_BLUR_HELD = [0]  # bytes held in _BLUR_CACHE
+_DIGESTS: dict = {}  # id -> (weak reference, digest) of read-only images
+
+
+def _digest(img: np.ndarray) -> bytes:
+    """A 128-bit digest of the pixels of ``img``, remembered for a read-only array (the
+    levels' own images, which every evaluation passes again)."""
+    if img.flags.writeable:
+        return hashlib.blake2b(np.ascontiguousarray(img).data, digest_size=16).digest()
+    held = _DIGESTS.get(id(img))
+    if held is not None and held[0]() is img:
+        return held[1]
+    digest = hashlib.blake2b(np.ascontiguousarray(img).data, digest_size=16).digest()
+    key = id(img)
+    _DIGESTS[key] = (weakref.ref(img, lambda _, k=key: _DIGESTS.pop(k, None)), digest)
+    return digest
+
+
+def _remembered(form: str, width: float, img: np.ndarray, blur) -> np.ndarray:
+    """``blur(img)``, computed once per (``form``, ``width``, pixels) (:data:`_BLUR_CACHE`)."""
+    img = np.asarray(img, dtype=float)
+    key = (form, float(width), img.shape, _digest(img))
+    hit = _BLUR_CACHE.get(key)
+    if hit is not None:
+        _BLUR_CACHE.move_to_end(key)
+        return hit
+    out = np.array(blur(img), dtype=float)  # a copy: a view would keep its base alive
+    out.flags.writeable = False
+    _BLUR_CACHE[key] = out
+    _BLUR_HELD[0] += out.nbytes
+    while _BLUR_HELD[0] > _BLUR_CACHE_BYTES and len(_BLUR_CACHE) > 1:
+        _BLUR_HELD[0] -= _BLUR_CACHE.popitem(last=False)[1].nbytes
+    return out
+
+
 def _glare_blur(img: np.ndarray, width_px: float) -> np.ndarray:
     """``img`` spread by a unit-sum glare kernel, zero outside the frame: a Gaussian of SD
     ``width_px`` (> 0), or (< 0) a power law (1 + (r / w)^2)^(-3/2) of core w = -width_px: a
     lens's stray light falls off as a power of the angle with a narrow core (inverse-cube
     spread functions, e.g. the CIE 1999 glare spread function's dominant term), which no one
-    Gaussian follows both near and far."""
-    if width_px > 0:
-        return ndimage.gaussian_filter(img, width_px, mode="constant")
+    Gaussian follows both near and far. Each image and width blurred once
+    (:func:`_remembered`); a black image (the background of a directional-light set) stays
+    black."""
+    if not np.any(img):
+        return np.zeros(np.shape(img))
+    return _remembered("glare", width_px, img, lambda im: _glare_kernel(im, width_px))
+
+
+def _glare_kernel(img: np.ndarray, width_px: float) -> np.ndarray:
+    """``img`` convolved with the glare kernel (:func:`_glare_spectrum`), zero outside the
+    frame, by FFT with the kernel's spectrum computed once per image size and width."""
     h, w = img.shape
-    yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
-    kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
-    return signal.fftconvolve(img, kern / kern.sum(), mode="same")
+    fshape, spectrum = _glare_spectrum((h, w), float(width_px))
+    full = sp_fft.irfftn(sp_fft.rfftn(img, fshape) * spectrum, fshape)
+    return full[h:2 * h, w:2 * w]
 
 
+@functools.lru_cache(maxsize=32)
+def _glare_spectrum(shape: tuple, width_px: float):
+    """The glare kernel on a (2h + 1) x (2w + 1) window (every offset within the frame) and its
+    spectrum at a fast FFT size: a Gaussian of SD ``width_px`` (> 0) as ``ndimage.
+    gaussian_filter`` builds it (truncated at 4 SD and normalised there; its taps beyond the
+    frame meet only the zeros outside it), or (< 0) the power law (1 + (r / w)^2)^(-3/2)
+    normalised over the window."""
+    h, w = shape
+    if width_px > 0:
+        def taps(n):
+            r = int(4.0 * width_px + 0.5)
+            x = np.arange(-r, r + 1, dtype=float)
+            g = np.exp(-0.5 / width_px**2 * x**2)
+            g /= g.sum()
+            return np.pad(g, max(n - r, 0))[max(r - n, 0):max(r - n, 0) + 2 * n + 1]
+        kern = np.outer(taps(h), taps(w))
+    else:
+        yy, xx = np.mgrid[-h:h + 1, -w:w + 1]
+        kern = (1 + (yy**2 + xx**2) / width_px**2) ** -1.5
+        kern /= kern.sum()
+    fshape = tuple(sp_fft.next_fast_len(3 * n, real=True) for n in shape)
+    return fshape, sp_fft.rfftn(kern, fshape)
+
+
+@functools.lru_cache(maxsize=64)
 def _coverage(shape, cy: float, cx: float, radius: float, n: int = 8) -> np.ndarray:
     """Share of each pixel (centres at integers) inside the sphere's silhouette (n x n
-    sub-pixels)."""
+    sub-pixels); computed once per silhouette (read-only)."""
     yy, xx = np.mgrid[0:shape[0], 0:shape[1]].astype(float)
     offs = (np.arange(n) + 0.5) / n - 0.5
     cover = np.zeros(shape)
     for oy in offs:
         for ox in offs:
             cover += ((yy + oy - cy) ** 2 + (xx + ox - cx) ** 2) < radius**2
-    return cover / n**2
+    cover /= n**2
+    cover.flags.writeable = False
+    return cover
 
 
 def _fill(values: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -183,13 +266,17 @@ def _shift_scene(lv: dict, images: list, dy: float, dx: float) -> list:
     cubic-spline interpolation, and the shares recomputed at the shifted silhouette."""
     cy, cx, radius = lv["geometry"]
     cov = lv["cover"]
-    cov_s = _coverage(cov.shape, cy + dy, cx + dx, radius)
+    cov_s = _coverage(cov.shape, float(cy + dy), float(cx + dx), float(radius))
     out = []
     for k, img in enumerate(images):
         share, share_s = (cov, cov_s) if k < 2 else (1 - cov, 1 - cov_s)
-        known = share > 0.5
-        rad = _fill(np.where(known, img / np.maximum(share, 1e-6), 0.0), known)
-        out.append(share_s * ndimage.shift(rad, (dy, dx), order=3, mode="nearest"))
+
+        def shifted(im, share=share):  # each image shifted once (_remembered)
+            known = share > 0.5
+            rad = _fill(np.where(known, im / np.maximum(share, 1e-6), 0.0), known)
+            return ndimage.shift(rad, (dy, dx), order=3, mode="nearest")
+        form = f"shift {lv['geometry']!r} {dy!r} {dx!r} {'sphere' if k < 2 else 'surround'}"
+        out.append(share_s * _remembered(form, 0.0, img, shifted))
     return out
 
 
@@ -278,31 +365,53 @@ def _scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
         return _shared_scaled_fit(train, fitted)
     residuals, scale = [], {}
     for lv in train.levels:
-        m = lv["use"]
-        D, S, B = _basis(lv, fitted)
-        w = 1 / lv["sd"][m]
-        a = np.c_[D[m], S[m]] * w[:, None]
-        y = (lv["P"] - B)[m] * w
-        coef, *_ = np.linalg.lstsq(a, y, rcond=None)
+        a, y = _weighted_columns(lv, fitted)
+        coef = _two_scales(a.T @ a, a.T @ y, a, y)
         scale[lv["name"]] = (float(coef[0]), float(coef[1]))
         residuals.append(y - a @ coef)
     return residuals, scale
 
 
+def _weighted_columns(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
+    """One level's least-squares problem for the scales: the columns (D, S) and the target
+    P - B on its pixels in use, each weighted by 1 / sd; shapes (n, 2) and (n,)."""
+    m, w, pw = _weights(lv)
+    D, S, B = _basis(lv, fitted)
+    a = np.empty((w.size, 2))
+    a[:, 0], a[:, 1] = D.ravel()[m] * w, S.ravel()[m] * w
+    return a, pw - B.ravel()[m] * w
+
+
+def _weights(lv: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The level's pixels in use (flat indices), their weights 1 / sd and the weighted photo
+    P / sd, computed once per view (the fits evaluate them hundreds of times)."""
+    use = lv["use"]
+    held = lv.get("_weights")
+    if held is None or held[0] is not use:
+        m = np.flatnonzero(use)
+        w = 1 / lv["sd"].ravel()[m]
+        held = lv["_weights"] = (use, m, w, lv["P"].ravel()[m] * w)
+    return held[1:]
+
+
+def _two_scales(ata: np.ndarray, aty: np.ndarray, a, y) -> np.ndarray:
+    """The two scales from the normal equations (A^T A) x = A^T y (2 x 2); by an SVD of the
+    stacked ``a``, ``y`` (a list of blocks or one array) where A^T A is near singular (a
+    component black on the pixels in use), as lstsq would."""
+    if np.linalg.cond(ata) < 1e8:
+        return np.linalg.solve(ata, aty)
+    a = np.concatenate(a) if isinstance(a, list) else a
+    y = np.concatenate(y) if isinstance(y, list) else y
+    return np.linalg.lstsq(a, y, rcond=None)[0]
+
+
 def _shared_scaled_fit(train: RenderData, fitted: list) -> tuple[list, dict]:
     """:func:`_scaled_fit` with one diffuse and one specular scale for all levels."""
-    rows, ys, sizes = [], [], []
-    for lv in train.levels:
-        m = lv["use"]
-        D, S, B = _basis(lv, fitted)
-        w = 1 / lv["sd"][m]
-        rows.append(np.c_[D[m], S[m]] * w[:, None])
-        ys.append((lv["P"] - B)[m] * w)
-        sizes.append(int(m.sum()))
-    a, y = np.concatenate(rows), np.concatenate(ys)
-    coef, *_ = np.linalg.lstsq(a, y, rcond=None)
-    res = y - a @ coef
-    return list(np.split(res, np.cumsum(sizes)[:-1])), {"*": (float(coef[0]), float(coef[1]))}
+    blocks = [_weighted_columns(lv, fitted) for lv in train.levels]
+    ata = sum(a.T @ a for a, _ in blocks)
+    aty = sum(a.T @ y for a, y in blocks)
+    coef = _two_scales(ata, aty, [a for a, _ in blocks], [y for _, y in blocks])
+    return [y - a @ coef for a, y in blocks], {"*": (float(coef[0]), float(coef[1]))}
 
 
 def _scaled_sse(train: RenderData, fitted: list):
@@ -314,35 +423,6 @@ def _scaled_sse(train: RenderData, fitted: list):
 def _scaled_residuals(train: RenderData, fitted: list) -> np.ndarray:
     """The weighted residuals behind :func:`_scaled_sse` (scales re-fitted per level)."""
     return np.concatenate(_scaled_fit(train, fitted)[0])
-
-
-def _best_on_grid(sse, lo: float, hi: float, grid) -> tuple[float, float]:
-    """(c, g) minimising ``sse(c, g)``: c bounded in [lo, hi] for each g of the grid."""
-    best = None
-    for g in grid:
-        res = optimize.minimize_scalar(lambda c, g=g: sse(float(c), g), bounds=(lo, hi),
-                                       method="bounded", options={"xatol": 1e-4 * (hi - lo)})
-        if best is None or res.fun < best[0]:
-            best = (res.fun, float(res.x), g)
-    return best[1], best[2]
-
-
-def _fit_amp(name, lo, hi, key=None, grid=(None,)):
-    """One amplitude (bounded) and optionally a form parameter from a grid, with the scales
-    re-fitted."""
-    def fit(train, chosen):
-        base = [f for f in chosen if f[0] != name]
-
-        def params_of(c, g):
-            if key is None:
-                return {"c": c}
-            return {key: g if isinstance(g, str) else float(g), "c": c}
-        c, g = _best_on_grid(
-            lambda c, g: _scaled_sse(train, base + [(name, params_of(c, g))])[0], lo, hi, grid)
-        params = params_of(c, g)
-        params["scale"] = _scaled_sse(train, base + [(name, params)])[1]
-        return params
-    return fit
 
 
 _COAT_IOR = 1.5  # a lacquer's or a plastic's refractive index (F0 = 0.04)
@@ -363,6 +443,16 @@ def _coat_t(cos_t, paths: float = 1.0):
     surround (its own transmission, averaged over the directions, goes into rho_d), 2 when it
     enters along the view (a light at the camera)."""
     return ((1 - _fresnel_coat(cos_t)) / (1 - _fresnel_coat(1.0))) ** paths
+
+
+def _coat_entry_ratios(n: int = 2000) -> tuple[float, float]:
+    """Irradiance through the coat over the plain irradiance, per spherical-harmonic band
+    0 and 1 of the light (a smooth surround): A_l^T / A_l with A_l = 2 pi int_0^1 k(mu) P_l(mu)
+    dmu, k = mu (Lambert) or mu T(mu) (entry through the coat; Ramamoorthi & Hanrahan 2001,
+    eq. 8, with the transmission in the kernel)."""
+    mu = (np.arange(n) + 0.5) / n
+    t = _coat_t(mu)
+    return float(2 * np.mean(mu * t)), float(3 * np.mean(mu**2 * t))
 
 
 def _unit_at_centre(factor: np.ndarray, r2: np.ndarray, on: np.ndarray) -> np.ndarray:

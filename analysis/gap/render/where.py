@@ -72,8 +72,11 @@ def localise_render(data: RenderData, rng: np.random.Generator,
             idx = rng.integers(0, len(sums), (n_boot, len(sums)))
             boot = sums[idx, 0].sum(axis=1) / sums[idx, 1].sum(axis=1)
             lo, hi = np.percentile(boot, [2.5, 97.5])
+            # The mean as the resamples compute it (block sums over block sizes), so a cell
+            # of one block has its CI at its mean exactly.
             rows.append({"axis": "region", "cell": f"{lv['name']}: {reg}", "n": int(m.sum()),
-                         "mean_residual": float(res[m].mean()), "ci_low": float(lo),
+                         "mean_residual": float(sums[:, 0].sum() / sums[:, 1].sum()),
+                         "ci_low": float(lo),
                          "ci_high": float(hi), "unit": "% of mean sphere luminance"})
     return pd.DataFrame(rows)
 

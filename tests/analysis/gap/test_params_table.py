@@ -85,3 +85,27 @@ def test_every_registered_candidate_describes_its_parameters(layer):
         for key, doc in cand.params.items():
             assert isinstance(doc, ParamDoc) and doc.name, (layer, key)
             assert doc.name != key or doc.parts, f"{layer}/{cand.name}: {key!r} not put in words"
+
+
+def test_held_out_light_steps_read_without_blanks_or_signs():
+    """The steps of a held-out-light diagnosis (issue 38): the broad lobe (registered apart,
+    in render_lights) named and with units, the scales shared by every photo said in words
+    (not ``*``), the coat's entry explained, a power-law glare's spread as its size (the fit
+    codes the kernel in the sign: -0.03 read as "-0.03 -x image width"); no empty cell."""
+    from analysis.gap.report import params_html
+
+    steps = {"broad_lobe": {"alpha2": 0.4, "c": 0.0512, "scale": {"*": [0.93, 1.02]}},
+             "veiling_glare": {"sigma_frac": -0.03, "c": 0.05, "scale": {"*": [1.0, 0.97]}},
+             "clearcoat": {"entry": "lights", "c": 0.572, "scale": {"*": [1.01, 0.979]}}}
+    for effect, params in steps.items():
+        rows = param_rows("render", effect, params)
+        assert all(r.value and r.unit for r in rows), rows
+        assert all(r.name not in params for r in rows), rows  # named, not the bare key
+        assert not any("*" in r.where or r.value.startswith("-") for r in rows), rows
+        assert "<td></td>" not in params_html("render", effect, params)
+    glare = param_rows("render", "veiling_glare", steps["veiling_glare"])[0]
+    assert (glare.value, glare.unit.split(",")[0]) == ("0.03", "× image width")
+    assert "power-law" in glare.unit
+    lobe = param_rows("render", "broad_lobe", steps["broad_lobe"])
+    assert [r.name for r in lobe][:2] == ["broad lobe's width", "broad lobe's albedo"]
+    assert lobe[2].where == "every photo (one material)"
