@@ -122,8 +122,8 @@ def read_model_data(path, design) -> pd.DataFrame:
         return model_frame(load_sessions(path, design).frame, design)
     if path.is_file() and path.suffix.lower() == ".csv":
         try:
+            frame = read_csv_frame(path)  # first: a ';' file is named as such
             _refuse_misaligned_header(path)
-            frame = read_csv_frame(path)
         except LabFileError as exc:
             raise LmmError(str(exc)) from None
         for col in frame.columns:

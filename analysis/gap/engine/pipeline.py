@@ -121,9 +121,10 @@ def _record(layer, ranking, combination, gap, remaining, share, ceiling_share, s
         ranking=tuple(asdict(s) for s in ranking),
         steps=tuple(combination.steps),
         verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none,
-                           within_tolerance=bool((remaining or {}).get("within_tolerance"))
-                           or chosen_within_tolerance(combination.steps, gap.floor_status,
-                                                      remaining, settings.min_size)),
+                           within_tolerance=(chosen_within_tolerance(
+                               combination.steps, gap.floor_status, remaining, settings.min_size)
+                               if combination.steps else
+                               bool((remaining or {}).get("within_tolerance")))),
         explained_share=share,
         min_share=float(settings.min_share),
         min_gain=float(settings.min_gain),

@@ -31,9 +31,8 @@ Where things are
     The flexible model and the noise floor: :func:`fit_ceiling`, :func:`ceiling_loss`,
     :func:`ceiling_floor`.
 ``where.py``
-    Where the remaining gap lies: :func:`observer_where`, :func:`localise_observer`.
-``misfit.py``
-    How far, in slider units and the study's units (gloss %, depth cm): the plain and the
+    Where the remaining gap lies: :func:`observer_where`, :func:`localise_observer`; and how
+    far, in slider units and the study's units (gloss %, depth cm): the plain and the
     chosen model's predicted settings against the flexible model's, and the settings' scatter
     about the latter (:func:`observer_misfit`); the chosen model's is held to the design's
     ``[gap] observer_tolerance_slider``.
@@ -64,7 +63,6 @@ from analysis.gap.observer.data import (
     observer_unit_ids,
     read_session_csvs,
 )
-from analysis.gap.observer.misfit import OBSERVER_SIZE_UNIT, observer_misfit
 from analysis.gap.observer.model import (
     OBSERVER_MIN_GAIN,
     ObserverBase,
@@ -75,7 +73,12 @@ from analysis.gap.observer.model import (
     predict,
     to_slider_units,
 )
-from analysis.gap.observer.where import localise_observer, observer_where
+from analysis.gap.observer.where import (
+    OBSERVER_SIZE_UNIT,
+    localise_observer,
+    observer_misfit,
+    observer_where,
+)
 
 __all__ = [
     "OBSERVER_CANDIDATES",

@@ -5,10 +5,9 @@ DIR/study.toml``).
 The same parts as the two-response layer, for one response: ``data.py`` (the study's files,
 the simulation's file, the held-out scheme), ``model.py`` (the simulation's prediction and
 ordered-probit likelihood on the scale's own steps, the noise floor), ``ceiling.py`` (the
-flexible model), ``where.py`` (stimulus to stimulus, the split-half consistency),
-``candidates.py`` (the catalogue's effects that make sense for one response), ``misfit.py``
-(how far, in the rating scale's units, held to the design's tolerance as a share of the
-scale). :func:`plan`
+flexible model), ``where.py`` (stimulus to stimulus, the split-half consistency; and how
+far, in the rating scale's units, held to the design's tolerance as a share of the scale),
+``candidates.py`` (the catalogue's effects that make sense for one response). :func:`plan`
 is the layer's face to the engine; :func:`analysis.gap.observer.plan` hands over to it when a
 study is given.
 """
@@ -32,13 +31,18 @@ from analysis.gap.observer.rating.data import (
     rating_unit_ids,
     read_rating_study,
 )
-from analysis.gap.observer.rating.misfit import rating_misfit, rating_tolerance, rating_unit
 from analysis.gap.observer.rating.model import (
     RatingBase,
     adapt_rating_base,
     rating_loss,
 )
-from analysis.gap.observer.rating.where import localise_rating, rating_where
+from analysis.gap.observer.rating.where import (
+    localise_rating,
+    rating_misfit,
+    rating_tolerance,
+    rating_unit,
+    rating_where,
+)
 
 __all__ = ["RatingBase", "plan"]
 
