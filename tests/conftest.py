@@ -58,3 +58,13 @@ def pytest_terminal_summary(terminalreporter):
         terminalreporter.write_sep("!", f"GPU CHECK NOT RUN ({len(not_run)} test marked gpu "
                                    "skipped: no CUDA GPU); run `pytest -m gpu tests/stimuli` on a "
                                    "GPU machine", red=True, bold=True)
+    # The SLURM tests' own record (jobs submitted, one cancelled, all finished: the controller's
+    # log), shown for passed tests too so that CI's log holds it (issue 39); failures show it
+    # anyway.
+    for report in terminalreporter.stats.get("passed", []):
+        if "slurm" not in getattr(report, "keywords", {}) or report.when != "call":
+            continue
+        for title, text in report.sections:
+            if "stdout" in title:
+                terminalreporter.write_sep("-", f"{report.nodeid}: what SLURM did")
+                terminalreporter.write_line(text.rstrip())
