@@ -54,25 +54,9 @@ def timed(cmd: list[str]) -> dict:
 def box_copy(ball: Path, out: Path, k: int) -> Path:
     """A k x k box-averaged copy of the photo set (photos, mask, normals) under ``out``."""
     sys.path.insert(0, str(ROOT))
-    import numpy as np
+    from stimuli.glossfit.lightsynth import box_averaged_copy
 
-    from stimuli.glossfit.lightset import read_png16
-    from stimuli.glossfit.lightsynth import write_light_set
-
-    def box(a):
-        n = a.shape[0] // k
-        o = (a.shape[0] - n * k) // 2
-        a = a[o:o + n * k, o:o + n * k]
-        return a.reshape(n, k, n, k, *a.shape[2:]).mean(axis=(1, 3))
-    names = (ball / "filenames.txt").read_text().split()
-    photos = [box(read_png16(ball / "images" / n)[0]) for n in names]
-    mask = box(read_png16(ball / "mask.png")[0][..., 0] > 0) > 0.5
-    write_light_set(out, photos, np.loadtxt(ball / "light_directions.txt"),
-                    np.loadtxt(ball / "light_intensities.txt"), mask)
-    normals = box(np.load(ball / "normal_gt.npy").astype(float))
-    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    np.save(out / "normal_gt.npy", normals.astype(np.float32))
-    return out
+    return box_averaged_copy(ball, out, k)
 
 
 def main(argv=None) -> int:

@@ -17,7 +17,7 @@ import numpy as np
 
 from labfiles import atomic_path
 
-__all__ = ["ring_lights", "synth_light_set", "write_light_set"]
+__all__ = ["box_averaged_copy", "ring_lights", "synth_light_set", "write_light_set"]
 
 #: Photo codes per unit of the brightest plain render (the highlight may saturate above it).
 _PEAK_CODE = 40000.0
@@ -139,3 +139,38 @@ def synth_light_set(folder, *, size: int = 48, n_lights: int = 12, material: str
     with atomic_path(folder / "truth.json") as tmp:
         tmp.write_text(json.dumps(truth, indent=1))
     return truth
+
+
+def box_averaged_copy(source, folder, k: int) -> Path:
+    """A k x k box-averaged copy of a directional-light set (photos, mask, true normals), e.g.
+    the 158 px ball at k = 3 as a 52 px set for a quick check; ``source`` is never changed.
+
+    Parameters
+    ----------
+    source : path
+        A set in DiLiGenT's layout with ``normal_gt.npy`` (stimuli.glossfit.lightset).
+    folder : path
+        Where the copy is written (a new folder).
+    k : int
+        The box's side, px (>= 1); the image is cropped centrally to a multiple of ``k``.
+    """
+    from stimuli.glossfit.lightset import read_png16
+
+    source, k = Path(source), int(k)
+    if k < 1:
+        raise ValueError(f"box_averaged_copy: k = {k}; give a box of at least 1 px")
+
+    def box(a):
+        n = a.shape[0] // k
+        o = (a.shape[0] - n * k) // 2
+        a = a[o:o + n * k, o:o + n * k]
+        return a.reshape(n, k, n, k, *a.shape[2:]).mean(axis=(1, 3))
+    names = (source / "filenames.txt").read_text().split()
+    photos = [box(read_png16(source / "images" / n)[0]) for n in names]
+    mask = box(read_png16(source / "mask.png")[0][..., 0] > 0) > 0.5
+    out = write_light_set(folder, photos, np.loadtxt(source / "light_directions.txt"),
+                          np.loadtxt(source / "light_intensities.txt"), mask)
+    normals = box(np.load(source / "normal_gt.npy").astype(float))
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    np.save(Path(folder) / "normal_gt.npy", normals.astype(np.float32))
+    return out

@@ -15,7 +15,6 @@ import json
 import os
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
@@ -98,23 +97,9 @@ def test_a_diagnosis_left_by_a_stopped_report_is_not_overwritten(tmp_path):
 def box_averaged_ball(folder: Path, k: int = 3) -> Path:
     """The ball of ../shared box-averaged k x k (158 -> 52 px at k = 3), written under
     ``folder`` (a temporary folder: the photos are never copied into the repository)."""
-    from stimuli.glossfit.lightset import read_png16
-    from stimuli.glossfit.lightsynth import write_light_set
+    from stimuli.glossfit.lightsynth import box_averaged_copy
 
-    def box(a):
-        n = a.shape[0] // k
-        o = (a.shape[0] - n * k) // 2
-        a = a[o:o + n * k, o:o + n * k]
-        return a.reshape(n, k, n, k, *a.shape[2:]).mean(axis=(1, 3))
-    names = (BALL / "filenames.txt").read_text().split()
-    photos = [box(read_png16(BALL / "images" / n)[0]) for n in names]
-    mask = box(read_png16(BALL / "mask.png")[0][..., 0] > 0) > 0.5
-    write_light_set(folder, photos, np.loadtxt(BALL / "light_directions.txt"),
-                    np.loadtxt(BALL / "light_intensities.txt"), mask)
-    normals = box(np.load(BALL / "normal_gt.npy").astype(float))
-    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    np.save(folder / "normal_gt.npy", normals.astype(np.float32))
-    return folder
+    return box_averaged_copy(BALL, folder, k)
 
 
 @pytest.mark.slow
