@@ -11,6 +11,13 @@ run-length encoded (bytes 2, 2, width; then each of the four byte planes as runs
 repeats or literal stretches of up to 128 bytes) or flat; both are read, RLE is written. A
 header ``EXPOSURE=`` multiplies the stored values (Radiance's ``EXPOSURE`` rule); the reader
 divides it out, so a file reads as the radiance it holds.
+
+Why by hand: Mitsuba's ``Bitmap`` reads ``.hdr`` too, but decodes as stb_image does (``m *
+2^(E-136)``, without Radiance's half step, and a pixel of zero mantissas but an exponent as 0):
+on the shipped aerodynamics_workshop map that is 0.37 % darker in the median and 738 channel
+values of 1e-3 read as 0 (measured 2026-11-27). The light fields' scales (``probe-scale``) and
+checksummed rebuilds (``scripts/make_lightfields.py --check``) need the format's own definition,
+and writing the 512x256 maps needs an RLE writer, which ``Bitmap`` does not promise for RGBE.
 """
 
 from __future__ import annotations
