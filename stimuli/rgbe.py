@@ -16,8 +16,8 @@ Why by hand: Mitsuba's ``Bitmap`` reads ``.hdr`` too, but decodes as stb_image d
 2^(E-136)``, without Radiance's half step, and a pixel of zero mantissas but an exponent as 0):
 on the shipped aerodynamics_workshop map that is 0.37 % darker in the median and 738 channel
 values of 1e-3 read as 0 (measured 2026-11-27). The light fields' scales (``probe-scale``) and
-checksummed rebuilds (``scripts/make_lightfields.py --check``) need the format's own definition,
-and writing the 512x256 maps needs an RLE writer, which ``Bitmap`` does not promise for RGBE.
+checksummed rebuilds (``scripts/make_lightfields.py --check``) need the format's own
+definition, read and written the same way.
 """
 
 from __future__ import annotations
