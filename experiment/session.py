@@ -68,7 +68,7 @@ from experiment.history import check_no_lost_trials, frame_records, future_recor
 from experiment.participants import case_twins
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
 from experiment.provenance import calibration_words, check_earlier_sessions
-from experiment.signals import SessionSignal, ending_signals
+from experiment.signals import SessionSignal, ending_signals, held_signals
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
 from stimuli import load_manifest
@@ -655,11 +655,13 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
                 if last_response_s is not None:
                     trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
                 last_response_s = result.onset_s + result.rt_s
-                writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
-                              sliders=result.slider_record())
-                trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
-                                   "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})
-                frames.append(win.frameIntervals, int(row["trial"]))
+                with held_signals():  # the row, the run's count and its frames, or none
+                    writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
+                                  sliders=result.slider_record())
+                    trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
+                                       "rt_s": result.rt_s,
+                                       "dropped_frames": result.dropped_frames})
+                    frames.append(win.frameIntervals, int(row["trial"]))
             else:
                 status = "complete"
         except KeyboardInterrupt as exc:

@@ -8,6 +8,12 @@ through the same path as Ctrl-C: every answered trial is kept (each was appended
 when answered), the end event names the signal, the run log is written, and the command line
 prints what was kept and how to continue. A second signal during that cleanup is ignored, so the
 log is finished; ``kill -9`` cannot be caught (the answers are kept all the same).
+
+A trial is committed in several writes (its CSV row, the run's own count, its frame intervals).
+:func:`held_signals` holds a signal (and Ctrl-C) that arrives between them until the commit is
+whole, so the line printed at the end ("N of M trials are saved"), the run history and the run
+log all count the same trials as the session file (a SIGTERM landing just after a row's write
+once printed "0 of 6 saved" beside a file holding 1).
 """
 
 from __future__ import annotations
@@ -17,10 +23,13 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals"]
+__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals", "held_signals"]
 
 #: Signals that end a session cleanly (SIGINT is Python's own KeyboardInterrupt).
 ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
+
+#: Signals held by the innermost :func:`held_signals` block (a stack: one list per block).
+_HELD: list[list[int]] = []
 
 
 class SessionSignal(KeyboardInterrupt):
@@ -46,6 +55,9 @@ def ending_signals() -> Iterator[None]:
     def handler(signum, _frame):
         if raised:  # the run is already ending: let its log be written
             return
+        if _HELD:  # a trial is being committed: raised when its last write is done
+            _HELD[-1].append(signum)
+            return
         raised.append(signum)
         raise SessionSignal(signum)
 
@@ -55,3 +67,37 @@ def ending_signals() -> Iterator[None]:
     finally:
         for sig, previous in old.items():
             signal.signal(sig, previous)
+
+
+@contextmanager
+def held_signals() -> Iterator[None]:
+    """Hold SIGTERM, SIGHUP and Ctrl-C that arrive while the block runs; raise the first of
+    them (as :class:`SessionSignal` or ``KeyboardInterrupt``) once the block has finished.
+
+    Wrap the writes that together commit one trial. A block that raises keeps its own error
+    (the held signal is dropped: the run is ending anyway). Outside the main thread, or
+    outside :func:`ending_signals`, SIGTERM and SIGHUP are not held (their default ends the
+    process at once); Ctrl-C is held all the same.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+
+    def hold(signum, _frame):
+        held.append(signum)
+
+    old_int = signal.signal(signal.SIGINT, hold)
+    _HELD.append(held)
+    try:
+        yield
+    finally:
+        _HELD.pop()
+        signal.signal(signal.SIGINT, old_int)
+    if held:
+        signum = held[0]
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
+        handler = signal.getsignal(signum)
+        if callable(handler):
+            handler(signum, None)

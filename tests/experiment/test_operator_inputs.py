@@ -78,6 +78,30 @@ def test_sigterm_ends_the_session_saying_what_was_kept(stopped):
     assert json.loads((logs / "P01_s1_run1.json").read_text())["ended_by"] == "SIGTERM"
 
 
+def test_a_signal_during_a_trials_commit_is_raised_after_its_last_write():
+    """CI once read "0 of 6 trials are saved" beside a session file holding 1: SIGTERM landed
+    between the row's write and the run's count. Held, it ends the run after the commit."""
+    from experiment.signals import SessionSignal, ending_signals, held_signals
+
+    writes = []
+    with pytest.raises(SessionSignal) as caught, ending_signals():
+        with held_signals():
+            writes.append("row")
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)
+            writes.append("count")
+            os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C on top: the first signal wins
+            time.sleep(0.2)
+            writes.append("frames")
+        writes.append("next trial")
+    assert writes == ["row", "count", "frames"] and caught.value.name == "SIGTERM"
+    with pytest.raises(KeyboardInterrupt), held_signals():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)
+        writes.append("held Ctrl-C")
+    assert writes[-1] == "held Ctrl-C"
+
+
 def test_sighup_raises_the_session_signal_in_the_block():
     """The handler the app installs (the same for SIGTERM), with a real SIGHUP to this
     process; outside the block the shell's own handling is back."""
