@@ -10,6 +10,7 @@ import pandas as pd
 
 from calibration.errors import CalibrationError
 from calibration.gamma import DAC_BITS, choose_gamma_model, fit_gamma_models
+from calibration.noise import zero_bound
 from calibration.readings import at_centre, newest_timestamp
 from calibration.record import Calibration, utc_now_iso
 from calibration.uniformity import fit_uniformity
@@ -197,7 +198,13 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     centre = centre_readings(readings)
     levels = centre["level"].to_numpy(float)
     lum = centre["luminance_cd_m2"].to_numpy(float)
-    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2)
+    # A zero says the light was below the meter's own floor: the one given, else the
+    # device's documented floor, else at most the lowest positive reading (zero_bound).
+    positive = lum[lum > 0]
+    zero = float(floor_cd_m2) if floor_cd_m2 is not None else zero_bound(
+        device, float(positive.min()) if positive.size else None, 0.0)[0]
+    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2,
+                            zero_floor_cd_m2=zero if zero > 0 else None)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if measured_utc is None:

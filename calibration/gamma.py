@@ -234,15 +234,20 @@ def error_scale(luminance_cd_m2) -> np.ndarray:
 class _Data:
     x: np.ndarray
     y: np.ndarray
-    sd: np.ndarray          # noise SD of each reading (at the floor for censored ones)
+    sd: np.ndarray          # noise SD of each reading (at its bound for censored ones)
     censored: np.ndarray
-    floor: float
+    floor: np.ndarray       # each censored reading's bound, cd/m^2
 
 
 def _data(x, y, noise: NoiseModel) -> _Data:
-    cens = y <= noise.floor_cd_m2
-    sd = noise.sd(np.where(cens, noise.floor_cd_m2, y))
-    return _Data(x, y, sd, cens, noise.floor_cd_m2)
+    """Readings with their censoring: at or below the noise floor, at most that floor; a zero
+    (or less), at most the meter's own floor (:attr:`NoiseModel.zero_floor`). A negative floor
+    censors nothing (every reading taken as exact)."""
+    zero = (y <= 0) & (noise.floor_cd_m2 >= 0)
+    cens = (y <= noise.floor_cd_m2) | zero
+    bound = np.where(zero, noise.zero_floor, noise.floor_cd_m2)
+    sd = noise.sd(np.where(cens, bound, y))
+    return _Data(x, y, sd, cens, bound)
 
 
 def _residuals(mu: np.ndarray, d: _Data) -> np.ndarray:
@@ -252,7 +257,7 @@ def _residuals(mu: np.ndarray, d: _Data) -> np.ndarray:
     """
     r = (d.y - mu) / d.sd
     if d.censored.any():
-        z = (d.floor - mu[d.censored]) / d.sd[d.censored]
+        z = (d.floor[d.censored] - mu[d.censored]) / d.sd[d.censored]
         r[d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
     return r
 
@@ -301,7 +306,7 @@ def _grid_costs(model: str, d: _Data) -> tuple[np.ndarray, np.ndarray, np.ndarra
         mu = a[:, None] + gain[:, None] * f
         r = (d.y[None, :] - mu) / d.sd[None, :]
         if d.censored.any():
-            z = (d.floor - mu[:, d.censored]) / d.sd[d.censored]
+            z = (d.floor[d.censored] - mu[:, d.censored]) / d.sd[d.censored]
             r[:, d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
         cost = 0.5 * np.sum(r**2, axis=1)
     cost = np.where(np.isfinite(cost) & (gain >= 0), cost, np.inf)
@@ -394,7 +399,7 @@ def _fit_one(model: str, d: _Data, extra_starts=(), n_polish: int = _N_POLISH
 
 
 def _subset(d: _Data, keep: np.ndarray) -> _Data:
-    return _Data(d.x[keep], d.y[keep], d.sd[keep], d.censored[keep], d.floor)
+    return _Data(d.x[keep], d.y[keep], d.sd[keep], d.censored[keep], d.floor[keep])
 
 
 def _heldout_error(mu: np.ndarray, d: _Data) -> np.ndarray:
@@ -460,7 +465,8 @@ def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
 # --- public API ----------------------------------------------------------------------------------
 def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
               noise: NoiseModel | None = None, floor_cd_m2: float | None = None,
-              dac_bits: int | None = DAC_BITS) -> GammaFit:
+              dac_bits: int | None = DAC_BITS,
+              zero_floor_cd_m2: float | None = None) -> GammaFit:
     """Fit a display transfer function to photometer readings by maximum likelihood.
 
     Parameters
@@ -479,6 +485,10 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
     dac_bits : int or None
         The display's DAC bits: levels are rounded to its grid (:func:`displayed_drive`);
         None uses them as given.
+    zero_floor_cd_m2 : float or None
+        What a reading of 0 stands for, cd/m^2 (the meter's own floor:
+        :func:`calibration.noise.zero_bound`); default the floor. Ignored when ``noise`` is
+        given (its own ``zero_floor_cd_m2`` counts).
 
     Returns
     -------
@@ -499,7 +509,7 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
         )
     x, y = _check_readings(levels, luminance_cd_m2)
     x = displayed_drive(x, dac_bits)
-    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
+    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2, zero_floor_cd_m2=zero_floor_cd_m2)
     d = _data(x, y, noise)
     if (~d.censored).sum() < 3 or np.unique(x[~d.censored]).size < 3:
         raise CalibrationError(
@@ -554,14 +564,15 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
 
 def fit_gamma_models(levels, luminance_cd_m2, *, models=None, noise: NoiseModel | None = None,
                      floor_cd_m2: float | None = None,
-                     dac_bits: int | None = DAC_BITS) -> tuple[GammaFit, ...]:
+                     dac_bits: int | None = DAC_BITS,
+                     zero_floor_cd_m2: float | None = None) -> tuple[GammaFit, ...]:
     """Fit every model (default all of :data:`GAMMA_MODELS`) with one noise model.
 
     Same arguments as :func:`fit_gamma`; ``models`` restricts the family.
     """
     x, y = _check_readings(levels, luminance_cd_m2)
     x = displayed_drive(x, dac_bits)
-    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2)
+    noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2, zero_floor_cd_m2=zero_floor_cd_m2)
     return tuple(fit_gamma(x, y, model=m, noise=noise, dac_bits=dac_bits)
                  for m in (models or GAMMA_MODELS))
 

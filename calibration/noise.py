@@ -27,9 +27,11 @@ __all__ = [
     "DEFAULT_ABS_FRACTION",
     "DEFAULT_REL",
     "FLOOR_SD_MULTIPLE",
+    "METER_FLOORS_CD_M2",
     "NoiseModel",
     "default_noise",
     "fit_noise",
+    "zero_bound",
 ]
 
 #: Default absolute noise as a fraction of the brightest reading (no repeats).
@@ -44,6 +46,39 @@ FLOOR_SD_MULTIPLE = 2.0
 #: 1e-3 / sqrt(12) = 3e-4 of the reading.
 _MIN_ABS_FRACTION = 1e-6
 _MIN_REL = 3e-4
+
+
+#: The documented lowest luminance (cd/m^2) of photometers a lab names by ``device``, from the
+#: maker's specification: a reading of 0 from one says the light was below it. Konica Minolta
+#: LS-100: measuring range 0.001-299,900 cd/m^2 (its manual, "Specifications"). Photo Research
+#: PR-650/655/670 are not listed: their manuals give the range per lens, aperture and
+#: sensitivity mode, which a readings file does not record; a zero from them is bounded as from
+#: an unknown meter (:func:`zero_bound`).
+METER_FLOORS_CD_M2 = {"ls100": 0.001}
+
+
+def zero_bound(device, lowest_positive: float | None, fallback: float) -> tuple[float, str]:
+    """The upper bound, cd/m^2, a reading of 0 (or less) stands for, and where it comes from.
+
+    A meter reads 0 when the light lies below its own floor; that floor, not the noise model's
+    (two absolute SDs, a few thousandths of a cd/m^2 on a precise meter), is what a zero says.
+    It is the documented floor where ``device`` names a meter of :data:`METER_FLOORS_CD_M2`;
+    else, the floor being unknown, the most it can be: the lowest positive reading
+    (``lowest_positive``: the meter read that much, so its floor lies below), or without one
+    ``fallback``. Only zeros are censored at it: a positive reading is never censored because
+    a zero sits below it.
+
+    Was: the calibration censored a zero at its noise floor (0.0014 cd/m^2) although the
+    meter's floor was 0.39 cd/m^2 and the display's black 0.31: the fit bent its curve to a
+    black of 0.017 cd/m^2, and every check of that display read "a gap at black".
+    """
+    key = str(device or "").lower().replace("-", "").replace(" ", "")
+    if key in METER_FLOORS_CD_M2:
+        return METER_FLOORS_CD_M2[key], f"the {device}'s documented lowest luminance"
+    if lowest_positive is not None and np.isfinite(lowest_positive) and lowest_positive > 0:
+        return float(lowest_positive), ("the lowest positive reading (the meter's floor is not "
+                                        "documented here: at most that)")
+    return float(fallback), "the noise model's floor (two absolute noise SDs)"
 
 
 @dataclass(frozen=True)
@@ -63,6 +98,9 @@ class NoiseModel:
         ``"given"``.
     n_repeats : int
         Readings that shared a level with another (0 for the default).
+    zero_floor_cd_m2 : float or None
+        What a reading of 0 (or less) stands for: light at most this, cd/m^2 (the meter's own
+        floor, :func:`zero_bound`); None: ``floor_cd_m2``.
     """
 
     abs_cd_m2: float
@@ -70,6 +108,13 @@ class NoiseModel:
     floor_cd_m2: float
     source: str
     n_repeats: int = 0
+    zero_floor_cd_m2: float | None = None
+
+    @property
+    def zero_floor(self) -> float:
+        """The bound a zero is censored at, cd/m^2 (never below ``floor_cd_m2``)."""
+        z = self.zero_floor_cd_m2
+        return self.floor_cd_m2 if z is None else max(float(z), self.floor_cd_m2)
 
     def __post_init__(self) -> None:
         for name in ("abs_cd_m2", "rel"):
@@ -92,7 +137,9 @@ class NoiseModel:
         try:
             return cls(abs_cd_m2=float(d["abs_cd_m2"]), rel=float(d["rel"]),
                        floor_cd_m2=float(d["floor_cd_m2"]), source=str(d["source"]),
-                       n_repeats=int(d.get("n_repeats", 0)))
+                       n_repeats=int(d.get("n_repeats", 0)),
+                       zero_floor_cd_m2=(None if d.get("zero_floor_cd_m2") is None
+                                         else float(d["zero_floor_cd_m2"])))
         except (KeyError, TypeError, ValueError) as exc:
             raise CalibrationError(f"noise record is malformed ({exc!r})") from exc
 
@@ -101,7 +148,8 @@ def _brightest(y: np.ndarray) -> float:
     return max(float(np.max(np.abs(y), initial=0.0)), 1e-6)
 
 
-def default_noise(luminance_cd_m2, *, floor_cd_m2: float | None = None) -> NoiseModel:
+def default_noise(luminance_cd_m2, *, floor_cd_m2: float | None = None,
+                  zero_floor_cd_m2: float | None = None) -> NoiseModel:
     """The documented default noise for readings without repeats (module docstring).
 
     Parameters
@@ -110,13 +158,17 @@ def default_noise(luminance_cd_m2, *, floor_cd_m2: float | None = None) -> Noise
         The readings (only the brightest is used).
     floor_cd_m2 : float or None
         The meter's floor; default :data:`FLOOR_SD_MULTIPLE` absolute SDs.
+    zero_floor_cd_m2 : float or None
+        What a zero stands for (:func:`zero_bound`); default the floor.
     """
     a = DEFAULT_ABS_FRACTION * _brightest(np.asarray(luminance_cd_m2, float))
     floor = FLOOR_SD_MULTIPLE * a if floor_cd_m2 is None else float(floor_cd_m2)
-    return NoiseModel(abs_cd_m2=a, rel=DEFAULT_REL, floor_cd_m2=floor, source="default")
+    return NoiseModel(abs_cd_m2=a, rel=DEFAULT_REL, floor_cd_m2=floor, source="default",
+                      zero_floor_cd_m2=zero_floor_cd_m2)
 
 
-def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> NoiseModel:
+def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None,
+              zero_floor_cd_m2: float | None = None) -> NoiseModel:
     """Noise model from repeated readings of the same level, else :func:`default_noise`.
 
     Maximum likelihood: each reading's deviation from its level's mean is normal with variance
@@ -130,6 +182,8 @@ def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> N
         Drive values and readings (cd/m^2).
     floor_cd_m2 : float or None
         The meter's floor, cd/m^2; default :data:`FLOOR_SD_MULTIPLE` fitted absolute SDs.
+    zero_floor_cd_m2 : float or None
+        What a zero stands for (:func:`zero_bound`); default the floor.
 
     Returns
     -------
@@ -147,7 +201,7 @@ def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> N
     # its agreeing repeats say nothing about the noise above it.
     keep = (n >= 2) & (means[inv] > (0.0 if floor_cd_m2 is None else floor_cd_m2))
     if np.unique(inv[keep]).size < 3:
-        return default_noise(y, floor_cd_m2=floor_cd_m2)
+        return default_noise(y, floor_cd_m2=floor_cd_m2, zero_floor_cd_m2=zero_floor_cd_m2)
     dev = (y - means[inv])[keep]
     mu = np.maximum(means[inv][keep], 0.0)
     factor = (n[keep] - 1) / n[keep]
@@ -165,4 +219,4 @@ def fit_noise(levels, luminance_cd_m2, *, floor_cd_m2: float | None = None) -> N
     a, b = (max(float(v), m) for v, m in zip(np.exp(best.x), (amin, rmin)))
     floor = FLOOR_SD_MULTIPLE * a if floor_cd_m2 is None else float(floor_cd_m2)
     return NoiseModel(abs_cd_m2=a, rel=b, floor_cd_m2=floor, source="repeats",
-                      n_repeats=int(keep.sum()))
+                      n_repeats=int(keep.sum()), zero_floor_cd_m2=zero_floor_cd_m2)

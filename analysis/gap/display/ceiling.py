@@ -291,7 +291,7 @@ def display_misfit_size(fits: list) -> float:
     level, the largest of these (a misfit confined to one region or to the dark levels, a
     black offset, is not diluted by the rest). ``fits``: per fold
     ``(train, test, fitted, ceiling_loss)``."""
-    return _summary([_parts(te, display_mean_given(tr, te, list(ch)))
+    return _summary([_parts(te, display_mean_given(tr, te, list(ch), wander=False))
                      for tr, te, ch, _ in fits])["size_pct"]
 
 
@@ -318,8 +318,10 @@ def display_misfit(folds: list, chosen: list) -> dict:
         :func:`display_misfit_size`); ``ceiling_black_cd_m2`` and ``black_below_cd_m2``
         (where near black ends). NaN where no reading qualifies.
     """
-    before = _summary([_parts(te, display_mean_given(tr, te, [])) for tr, te in folds])
-    after = _summary([_parts(te, display_mean_given(tr, te, chosen)) for tr, te in folds])
+    before = _summary([_parts(te, display_mean_given(tr, te, [], wander=False))
+                       for tr, te in folds])
+    after = _summary([_parts(te, display_mean_given(tr, te, chosen, wander=False))
+                      for tr, te in folds])
     ceil = _summary([_parts(te, ceiling_prediction(tr, te)) for tr, te in folds])
     misfit = {"unit": "of luminance", "ceiling_pct": ceil["rms_pct"],
               "black_below_cd_m2": _near_black(folds[0][1]),

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from scipy import optimize
 from scipy.special import log_ndtr
 
 from analysis.gap.display.data import _has_pairs, _seconds, _timed
@@ -21,7 +22,8 @@ from analysis.gap.display.null.calerror import calibration_jacobian, lack_of_fit
 from analysis.gap.display.null.noise import _foot, fit_noise_drift, meter_noise, zero_floor
 from analysis.gap.engine import candidate, split_held_out
 
-__all__ = ["calibration_jacobian", "display_folds", "display_frame", "display_loss",
+__all__ = ["PASS_BOUND_SD", "PASS_GAIN_SD", "PASS_OFFSET_FRAC", "calibration_jacobian",
+           "display_folds", "display_frame", "display_loss",
            "display_loss_given", "display_loss_info", "display_mean_given", "display_nll", "display_unit_ids",
            "fit_noise_drift", "lack_of_fit_sd", "split_display"]
 
@@ -83,7 +85,15 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
         jac = np.c_[jac, pos_jac]
         prec = np.block([[prec, np.zeros((prec.shape[0], pos_prec.size))],
                          [np.zeros((pos_prec.size, prec.shape[0])), np.diag(pos_prec)]])
-    out.attrs["cal_jac"], out.attrs["cal_prec"] = jac, prec
+    pass_jac, pass_sd = pass_columns(out, noise)
+    bound = np.r_[np.full(0 if jac is None else jac.shape[1], np.inf), PASS_BOUND_SD * pass_sd]
+    if jac is None:
+        jac, prec = pass_jac, np.diag(1 / pass_sd**2)
+    else:
+        jac = np.c_[jac, pass_jac]
+        prec = np.block([[prec, np.zeros((prec.shape[0], pass_sd.size))],
+                         [np.zeros((pass_sd.size, prec.shape[0])), np.diag(1 / pass_sd**2)]])
+    out.attrs["cal_jac"], out.attrs["cal_prec"], out.attrs["cal_bound"] = jac, prec, bound
     return out
 
 
@@ -94,6 +104,75 @@ def display_frame(readings: pd.DataFrame, cal) -> pd.DataFrame:
 #: meter is re-aimed or re-focused); 0.3 % is the middle of that range. Where pairs show a
 #: drift between repeats, their drift (``drift_pct``) counts when larger.
 PASS_GAIN_SD = 0.003
+
+#: SD of the display's black from one pass to the next, as a fraction of the calibration's
+#: black: the light at drive 0 is the panel's own black plus the room light the screen
+#: reflects, and the second moves between passes minutes apart (a person or the meter's
+#: tripod moved, a door, a monitor elsewhere in the room) by a few % of itself; 3 % is the
+#: middle of that. The meter's own zero moves by about its absolute noise, which counts where
+#: larger (:func:`_pass_offset_sd`).
+PASS_OFFSET_FRAC = 0.02
+
+#: Seconds between the knots of the slow wander the null allows (:func:`pass_columns`): a
+#: warmed-up display's light and the room's wander over tens of minutes, so one knot per 10
+#: min of the record.
+PASS_WANDER_KNOT_S = 600.0
+
+#: The most a between-pass change may reach, in its own SDs: the null moves each wander
+#: coefficient within this many SDs and no further (a bounded prior). Beyond it a change is
+#: no pass-to-pass wander but an effect (a black raised by 0.5 cd/m^2 is 15-170 SDs of a
+#: 0.1-1 cd/m^2 black's wander); within it, its fit is a ridge with the SD as prior.
+PASS_BOUND_SD = 2.0
+
+
+def pass_columns(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarray]:
+    """What the display, the room and the meter do between and during passes that no
+    catalogue effect is: columns (cd/m^2 per unit) of a slow wander of the black and of the
+    gain in time, and each column's prior SD (:func:`_calibration_shift` moves them, within
+    :data:`PASS_BOUND_SD` of those SDs, as it moves the calibration within its own
+    uncertainty).
+
+    - black wander: a cubic B-spline in time (one interior knot per
+      :data:`PASS_WANDER_KNOT_S` of the record; a constant where the file has no times), each
+      coefficient SD :func:`_pass_offset_sd` (cd/m^2);
+    - gain wander: the above-black light times the same B-spline, each coefficient SD
+      :func:`_pass_gain_sd` (fraction).
+
+    Repeats seconds apart cannot show a wander over tens of minutes, and a calibration and its
+    check see different parts of it; where a map is measured position by position, each
+    position holds the wander at its own time. Was: 28 % of blind clean displays (room light on
+    the screen wandering by 2 % of a 0.1-1 cd/m^2 black, the gain by 0.1-0.3 %) read "a further
+    gap at drive levels 0.0-0.2" or "at screen position (0, -0.6)".
+    """
+    n = len(data)
+    lmin = data["lmin"].to_numpy(float)
+    above = np.maximum(data["mu0"].to_numpy(float) - lmin, 0.0)
+    t = data["t_s"].to_numpy(float)
+    lo, hi = (float(t.min()), float(t.max())) if n else (0.0, 1.0)
+    if data.attrs.get("timed", False) and hi > lo:
+        from analysis.gap.display.null.noise import _bspline
+
+        basis = _bspline(t, lo, hi, int((hi - lo) // PASS_WANDER_KNOT_S))
+    else:
+        basis = np.ones((n, 1))
+    k = basis.shape[1]
+    sd = np.r_[np.full(k, max(_pass_offset_sd(data, noise), 1e-9)),
+               np.full(k, _pass_gain_sd(noise))]
+    return np.c_[basis, basis * above[:, None]], sd
+
+
+def _pass_gain_sd(noise: dict) -> float:
+    """The gain's SD between passes (fraction): :data:`PASS_GAIN_SD`, or half the drift the
+    repeats show where larger."""
+    return max(PASS_GAIN_SD, 0.5 * float(noise.get("drift_pct", 0.0)) / 100)
+
+
+def _pass_offset_sd(data: pd.DataFrame, noise: dict) -> float:
+    """The black's SD between passes, cd/m^2: :data:`PASS_OFFSET_FRAC` of the calibration's
+    black, or the meter's absolute noise where larger (its zero moves between passes too)."""
+    lmin = data["lmin"].to_numpy(float)
+    black = float(np.max(lmin)) if lmin.size else 0.0
+    return max(PASS_OFFSET_FRAC * black, float(noise.get("abs", 0.0)))
 
 
 def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.ndarray]:
@@ -112,7 +191,7 @@ def _reading_sd(data: pd.DataFrame, noise: dict, lof) -> tuple[np.ndarray, np.nd
     lum = np.maximum(data["L"].to_numpy(float), data.attrs.get("floor", 0.0))
     var = (noise["abs"] ** 2 + noise.get("shot", 0.0) * lum + (noise["rel"] * lum) ** 2
            + np.asarray(lof, float) ** 2)
-    g = max(PASS_GAIN_SD, 0.5 * float(noise.get("drift_pct", 0.0)) / 100)
+    g = _pass_gain_sd(noise)
     above = np.maximum(lum - data["lmin"].to_numpy(float), 0.0)
     return np.sqrt(var + (g * above) ** 2), var
 
@@ -129,17 +208,35 @@ def _calibration_shift(train: pd.DataFrame, fitted: list) -> np.ndarray | None:
     j = jac[train.index.to_numpy()]
     r = train["L"].to_numpy(float) - _mean(train, fitted)
     w = 1 / train["sd"].to_numpy(float) ** 2 * ~train["censored"].to_numpy(bool)
-    return np.linalg.lstsq((j.T * w) @ j + prec, (j.T * w) @ r, rcond=None)[0]
+    delta = np.linalg.lstsq((j.T * w) @ j + prec, (j.T * w) @ r, rcond=None)[0]
+    bound = train.attrs.get("cal_bound")
+    if bound is None or np.all(np.abs(delta) <= bound):
+        return delta
+    # A wander past its bound (pass_columns): the same MAP fit with the wander held within it.
+    vals, vecs = np.linalg.eigh(prec)
+    root = (vecs * np.sqrt(np.maximum(vals, 0.0))).T
+    sw = np.sqrt(w)
+    a = np.r_[j * sw[:, None], root]
+    b = np.r_[r * sw, np.zeros(root.shape[0])]
+    return optimize.lsq_linear(a, b, bounds=(-bound, bound), method="bvls").x
 
 
-def display_mean_given(train: pd.DataFrame, data: pd.DataFrame, fitted: list) -> np.ndarray:
+def display_mean_given(train: pd.DataFrame, data: pd.DataFrame, fitted: list, *,
+                       wander: bool = True) -> np.ndarray:
     """The prediction (cd/m^2) for ``data``'s readings of the simulation extended by
     ``fitted``, its calibration moved within its uncertainty to fit ``train``
-    (:func:`_calibration_shift`)."""
+    (:func:`_calibration_shift`); with ``wander`` False, without the between-pass wander
+    fitted beside it (:func:`pass_columns`): how far the readings are from what the
+    calibration predicts, which a lab's tolerance is held to (the wander only keeps a clean
+    second pass from reading as significant; it must not shrink a change that matters)."""
     mean = _mean(data, fitted)
     delta = _calibration_shift(train, fitted)
     if delta is not None:
-        mean = mean + data.attrs["cal_jac"][data.index.to_numpy()] @ delta
+        jac = data.attrs["cal_jac"][data.index.to_numpy()]
+        if not wander:
+            keep = ~np.isfinite(data.attrs.get("cal_bound", np.full(delta.size, np.inf)))
+            jac, delta = jac[:, keep], delta[keep]
+        mean = mean + jac @ delta
     return mean
 
 

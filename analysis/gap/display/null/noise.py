@@ -15,7 +15,7 @@ from scipy.interpolate import BSpline
 
 from analysis.gap.display.data import _seconds
 from analysis.gap.engine import GapError
-from calibration.noise import FLOOR_SD_MULTIPLE, default_noise
+from calibration.noise import FLOOR_SD_MULTIPLE, METER_FLOORS_CD_M2, default_noise, zero_bound
 
 __all__ = ["METER_FLOORS_CD_M2", "fit_noise_drift", "meter_noise", "zero_floor"]
 
@@ -198,33 +198,15 @@ def meter_noise(frames, cal, lum: np.ndarray) -> dict:
     return n
 
 
-#: The documented lowest luminance (cd/m^2) of photometers a lab names by ``device``, from the
-#: maker's specification: a reading of 0 from one says the light was below it. Konica Minolta
-#: LS-100: measuring range 0.001-299,900 cd/m^2 (its manual, "Specifications"). Photo Research
-#: PR-650/655/670 are not listed: their manuals give the range per lens and sensitivity mode,
-#: so a zero from them is bounded as from an unknown meter (:func:`zero_floor`).
-METER_FLOORS_CD_M2 = {"ls100": 0.001}
-
-
 def zero_floor(device, noise: dict, lowest_positive: float | None = None) -> tuple[float, str]:
     """The upper bound, cd/m^2, a reading of 0 (or less) stands for, and where it comes from in
-    words: the meter's documented floor where ``device`` names one
-    (:data:`METER_FLOORS_CD_M2`); else, the floor being unknown, the most it can be: the
-    lowest positive reading of the file (``lowest_positive``; the meter read that much, so its
-    floor lies below), or without one the noise model's floor, ``noise["floor_cd_m2"]``. A
-    zero then costs no model that keeps the light below that bound anything (the light below
-    an unknown floor is unknown: bounded by the calibration's prediction instead, a blind
-    clean display whose meter read 0 below 0.18 cd/m^2, its black 0.178, was a gap of 11 %).
-    Only the zeros are censored at it: a positive reading is never censored because a zero
-    sits below it (was: the 12.5 cd/m^2 reading of an 8-level LCD whose black read 0 was
-    censored too)."""
-    key = str(device or "").lower().replace("-", "").replace(" ", "")
-    if key in METER_FLOORS_CD_M2:
-        return METER_FLOORS_CD_M2[key], f"the {device}'s documented lowest luminance"
-    if lowest_positive is not None and lowest_positive > 0:
-        return float(lowest_positive), ("the lowest positive reading (the meter's floor is not "
-                                        "documented here: at most that)")
-    return float(noise["floor_cd_m2"]), "the noise model's floor (two absolute noise SDs)"
+    words: :func:`calibration.noise.zero_bound` (the meter's documented floor, else the lowest
+    positive reading of the file, else the noise model's floor, ``noise["floor_cd_m2"]``),
+    the same rule the calibration's fit censors its zeros by. A zero then costs no model that
+    keeps the light below that bound anything. Only the zeros are censored at it: a positive
+    reading is never censored because a zero sits below it (was: the 12.5 cd/m^2 reading of an
+    8-level LCD whose black read 0 was censored too)."""
+    return zero_bound(device, lowest_positive, float(noise["floor_cd_m2"]))
 
 
 def _foot(data: pd.DataFrame) -> float:
