@@ -143,9 +143,13 @@ def _fit_summary(cal: Calibration) -> list[str]:
                  "the default: no repeated readings" if n.get("source") == "default" else
                  str(n.get("source")))
         n_cens = int(sum(fit.censored))
+        zero = n.get("zero_floor_cd_m2")
+        zeros = ("" if zero is None or not (y <= 0).any() else
+                 f"; a reading of 0 taken as at most {float(zero):.3g} cd/m^2 (the meter's own "
+                 "floor: documented, given, or at most the lowest positive reading)")
         out.append(f"noise: SD = sqrt({n['abs_cd_m2']:.3g}^2 + ({n['rel']:.3g} L)^2) cd/m^2 "
                    f"({where}); meter floor {n['floor_cd_m2']:.3g} cd/m^2: {n_cens} of "
-                   f"{len(y)} readings at or below it, fitted as censored")
+                   f"{len(y)} readings at or below it, fitted as censored{zeros}")
     return out
 
 

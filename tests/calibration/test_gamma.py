@@ -371,3 +371,28 @@ def test_an_old_calibration_json_still_loads_and_inverts(tmp_path):
     assert cal.chosen_fit.warnings == () and cal.chosen_fit.dac_bits is None
     lum = cal.min_luminance_cd_m2 + 0.5 * (cal.max_luminance_cd_m2 - cal.min_luminance_cd_m2)
     assert cal.luminance_for_drive(cal.drive_for_fraction(0.5)) == pytest.approx(lum, rel=1e-9)
+
+
+def test_a_zero_is_censored_at_the_meters_own_floor_not_at_the_noise_floor():
+    """A display whose black (0.31 cd/m^2) lies below its meter's floor (0.39 cd/m^2, not
+    documented for the device) reads 0 at black. Censored at the noise floor (2 absolute SDs,
+    0.02 cd/m^2) the zero pulled the fitted black down (0.21 here; with the model the blind
+    display chose, 0.017); censored at the most the meter's
+    floor can be (the lowest positive reading) the black is fitted from the curve, near the
+    truth."""
+    from calibration.noise import zero_bound
+
+    rng = np.random.default_rng(3)
+    x = np.repeat(np.linspace(0, 1, 17), 2)
+    truth = 0.31 + 160 * x**2.2
+    y = truth * (1 + 0.004 * rng.standard_normal(x.size)) + 0.01 * rng.standard_normal(x.size)
+    y = np.where(y < 0.39, 0.0, np.round(y, 3))
+    assert (y[x == 0] == 0).all()
+    bound, why = zero_bound("PR-650", float(y[y > 0].min()), 0.02)
+    assert bound == pytest.approx(float(y[y > 0].min())) and "lowest positive" in why
+    fitted = fit_gamma(x, y, model="power", dac_bits=None, zero_floor_cd_m2=bound)
+    old = fit_gamma(x, y, model="power", dac_bits=None)
+    assert fitted.luminance(0.0) == pytest.approx(0.31, abs=0.06)
+    assert old.luminance(0.0) < 0.25 and old.misfit["chi2_p"] < 0.01
+    assert fitted.noise["zero_floor_cd_m2"] == pytest.approx(bound)
+    assert zero_bound("LS-100", 0.5, 0.02)[0] == 0.001

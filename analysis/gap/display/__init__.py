@@ -34,7 +34,10 @@ Loss per reading: Gaussian negative log-likelihood (nats) with the photometer's 
 ``sd^2 = a^2 + s L + (b L)^2`` (s: shot noise, where the pairs show it) and a gain between
 passes (:data:`~analysis.gap.display.model.PASS_GAIN_SD` of the light above black), the calibration's
 gamma parameters moved within their own uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
-fitted from noisy readings is no gap in itself); a reading at or below the
+fitted from noisy readings is no gap in itself), and beside them a slow wander of the black and
+the gain in time between and during passes (:func:`~analysis.gap.display.model.pass_columns`:
+2 % of the black and 0.3 % of the light per coefficient, never past 2 SDs; the misfits in the
+lab's units are measured without it); a reading at or below the
 meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
 (:func:`display_identifiability`) are left out of the ranking and named in the words. The noise is measured from pairs of consecutive repeats of the same
 patch (and the check's warm-up series; without any, the calibration's noise or the documented

@@ -10,7 +10,8 @@ not explain.
 How far (:func:`display_misfit`, :func:`display_misfit_size`): a reading's misfit is
 ``L - prediction`` (cd/m^2), the prediction held out as the diagnosis scores it (each reading
 predicted by the fold that did not see it, the calibration moved within its own uncertainty:
-:func:`~analysis.gap.display.model.display_mean_given`); censored readings carry no number.
+:func:`~analysis.gap.display.model.display_mean_given`, without the between-pass wander, which
+only decides significance); censored readings carry no number.
 ``% of luminance`` is ``100 (L - prediction) / prediction`` over the readings above
 :data:`NEAR_BLACK_FRACTION` of the calibration's white (a lab reads it as the Weber fraction:
 about 1 % is the smallest step of luminance seen at photopic levels); near black the misfit is
