@@ -19,7 +19,13 @@ from scipy.special import log_ndtr
 
 from analysis.gap.display.data import _has_pairs, _seconds, _timed
 from analysis.gap.display.null.calerror import calibration_jacobian, lack_of_fit_sd, map_jacobian
-from analysis.gap.display.null.noise import _foot, fit_noise_drift, meter_noise, zero_floor
+from analysis.gap.display.null.noise import (
+    _bspline,
+    _foot,
+    fit_noise_drift,
+    meter_noise,
+    zero_floor,
+)
 from analysis.gap.engine import candidate, split_held_out
 
 __all__ = ["PASS_BOUND_SD", "PASS_GAIN_SD", "PASS_OFFSET_FRAC", "calibration_jacobian",
@@ -108,8 +114,9 @@ PASS_GAIN_SD = 0.003
 #: SD of the display's black from one pass to the next, as a fraction of the calibration's
 #: black: the light at drive 0 is the panel's own black plus the room light the screen
 #: reflects, and the second moves between passes minutes apart (a person or the meter's
-#: tripod moved, a door, a monitor elsewhere in the room) by a few % of itself; 3 % is the
-#: middle of that. The meter's own zero moves by about its absolute noise, which counts where
+#: tripod moved, a door, a monitor elsewhere in the room) by a few % of itself; 2 % is the
+#: low end of that (it is a prior that keeps a clean pass from reading as a gap, and a black
+#: offset of 0.05 cd/m^2 on a 0.6 cd/m^2 black must still be named). The meter's own zero moves by about its absolute noise, which counts where
 #: larger (:func:`_pass_offset_sd`).
 PASS_OFFSET_FRAC = 0.02
 
@@ -150,8 +157,6 @@ def pass_columns(data: pd.DataFrame, noise: dict) -> tuple[np.ndarray, np.ndarra
     t = data["t_s"].to_numpy(float)
     lo, hi = (float(t.min()), float(t.max())) if n else (0.0, 1.0)
     if data.attrs.get("timed", False) and hi > lo:
-        from analysis.gap.display.null.noise import _bspline
-
         basis = _bspline(t, lo, hi, int((hi - lo) // PASS_WANDER_KNOT_S))
     else:
         basis = np.ones((n, 1))
