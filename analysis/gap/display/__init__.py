@@ -36,7 +36,7 @@ passes (:data:`~analysis.gap.display.model.PASS_GAIN_SD` of the light above blac
 gamma parameters moved within their own uncertainty to fit each fold's training readings (:func:`display_loss_given`: a calibration
 fitted from noisy readings is no gap in itself), and beside them a slow wander of the black and
 the gain in time between and during passes (:func:`~analysis.gap.display.model.pass_columns`:
-2 % of the black and 0.3 % of the light per coefficient, never past 2 SDs; the misfits in the
+2 % of the black and 0.3 % of the light per coefficient, never past 1 SD; the misfits in the
 lab's units are measured without it); a reading at or below the
 meter's floor is censored, ``-log P(L <= floor)``. Effects these readings cannot identify
 (:func:`display_identifiability`) are left out of the ranking and named in the words. The noise is measured from pairs of consecutive repeats of the same
