@@ -25,8 +25,9 @@ top1 6/6 (1.0), false attribution 0/2 (held-out misfit 1.65 and 1.64 %, nothing 
 0.36 (median). At s = 0.1 and 0.15 broad_lobe alone, alpha2 0.6 (truth 0.5), c 0.145-0.148
 (truth 0.111) and 0.238-0.241 (0.176): the wider lobe takes more albedo; misfit 3.73-3.76 ->
 2.04-2.20 % and 5.13-5.31 -> 2.31-3.08 %. At s = 0.2 broad_lobe first, alpha2 0.1, c
-0.11-0.13 (truth 0.25), then clearcoat, veiling_glare and fresnel: the narrow second lobe and
-the coat split the broad lobe's light; 5.70-5.82 -> 2.92-3.21 %.
+0.09 (truth 0.25), then vignetting and fresnel, verdict unexplained: the narrow second lobe and
+the camera's term split the broad lobe's light; 5.70-5.82 -> 3.31-3.47 % (before the coat was
+a whole coat, a share of it took some of that light beside the lobe: 2.92-3.21 %).
 """
 
 from __future__ import annotations

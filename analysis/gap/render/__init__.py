@@ -83,7 +83,10 @@ train, lights it never saw test (``data.load_lights``); one material, so one pai
 for all lights (``model._shared_scaled_fit``); the ceiling a cross-fitted smooth of each
 held-out photo (``ceiling.light_ceiling``); the broad_lobe candidate (a second Ward lobe,
 ``model.ward_lobe``), registered as catalogue ``render_lights`` as its form needs each photo's
-light; the held-out misfit in % (``ceiling.misfit_pct``) in diagnosis.json. A panorama set in
+light; the clearcoat a whole coat there (``candidates._fit_coat_lights``: the diffuse light
+through it, T(n.l) T(n.v) at full strength, and the coated surface's second lobe, the base's
+beneath the coat's or the coat's above the base's, in broad_lobe's forms); the held-out misfit
+in % (``ceiling.misfit_pct``) in diagnosis.json. A panorama set in
 several lightings (``--lights NAME``, ``data.load_lighting``): the fit's lighting trains, the
 held-out lighting's photos test, with the whole catalogue and the same ceiling and sizes.
 candidates.py  one registered Candidate per effect (its term, fit and injector), in the order
