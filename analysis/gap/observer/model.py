@@ -314,19 +314,28 @@ def adapt_population(train: pd.DataFrame, test: pd.DataFrame, base: ObserverBase
         se2 = np.asarray(base.se[r], float) ** 2
         sd2 = np.asarray(base.sd[r], float) ** 2
         x = _base_x(train, r)
+        k = x.shape[1]
         y = train[f"{r}_match"].to_numpy(float)
         res = y - train[f"{r}_base"].to_numpy(float)
+        prev = train[f"{r}_prev"].to_numpy(float)
+        # The previous response a nuisance regressor: settings pulled a share s toward it
+        # have the curve's departure d times (1 - s) as their own, so the departure is the
+        # regression's over (1 - s); without it a real serial pull (settings' slopes 0.7 of
+        # the curve's) was taken up as a population departure, and serial dependence, fitted
+        # on top, lost on the held-out participants pulled least (blind serial case, seed 0).
+        x_prev = np.where(np.isnan(prev), 0.0, prev - train[f"{r}_base"].to_numpy(float))
         inside = (y > lo + 1e-9) & (y < hi - 1e-9)
         deltas, errs = [], []
         for pid in np.unique(who):
             m = (who == pid) & inside
-            if m.sum() <= x.shape[1] + 1:
+            if m.sum() <= k + 2:
                 continue
-            xx = x[m]
+            xx = np.c_[x[m], x_prev[m]]
             d, *_ = np.linalg.lstsq(xx, res[m], rcond=None)
-            noise = float(np.sum((res[m] - xx @ d) ** 2)) / (m.sum() - x.shape[1])
-            deltas.append(d)
-            errs.append(np.diag(np.linalg.pinv(xx.T @ xx)) * noise)
+            noise = float(np.sum((res[m] - xx @ d) ** 2)) / (m.sum() - k - 1)
+            keep = 1.0 - float(np.clip(d[k], -0.5, 0.9))
+            deltas.append(d[:k] / keep)
+            errs.append(np.diag(np.linalg.pinv(xx.T @ xx))[:k] * noise / keep ** 2)
         if not deltas:
             continue
         n = len(deltas)
