@@ -19,7 +19,10 @@ Where things are
 ----------------
 ``model.py``
     The simulation's prediction and likelihood: :func:`to_slider_units`, the base model
-    (:class:`ObserverBase`, :func:`base_from_params`, :func:`adapt_base`), :func:`predict`,
+    (:class:`ObserverBase`, :func:`base_from_params`, :func:`adapt_base`; where participants
+    are held out whole, :func:`adapt_own_offsets` and :func:`adapt_population`: the null is the
+    fitted population, and the tests count participants as the independent units),
+    :func:`predict`,
     :func:`observer_nll`, :func:`observer_loss` (noise SDs fitted per model),
     :data:`OBSERVER_MIN_GAIN`.
 ``data.py``
