@@ -19,7 +19,10 @@ Where things are
 ----------------
 ``model.py``
     The simulation's prediction and likelihood: :func:`to_slider_units`, the base model
-    (:class:`ObserverBase`, :func:`base_from_params`, :func:`adapt_base`), :func:`predict`,
+    (:class:`ObserverBase`, :func:`base_from_params`, :func:`adapt_base`; where participants
+    are held out whole, :func:`adapt_own_offsets` and :func:`adapt_population`: the null is the
+    fitted population, and the tests count participants as the independent units),
+    :func:`predict`,
     :func:`observer_nll`, :func:`observer_loss` (noise SDs fitted per model),
     :data:`OBSERVER_MIN_GAIN`.
 ``data.py``
@@ -67,6 +70,8 @@ from analysis.gap.observer.model import (
     OBSERVER_MIN_GAIN,
     ObserverBase,
     adapt_base,
+    adapt_own_offsets,
+    adapt_population,
     base_from_params,
     observer_loss,
     observer_nll,
@@ -86,6 +91,8 @@ __all__ = [
     "OBSERVER_SIZE_UNIT",
     "ObserverBase",
     "adapt_base",
+    "adapt_own_offsets",
+    "adapt_population",
     "base_from_params",
     "base_from_sessions",
     "ceiling_floor",
@@ -112,6 +119,11 @@ def _same_path(real, sim) -> None:
     if (isinstance(real, (str, Path)) and isinstance(sim, (str, Path))
             and Path(real).resolve() == Path(sim).resolve()):
         raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
+
+
+def _participant(unit_id: str) -> str:
+    """The participant of a held-out trial (``participant|session|order``)."""
+    return unit_id.split("|", 1)[0]
 
 
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
@@ -148,6 +160,10 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     floor, shared = {}, {}
     for tr, te in folds:
         shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
+        if not shared[id(te)]:
+            adapt_own_offsets(tr, base)
+            adapt_own_offsets(te, base)
+            adapt_population(tr, te, base)
         adapt_base(tr, te, base)
         model = fit_ceiling(tr, by_participant=shared[id(te)])
         floor[id(te)] = ceiling_floor(model, te, rng)
@@ -169,7 +185,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         return measured.get("misfit_after", float("nan"))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
-                               size=size, unit_ids=observer_unit_ids)
+                               size=size, unit_ids=observer_unit_ids,
+                               cluster_of=None if any(shared.values()) else _participant)
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN,
                                  min_size=design.gap.observer_tolerance_slider,
                                  size_unit=OBSERVER_SIZE_UNIT,
