@@ -163,34 +163,25 @@ _fit_coat_panorama = _fit_amp("clearcoat", 0.0, 1.0, "entry", _COAT_ENTRY)
 
 
 def _fit_clearcoat(train, chosen):
-    """The coat under directional lights (every level knows its light): :func:`_fit_coat_lights`;
-    in a panorama a share of the diffuse light through the coat and its entry (``_fit_amp``)."""
+    """Under directional lights :func:`_fit_coat_lights`; in a panorama ``_fit_amp``'s."""
     if train.levels and all("light" in lv for lv in train.levels):
         return _fit_coat_lights(train, chosen)
     return _fit_coat_panorama(train, chosen)
 
 
 def _fit_coat_lights(train, chosen):
-    """A clear coat over the fitted material under directional lights: the whole diffuse light
-    leaves through the coat (c = 1, entry "lights": the exact T(n.l) T(view) of IOR 1.5), and
-    the specular shows two lobes, the coat's own reflection and the base's beneath it, where
-    the gloss fit's single Ward lobe took one of them (the brighter peak, usually the coat's
-    sharp one): the other is added as a Ward lobe of width ``alpha2`` (:data:`BROAD_ALPHAS`,
-    the broad lobe's forms) and albedo ``k`` x the fitted diffuse albedo.
+    """A clear coat over the fitted material under directional lights: all diffuse light leaves
+    through the coat (c = 1, entry "lights": T(n.l) T(view) of IOR 1.5), and the specular shows
+    two lobes, the coat's and the base's beneath; the gloss fit's one Ward lobe took one (the
+    brighter), the other is a Ward lobe of width ``alpha2`` (:data:`BROAD_ALPHAS`) and albedo
+    ``k`` x the fitted diffuse albedo.
 
-    A coat is a layer the base's light passes through, not a share of it: its transmission
-    loss towards grazing light and view comes with it, fixed by its index. With that loss a
-    free share (0 to 1) the coat would hold the broad_lobe candidate as its case c = 0 and tie
-    with it wherever the photos show no coat; with the loss fixed, only a coat's photos favour
-    it. The transmission of the lobes is left out: their light enters and leaves near the
-    mirror direction, within 30 deg of the normal for lights up to 60 deg off the view, where
-    T(n.l) T(view) stays within 0.4 % of its value at normal incidence.
-
-    Every later term of the render is linear in the images (glare, vignetting, the broad
-    lobe), so with the coat's factor on the diffuse image the prediction is a D' + b S + w L
-    (L the lobe after the later terms): a, b, w >= 0 by non-negative least squares over all
-    the lights (one material, shared scales) per width, the width of least SSE kept, k = w / b;
-    the scales then re-fitted as every candidate's (``_scaled_sse``)."""
+    A coat is a layer the base's light passes through, not a share of it: its loss towards
+    grazing light and view is fixed by its index (a free share would hold broad_lobe as its
+    case c = 0 and tie with it on photos without a coat). The lobes' transmission is left out
+    (within 30 deg of the normal T(n.l) T(view) stays within 0.4 % of normal incidence).
+    Later terms are linear in the images, so the prediction is a D' + b S + w L: a, b, w >= 0
+    by NNLS over all lights per width, the least SSE kept, k = w / b; scales re-fitted."""
     base = [f for f in chosen if f[0] != "clearcoat"]
     best = None
     for alpha2 in BROAD_ALPHAS:
