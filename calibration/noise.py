@@ -123,6 +123,11 @@ class NoiseModel:
                 raise CalibrationError(f"noise {name} must be a positive number, got {v!r}")
         if not np.isfinite(self.floor_cd_m2):
             raise CalibrationError(f"noise floor_cd_m2 must be finite, got {self.floor_cd_m2!r}")
+        z = self.zero_floor_cd_m2
+        if z is not None and not np.isfinite(z):
+            raise CalibrationError(f"noise zero_floor_cd_m2 (what a reading of 0 stands for) must "
+                                   f"be a finite cd/m^2 or absent, got {z!r}: refit the "
+                                   "calibration (`calibration fit DIR --out NEW`)")
 
     def sd(self, luminance_cd_m2) -> np.ndarray:
         """SD of a reading of ``luminance_cd_m2`` (cd/m^2; negative readings count as 0)."""

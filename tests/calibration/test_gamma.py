@@ -396,3 +396,14 @@ def test_a_zero_is_censored_at_the_meters_own_floor_not_at_the_noise_floor():
     assert old.luminance(0.0) < 0.25 and old.misfit["chi2_p"] < 0.01
     assert fitted.noise["zero_floor_cd_m2"] == pytest.approx(bound)
     assert zero_bound("LS-100", 0.5, 0.02)[0] == 0.001
+
+
+def test_a_noise_record_whose_zero_bound_is_not_a_number_is_refused():
+    """A hand-edited calibration.json with ``zero_floor_cd_m2`` NaN would censor every zero at
+    NaN: refused where it is read, naming the field and the fix; absent reads as before."""
+    from calibration.noise import NoiseModel
+
+    rec = {"abs_cd_m2": 0.01, "rel": 0.004, "floor_cd_m2": 0.02, "source": "repeats"}
+    assert NoiseModel.from_dict(rec).zero_floor == 0.02
+    with pytest.raises(CalibrationError, match="zero_floor_cd_m2.*refit"):
+        NoiseModel.from_dict(rec | {"zero_floor_cd_m2": float("nan")})
