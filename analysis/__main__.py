@@ -1,7 +1,8 @@
 """``python -m analysis``: turn session data into results.
 
 Subcommands: ``units`` (slider matches to %/cm), ``fit`` (one mixed model by lme4 formula),
-``report`` (the HTML analysis report), ``gap``, ``gapbench`` and ``imagestats`` (passed on to
+``report`` (the HTML analysis report), ``power`` (power by simulation for planning a study,
+`analysis.power_cli`), ``gap``, ``gapbench`` and ``imagestats`` (passed on to
 ``analysis.gap``, ``analysis.gapbench`` and ``analysis.imagestats``; ``gap benchmark`` goes to
 ``analysis.gapbench``, where the blind benchmarks moved).
 """
@@ -227,6 +228,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=_cmd_report)
+    from analysis.power_cli import add_power_parser
+
+    add_power_parser(sub)
     for name, (_, help_text) in _PASSTHROUGH.items():
         sub.add_parser(name, help=help_text, add_help=False)
     args = parser.parse_args(argv)
