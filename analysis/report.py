@@ -186,7 +186,8 @@ def _respecified(models: dict, extra: dict) -> dict:
 
 
 def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000,
-                 seed: int = 0, n_jobs: int = 2, progress: bool = True) -> Path:
+                 seed: int = 0, n_jobs: int = 2, progress: bool = True,
+                 power_dir=None) -> Path:
     """Analyse a data folder into ``out_dir/index.html``.
 
     Parameters
@@ -204,6 +205,9 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
         Parallel bootstrap workers.
     progress : bool
         Show progress bars.
+    power_dir : str or Path, optional
+        A ``python -m analysis power`` result folder: its curves and sentences become the
+        report's section "Planning a study: power" (power.png is copied beside index.html).
 
     Returns
     -------
@@ -224,6 +228,7 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             f"{index} exists; reports are never overwritten: pass another --out or move it away")
     data = load_sessions(data_dir, design)
     frame = data.frame
+    power = _read_power(power_dir)
     out.mkdir(parents=True, exist_ok=True)
     n_part = len(data.participants)
     models = fit_source_study_models(frame, design)
@@ -271,10 +276,34 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             for which, pattern in patterns.items()},
         "versions": _versions(),
     }
+    if power is not None:
+        import shutil
+
+        shutil.copyfile(Path(power_dir) / "power.png", out / "power.png")
+        results["power"] = power
     atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
     page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
     _write_new(index, page)
     return index
+
+
+def _read_power(power_dir):
+    """A power result folder's power.json, checked before anything is computed."""
+    if power_dir is None:
+        return None
+    path = Path(power_dir) / "power.json"
+    if not path.is_file() or not (Path(power_dir) / "power.png").is_file():
+        raise ValueError(f"--power {power_dir}: no power.json and power.png there; make them "
+                         f"with `python -m analysis power DATA --out {power_dir}`")
+    return json.loads(path.read_text())
+
+
+def _power_section(power) -> str:
+    if power is None:
+        return ""
+    from analysis.powerplan import power_html
+
+    return power_html(power)
 
 
 def _calibrations_line(data) -> str:
@@ -356,6 +385,7 @@ depend on the scale). Type II Wald χ² as car::Anova(type = 2); the same hypoth
 with Satterthwaite's denominator degrees of freedom, as lmerTest (Kuznetsova et al. 2017).
 {esc(boot_note)}</p>
 {''.join(_model_section(models[k], boots.get(k)) for k in models)}
+{_power_section(results.get("power"))}
 <h2>Software</h2><p>{esc(', '.join(f'{k} {v}' for k, v in results['versions'].items()))}.
 All numbers: <a href="results.json">results.json</a>.</p>
 </body></html>

@@ -109,3 +109,20 @@ def test_the_command_writes_json_csv_png_and_never_overwrites(pilot, tmp_path, c
     assert "from model" in capsys.readouterr().out
     assert main(argv) == 1
     assert "never overwritten" in capsys.readouterr().err
+
+
+def test_the_report_shows_a_power_result_and_refuses_a_folder_without_one(pilot, tmp_path):
+    folder, _, _ = pilot
+    power = tmp_path / "power"
+    assert main(["power", str(folder), "--out", str(power), "--model", "gloss", "--term",
+                 "gloss:depth", "--participants", "4,8", "--n-sim", "10", "--quiet"]) == 0
+    assert main(["report", str(folder), "--out", str(tmp_path / "bad"), "--bootstrap", "0",
+                 "--quiet", "--power", str(tmp_path)]) == 1
+    assert not (tmp_path / "bad" / "index.html").exists()
+    assert main(["report", str(folder), "--out", str(tmp_path / "report"), "--bootstrap", "0",
+                 "--quiet", "--power", str(power)]) == 0
+    page = (tmp_path / "report" / "index.html").read_text()
+    assert "Planning a study: power" in page and "gloss:depth" in page
+    assert (tmp_path / "report" / "power.png").is_file()
+    results = json.loads((tmp_path / "report" / "results.json").read_text())
+    assert results["power"]["settings"]["participants"] == [4, 8]
