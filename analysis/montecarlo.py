@@ -22,6 +22,7 @@ Written by hand because no library does this for our own simulate-and-refit func
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import time
@@ -32,16 +33,16 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
+    "Progress",
     "Rate",
     "SizeSearch",
-    "Progress",
     "decision_rate",
     "decision_rates",
+    "one_at_a_time",
     "rate_curve",
     "rates_curve",
     "size_search",
     "smallest_size",
-    "one_at_a_time",
 ]
 
 DrawBatch = Callable[[np.random.Generator, int], np.ndarray]
@@ -293,7 +294,7 @@ def smallest_size(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float]
     sizes = list(sizes)
     if not sizes:
         raise ValueError("no sizes given; give at least one size to simulate")
-    if any(b <= a for a, b in zip(sizes, sizes[1:])):
+    if any(b <= a for a, b in itertools.pairwise(sizes)):
         raise ValueError(f"sizes {sizes} are not increasing; list them smallest first")
     curve = []
     total = n_sim * len(sizes)

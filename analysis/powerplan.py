@@ -91,7 +91,7 @@ class PowerSettings:
             raise PowerError(f"simulate {self.simulate!r}: use 'model' (a fitted mixed model) "
                              "or 'observers' (simulated observers, observers.toml)")
         p = list(self.participants)
-        if not p or any(b <= a for a, b in zip(p, p[1:])):
+        if not p or any(b <= a for a, b in itertools.pairwise(p)):
             raise PowerError(f"participants {p}: give increasing numbers, e.g. 4:24:2")
         if self.n_sim < 1:
             raise PowerError(f"n_sim {self.n_sim}: simulate at least 1 study per point")
@@ -357,9 +357,9 @@ def _jsonable(x):
 def summary_text(result: dict) -> str:
     """Sentences a plan can quote: the smallest N and the smallest effect per term."""
     s = result["settings"]
-    lines = [f"Power by simulation from {result['simulate']} ({s['n_sim']} simulated studies "
+    lines = [(f"Power by simulation from {result['simulate']} ({s['n_sim']} simulated studies "
              f"per point, seed {s['seed']}, Type II Wald chi-square at alpha {s['alpha']:g}; "
-             f"{result['simulated_studies']} studies in {result['seconds']:.1f} s)."]
+             f"{result['simulated_studies']} studies in {result['seconds']:.1f} s).")]
     if s["effects"]:
         lines.append("Effects: " + ", ".join(Effect(**e).describe() for e in s["effects"]))
     for m in result["smallest_n"]:

@@ -28,12 +28,12 @@ import pandas as pd
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from analysis.lmm import fit  # noqa: E402
-from analysis.models import SOURCE_STUDY_RHS  # noqa: E402
-from analysis.montecarlo import decision_rates  # noqa: E402
-from analysis.power import Effect, ModelDraws, layout_frame, scaled_fixef  # noqa: E402
-from studydesign import load_design  # noqa: E402
-from tests.analysis.powerdata import pilot_frame  # noqa: E402
+from analysis.lmm import fit
+from analysis.models import SOURCE_STUDY_RHS
+from analysis.montecarlo import decision_rates
+from analysis.power import Effect, ModelDraws, layout_frame, scaled_fixef
+from studydesign import load_design
+from tests.analysis.powerdata import pilot_frame
 
 TERMS = ["gloss", "depth", "gloss:depth"]
 

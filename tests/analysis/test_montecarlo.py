@@ -4,8 +4,16 @@ seeds, and the smallest size that reaches a target rate."""
 import numpy as np
 import pytest
 
-from analysis.montecarlo import (Rate, decision_rate, decision_rates, one_at_a_time,
-                                 rate_curve, rates_curve, size_search, smallest_size)
+from analysis.montecarlo import (
+    Rate,
+    decision_rate,
+    decision_rates,
+    one_at_a_time,
+    rate_curve,
+    rates_curve,
+    size_search,
+    smallest_size,
+)
 
 
 def coin(p):
