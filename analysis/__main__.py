@@ -150,7 +150,7 @@ def _cmd_report(args) -> int:
             print(f"warning: {note}", file=sys.stderr)
         index = build_report(args.data_dir, args.out, design,
                              n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
-                             progress=not args.quiet, power_dir=args.power)
+                             progress=not args.quiet, power_dirs=args.power)
     except (ReportExistsError, SessionDataError, DesignError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -227,8 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
     p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.add_argument("--power", metavar="POWER_DIR", help="include a `python -m analysis power` "
-                   "result (section 'Planning a study: power')")
+    p.add_argument("--power", metavar="POWER_DIR", nargs="+", default=[],
+                   help="include `python -m analysis power` results (section 'Planning a study: "
+                   "power')")
     p.set_defaults(func=_cmd_report)
     from analysis.power_cli import add_power_parser
 

@@ -391,13 +391,14 @@ def summary_text(result: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def power_html(result: dict) -> str:
-    """The analysis report's section (the figure is ``power.png`` beside it)."""
+def power_html(result: dict, *, png: str = "power.png") -> str:
+    """One result in the analysis report (its figure is ``png`` beside the page)."""
     import html
 
     esc = html.escape
     rows = "".join(f"<li>{esc(line)}</li>" for line in summary_text(result).splitlines())
-    return (f"<h2>Planning a study: power</h2><ul>{rows}</ul><figure><img src='power.png' "
+    return (f"<p>From <code>{esc(str(result.get('source', '')))}</code>:</p><ul>{rows}</ul>"
+            f"<figure><img src='{esc(png)}' "
             "alt='power curves'><figcaption>Power over participants, Monte-Carlo 95 % "
             "intervals as bands; dashed: the target, dotted: alpha. Every point in "
             "power.csv.</figcaption></figure>")

@@ -187,7 +187,7 @@ def _respecified(models: dict, extra: dict) -> dict:
 
 def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000,
                  seed: int = 0, n_jobs: int = 2, progress: bool = True,
-                 power_dir=None) -> Path:
+                 power_dirs=()) -> Path:
     """Analyse a data folder into ``out_dir/index.html``.
 
     Parameters
@@ -205,9 +205,10 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
         Parallel bootstrap workers.
     progress : bool
         Show progress bars.
-    power_dir : str or Path, optional
-        A ``python -m analysis power`` result folder: its curves and sentences become the
-        report's section "Planning a study: power" (power.png is copied beside index.html).
+    power_dirs : sequence of str or Path
+        ``python -m analysis power`` result folders: their curves and sentences become the
+        report's section "Planning a study: power" (each power.png copied beside index.html
+        as power-<k>.png).
 
     Returns
     -------
@@ -228,7 +229,7 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             f"{index} exists; reports are never overwritten: pass another --out or move it away")
     data = load_sessions(data_dir, design)
     frame = data.frame
-    power = _read_power(power_dir)
+    powers = [_read_power(d) for d in power_dirs]
     out.mkdir(parents=True, exist_ok=True)
     n_part = len(data.participants)
     models = fit_source_study_models(frame, design)
@@ -276,11 +277,12 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             for which, pattern in patterns.items()},
         "versions": _versions(),
     }
-    if power is not None:
+    if powers:
         import shutil
 
-        shutil.copyfile(Path(power_dir) / "power.png", out / "power.png")
-        results["power"] = power
+        for k, d in enumerate(power_dirs):
+            shutil.copyfile(Path(d) / "power.png", out / f"power-{k + 1}.png")
+        results["power"] = powers
     atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
     page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
     _write_new(index, page)
@@ -289,8 +291,6 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
 
 def _read_power(power_dir):
     """A power result folder's power.json, checked before anything is computed."""
-    if power_dir is None:
-        return None
     path = Path(power_dir) / "power.json"
     if not path.is_file() or not (Path(power_dir) / "power.png").is_file():
         raise ValueError(f"--power {power_dir}: no power.json and power.png there; make them "
@@ -298,12 +298,13 @@ def _read_power(power_dir):
     return json.loads(path.read_text())
 
 
-def _power_section(power) -> str:
-    if power is None:
+def _power_section(powers) -> str:
+    if not powers:
         return ""
     from analysis.powerplan import power_html
 
-    return power_html(power)
+    return "<h2>Planning a study: power</h2>" + "".join(
+        power_html(p, png=f"power-{k + 1}.png") for k, p in enumerate(powers))
 
 
 def _calibrations_line(data) -> str:

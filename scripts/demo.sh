@@ -143,13 +143,18 @@ step "power: how many participants for the seed's gloss x depth interaction, fro
   --data "$RUN/pilot" --seed 2
 "$PY" -m analysis power "$RUN/pilot" --out "$RUN/power" --model gloss --term gloss:depth \
   --participants 4:24:2 --n-sim 1000 --seed 1 --workers 2 --quiet
+# The pilot's interaction is large (every N reaches 80 %); the same at a quarter of its size,
+# 200 studies per N (to keep the step short), with the smallest effect 12 participants detect.
+"$PY" -m analysis power "$RUN/pilot" --out "$RUN/power-quarter" --model gloss --term gloss:depth \
+  --participants 4:24:2 --n-sim 200 --seed 1 --workers 2 --quiet --scale gloss:depth=0.25 \
+  --detect 12
 # --- end power ---
 
 # --- analysis report ---
 step "analysis report: figures, mixed models (lme4's formulation), bootstrap, power"
 # 2,000 bootstrap runs per model instead of the default 10,000, to keep the demo near a minute.
 POWER_OPT=()
-[ -f "$RUN/power/power.json" ] && POWER_OPT=(--power "$RUN/power")
+[ -f "$RUN/power-quarter/power.json" ] && POWER_OPT=(--power "$RUN/power" "$RUN/power-quarter")
 "$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1 \
   ${POWER_OPT[@]+"${POWER_OPT[@]}"}
 # --- end analysis report ---

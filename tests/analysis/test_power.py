@@ -131,6 +131,29 @@ def test_the_report_shows_a_power_result_and_refuses_a_folder_without_one(pilot,
                  "--quiet", "--power", str(power)]) == 0
     page = (tmp_path / "report" / "index.html").read_text()
     assert "Planning a study: power" in page and "gloss:depth" in page
-    assert (tmp_path / "report" / "power.png").is_file()
+    assert (tmp_path / "report" / "power-1.png").is_file()
     results = json.loads((tmp_path / "report" / "results.json").read_text())
-    assert results["power"]["settings"]["participants"] == [4, 8]
+    assert results["power"][0]["settings"]["participants"] == [4, 8]
+
+
+@pytest.mark.slow
+def test_a_run_on_dask_workers_counts_what_one_process_counts(pilot, tmp_path):
+    """`--scheduler` with a real `dask scheduler` and `dask worker` (two threads): the same
+    hits per point as in this process, from the same --seed (the chunks' seeds do not depend on
+    who runs them)."""
+    from tests.dask_processes import dask_processes
+
+    folder, _, _ = pilot
+    argv = ["power", str(folder), "--model", "gloss", "--term", "gloss:depth",
+            "--participants", "4,6", "--n-sim", "60", "--seed", "9", "--quiet",
+            "--scale", "gloss:depth=0.3"]
+    assert main([*argv, "--out", str(tmp_path / "here")]) == 0
+    with dask_processes(tmp_path / "dask") as dask:
+        dask.start_worker(nthreads=2)
+        dask.wait_workers(1)
+        assert main([*argv, "--out", str(tmp_path / "dask-run"), "--scheduler",
+                     dask.address]) == 0, dask.logs()
+    here, there = (json.loads((tmp_path / d / "power.json").read_text())["curve"]
+                   for d in ("here", "dask-run"))
+    assert [r["hits"] for r in here] == [r["hits"] for r in there]
+    assert 0 < here[0]["hits"] < 60  # an informative count, not all or none
