@@ -265,12 +265,15 @@ class ObserverDraws(_Tester):
 
 def observer_params(params: dict, response: str, effects) -> dict:
     """The humanlike table with each effect applied to its parameter (mean and between-observer
-    SD scaled, or the mean set in the study's units with the SD kept)."""
+    SD scaled, or the mean set in the study's units with the SD kept). A term the observers do
+    not carry stays zero when scaled; set to a value it is refused."""
     import copy
 
     out = copy.deepcopy(params)
     carried = OBSERVER_EFFECTS[response]
     for e in effects:
+        if e.term not in carried and e.value is None:
+            continue  # the observers have no such effect: scaled, it stays zero
         if e.term not in carried:
             raise PowerError(f"the observer model has no {e.term!r} effect on {response} (it "
                              f"carries {sorted(carried)}); simulate from a fitted model instead "

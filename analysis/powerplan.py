@@ -317,15 +317,21 @@ def plot_power(result: dict):
     target = result["settings"]["target"]
     for ax, model in zip(axes[0], models):
         g = frame[frame["model"] == model]
-        for (term, trials), line in g.groupby(["term", "trials_per_participant"], sort=False):
-            label = f"{term}, {trials} trials/participant"
+        for (term, ses, rep), line in g.groupby(["term", "sessions", "repeats"], sort=False,
+                                                dropna=False):
+            trials = int(line["trials_per_participant"].iloc[0])
+            how = "" if pd.isna(ses) and rep == 1 else (
+                f" ({'all' if pd.isna(ses) else int(ses)} session(s) x {int(rep)})")
+            label = f"{term}, {trials} trials/participant{how}"
             ax.plot(line["participants"], line["rate"], marker="o", ms=3, label=label)
             ax.fill_between(line["participants"], line["ci_low"], line["ci_high"], alpha=0.2)
         ax.axhline(target, ls="--", c="k", lw=0.8)
         ax.axhline(result["settings"]["alpha"], ls=":", c="grey", lw=0.8)
         ax.set(xlabel="participants", ylabel="power (Type II Wald χ², α = "
                f"{result['settings']['alpha']:g})", ylim=(-0.02, 1.02),
-               title=f"{model} model, simulated from {result['simulate']}")
+               title=f"{model} model, simulated from {result['simulate']}" + (
+                   "\n" + ", ".join(Effect(**e).describe() for e in result["settings"]["effects"])
+                   if result["settings"]["effects"] else ""))
         ax.legend(fontsize=7, loc="lower right")
     fig.tight_layout()
     return fig

@@ -83,7 +83,7 @@ def test_observers_simulate_whole_sessions_through_the_plan(design):
     out = draws(np.random.default_rng(0), 5)
     assert out.shape == (5, 2) and out[:, 0].all()  # the crosstalk is large
     with pytest.raises(PowerError, match="no 'gloss' effect on depth_match_bc"):
-        observer_params(params, "depth_match_bc", [Effect("gloss", scale=0.5)])
+        observer_params(params, "depth_match_bc", [Effect("gloss", value=0.5)])
 
 
 @pytest.mark.parametrize("argv, match", [
