@@ -18,6 +18,7 @@ import html
 import json
 import operator
 import platform
+import shutil
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
@@ -235,13 +236,7 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     models = fit_source_study_models(frame, design)
     extra = fit_design_models(frame, design)
     every = {**models, **extra}
-    boots = {}
-    if n_boot > 0:
-        mf = model_frame(frame, design)
-        for k, (name, res) in enumerate(every.items()):
-            boots[name] = parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(),
-                                               n_boot=n_boot, seed=seed + k, n_jobs=n_jobs,
-                                               progress=progress)
+    boots = _bootstraps(every, model_frame(frame, design), n_boot, seed, n_jobs, progress)
     # Metamers exist only if depth changes perceived gloss: without a significant depth effect
     # in the gloss model, pairs that happen to match are noise (hundreds of pairs are tried).
     depth_p = {t.term: t.p for t in models["gloss"].tests}["depth"]
@@ -259,8 +254,33 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     patterns = {"source": source_study_pattern(models, frame)}
     if respecified != models:
         patterns["respecified"] = source_study_pattern(respecified, frame)
+    results = _results(data_dir, data, design, every, boots, seed, metamers, patterns,
+                       respecified)
+    for k, d in enumerate(power_dirs):
+        shutil.copyfile(Path(d) / "power.png", out / f"power-{k + 1}.png")
+    if powers:
+        results["power"] = powers
+    atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
+    page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
+    _write_new(index, page)
+    return index
+
+
+def _bootstraps(every: dict, mf, n_boot: int, seed: int, n_jobs: int, progress: bool) -> dict:
+    """Each model's parametric bootstrap (model k with seed + k); none when n_boot is 0."""
+    if n_boot <= 0:
+        return {}
+    return {name: parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(), n_boot=n_boot,
+                                       seed=seed + k, n_jobs=n_jobs, progress=progress)
+            for k, (name, res) in enumerate(every.items())}
+
+
+def _results(data_dir, data, design, every, boots, seed, metamers, patterns,
+             respecified) -> dict:
+    """Every number of the report (results.json), power results aside."""
+    frame = data.frame
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-    results = {
+    return {
         "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
         "design": design.source, "participants": data.participants, "n_trials": len(frame),
         "warnings": list(data.warnings),
@@ -277,16 +297,6 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             for which, pattern in patterns.items()},
         "versions": _versions(),
     }
-    if powers:
-        import shutil
-
-        for k, d in enumerate(power_dirs):
-            shutil.copyfile(Path(d) / "power.png", out / f"power-{k + 1}.png")
-        results["power"] = powers
-    atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
-    page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
-    _write_new(index, page)
-    return index
 
 
 def _read_power(power_dir):
