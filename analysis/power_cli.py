@@ -107,7 +107,7 @@ def _client(args, design):
     if args.workers == 1 and not args.scheduler and not args.cluster:
         yield None
         return
-    from stimuli.dask_cluster import job_spec_from, open_client
+    from stimuli.dask_cluster import open_client
 
     def local():
         from distributed import LocalCluster
@@ -115,9 +115,20 @@ def _client(args, design):
         return LocalCluster(n_workers=args.workers, threads_per_worker=1, processes=True,
                             dashboard_address=None)
 
-    spec = job_spec_from(args, design) if args.cluster else None
+    spec = _job_spec(args, design) if args.cluster else None
     with open_client(scheduler=args.scheduler, spec=spec, local=local) as (client, _):
         yield client
+
+
+def _job_spec(args, design):
+    """--cluster's job: one single-threaded worker process per core (the refits are Python and
+    small LAPACK calls that hold the GIL in parts), as `analysis imagestats`."""
+    from dataclasses import replace
+
+    from stimuli.dask_cluster import job_spec_from
+
+    spec = job_spec_from(args, design)
+    return replace(spec, processes=spec.cores)
 
 
 def _settings(args):
@@ -152,6 +163,19 @@ def cmd_power(args) -> int:
     if args.workers < 1:
         print(f"error: --workers {args.workers}: use 1 (this process) or more", file=sys.stderr)
         return 2
+    if args.dry_run:
+        if not args.cluster:
+            print("error: --dry-run prints a batch job script: add --cluster slurm|pbs|sge",
+                  file=sys.stderr)
+            return 2
+        from stimuli.dask_cluster import job_script
+
+        try:
+            print(job_script(_job_spec(args, load_design(args.design))))
+        except (ClusterError, DesignError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 1
+        return 0
     try:
         prepare_out_dir(out)
         design = load_design(args.design)

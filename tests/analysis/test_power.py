@@ -157,3 +157,13 @@ def test_a_run_on_dask_workers_counts_what_one_process_counts(pilot, tmp_path):
                    for d in ("here", "dask-run"))
     assert [r["hits"] for r in here] == [r["hits"] for r in there]
     assert 0 < here[0]["hits"] < 60  # an informative count, not all or none
+
+
+def test_a_batch_cluster_dry_run_prints_one_worker_process_per_core_and_runs_nothing(tmp_path,
+                                                                                    capsys):
+    assert main(["power", "--out", str(tmp_path / "p"), "--cluster", "slurm", "--cores", "4",
+                 "--dry-run"]) == 0
+    script = capsys.readouterr().out
+    assert "#SBATCH --cpus-per-task=4" in script and "--nworkers 4" in script
+    assert not (tmp_path / "p").exists()
+    assert main(["power", "--out", str(tmp_path / "p"), "--dry-run"]) == 2
