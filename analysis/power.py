@@ -40,8 +40,9 @@ from analysis.pls import make_problem, solve, with_y
 from analysis.typeii import hypothesis_matrix, wald_chi2
 from studydesign import StudyDesign
 
-__all__ = ["ALPHA", "Effect", "ModelDraws", "ObserverDraws", "PowerError", "check_terms",
-           "layout_frame", "scaled_fixef", "study_unit_scale"]
+__all__ = ["ALPHA", "OBSERVER_EFFECTS", "Effect", "ModelDraws", "ObserverDraws", "PowerError",
+           "check_terms", "layout_frame", "observer_params", "participant_ids", "scaled_fixef",
+           "study_unit_scale"]
 
 ALPHA = 0.05
 #: Observer parameters that carry each term's effect, per response of the model.
