@@ -255,8 +255,9 @@ def _tone_curve_problems(root: Path, frame: pd.DataFrame) -> list[str]:
                 and set(rows["envmap_sha256"].astype(str)) == {str(c["envmap_sha256"])}
                 and np.isclose(c["knee_luminance"], knee, rtol=1e-6)
                 and np.isclose(c["logistic_rate"], rate, rtol=1e-6)):
-            problems.append(f"{path}: light field {lf!r}'s curve (L_max {c['tonemap_lmax']:.6g}, "
-                            f"L_k {c['knee_luminance']:.6g}, s {c['logistic_rate']:.6g}) is not "
+            problems.append(f"{path}: the curve of light field {lf!r} (L_max "
+                            f"{c['tonemap_lmax']:.6g}, L_k {c['knee_luminance']:.6g}, s "
+                            f"{c['logistic_rate']:.6g}) is not "
                             f"the one its {len(rows)} PNGs were made with (the manifest's L_max "
                             f"{float(rows['tonemap_lmax'].iloc[0]):.6g}); {fix}")
     return problems
