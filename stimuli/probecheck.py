@@ -20,6 +20,7 @@ median: no scene is, the sun against its sky is about 1e5 to 1e6). Warned: a dyn
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import numpy as np
 
@@ -129,8 +130,8 @@ def check_light_field_file(envmap: str | os.PathLike, *, scale: float | None = N
     name = where or f"light probe {envmap}"
     try:
         probe = load_light_probe(envmap, normalise="none")
-    except IlluminationError as exc:
-        return [f"{name}: {exc}"], [], float("nan")
+    except IlluminationError as exc:  # missing, unreadable, not 2:1, NaN, negative, black
+        return [f"{where}: {exc}" if where else str(exc)], [], float("nan")
     problems, warnings = light_field_problems(probe.rgb)
     problems = [f"{name} ({probe.path}): {p}; {NEEDS}" for p in problems]
     warnings = [f"{name} ({probe.path}): {w}; {NEEDS}" for w in warnings]
@@ -163,6 +164,10 @@ def design_light_field_report(design) -> tuple[list[str], list[str]]:
     problems, warnings, seen = [], [], {}
     for where, envmap, scale in entries:
         path = design_envmap(design, envmap)
+        missing = _not_beside_design(design, where, envmap, path)
+        if missing and path not in seen:
+            seen[path] = (missing, [], float("nan"))
+            problems += missing
         if path not in seen:
             seen[path] = check_light_field_file(path, where=f"{where} ({envmap})")
             problems += seen[path][0]
@@ -170,6 +175,15 @@ def design_light_field_report(design) -> tuple[list[str], list[str]]:
         problems += _scale_problem(f"{design.source}: {where} ({envmap})", scale, seen[path][2],
                                    path)
     return problems, warnings
+
+
+def _not_beside_design(design, where: str, envmap: str, path: str) -> list[str]:
+    """A relative envmap with no file in the design's folder (nor a shipped probe's name)."""
+    if Path(envmap).is_absolute() or not Path(path).is_absolute() or Path(path).is_file():
+        return []
+    return [(f"{design.source}: {where}: envmap {envmap!r} is not in the design file's folder "
+             f"({path} does not exist; a relative envmap is read from there, not from the "
+             "current directory); put the panorama there, or give its absolute path")]
 
 
 def refuse_bad_light_fields(plan, say=print) -> None:

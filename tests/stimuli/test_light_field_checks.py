@@ -132,6 +132,21 @@ def test_a_relative_envmap_is_read_from_the_design_folder_not_the_current_one(tm
         "immenstadter_horn_512x256.hdr"}  # a shipped probe stays named by its name
 
 
+def test_the_design_check_names_the_design_folder_for_a_relative_envmap(tmp_path, monkeypatch,
+                                                                       capsys):
+    """The panorama in the current directory, not beside the design: refused, naming where a
+    relative envmap is read from (it was read from the current directory)."""
+    lab, elsewhere = tmp_path / "lab", tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    write_exr(elsewhere / "room.exr", hdr_panorama())
+    path = _lab_design(lab, "room.exr", diffuse_white_scale(hdr_panorama()))
+    monkeypatch.chdir(elsewhere)
+    assert design_main(["--design", str(path), "check"]) == 1
+    err = capsys.readouterr().err
+    assert f"{(lab / 'room.exr').resolve()} does not exist" in err
+    assert "a relative envmap is read from there, not from the current directory" in err
+
+
 def test_the_manifest_records_the_file_read_from_the_design_folder(tmp_path, monkeypatch,
                                                                   capsys, mitsuba_variant):
     lab, elsewhere = tmp_path / "lab", tmp_path / "elsewhere"
