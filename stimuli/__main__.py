@@ -398,7 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 
-    p = sub.add_parser("verify", help="check a rendered folder's files against its manifest")
+    p = sub.add_parser("verify", help="check a rendered folder: its files against the manifest, "
+                       "rendered files the manifest lacks, and tonemaps.csv")
     p.add_argument("folder", type=Path)
     p.set_defaults(func=_cmd_verify)
 
