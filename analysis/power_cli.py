@@ -56,7 +56,7 @@ def add_power_parser(sub) -> None:
         "power", help="power by simulation for planning a study (as R's simr)",
         description="Simulate planned studies, refit the mixed model and test each term (Type II "
         "Wald chi-square, as the report), as simr's powerSim/powerCurve: the power over numbers "
-        "of participants and trials per participant with Monte-Carlo 95 %% intervals, the "
+        "of participants and trials per participant with Monte-Carlo 95 % intervals, the "
         "smallest N for the target power, the smallest effect a given N detects. Writes "
         "OUT/power.json, power.csv, power.png, summary.txt (an existing power.json is never "
         "overwritten).", epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
