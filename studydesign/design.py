@@ -134,7 +134,8 @@ class StudyDesign:
         require(
             len(self.render.spp_by_gloss_level) == self.gloss.n_levels,
             f"render.spp_by_gloss_level has {len(self.render.spp_by_gloss_level)} values; give "
-            f"one per physical gloss level ({self.gloss.n_levels}, labels 1..{self.gloss.n_levels})",
+            f"one per physical gloss level ({self.gloss.n_levels}, labels "
+            f"1..{self.gloss.n_levels})",
         )
         names = [il.name for il in self.illuminations]
         require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
