@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 
 from calibration.errors import CalibrationError
-from calibration.gamma import DAC_BITS, choose_gamma_model, fit_gamma_models
+from calibration.gamma import DAC_BITS, GammaFit, choose_gamma_model, fit_gamma_models
 from calibration.noise import zero_bound
 from calibration.readings import at_centre, newest_timestamp
 from calibration.record import Calibration, utc_now_iso
@@ -152,6 +152,31 @@ def validation_deviation_pct(validation: pd.DataFrame, cal: Calibration) -> tupl
     return float(np.max(np.abs(dev))), dev
 
 
+def _fit_centre(readings: pd.DataFrame, *, device: str, dac_bits: int | None,
+                floor_cd_m2: float | None) -> tuple[np.ndarray, np.ndarray, tuple[GammaFit, ...]]:
+    """Every gamma model fitted to the centre's readings (:func:`fit_calibration`'s
+    ``dac_bits`` and ``floor_cd_m2``).
+
+    Returns
+    -------
+    levels, luminance_cd_m2 : ndarray, shape (n,)
+        The centre's drive levels in [0, 1] and readings (cd/m^2).
+    fits : tuple of GammaFit
+        One per model (:func:`calibration.gamma.fit_gamma_models`).
+    """
+    centre = centre_readings(readings)
+    levels = centre["level"].to_numpy(float)
+    lum = centre["luminance_cd_m2"].to_numpy(float)
+    # A zero says the light was below the meter's own floor: the one given, else the
+    # device's documented floor, else at most the lowest positive reading (zero_bound).
+    positive = lum[lum > 0]
+    zero = float(floor_cd_m2) if floor_cd_m2 is not None else zero_bound(
+        device, float(positive.min()) if positive.size else None, 0.0)[0]
+    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2,
+                            zero_floor_cd_m2=zero if zero > 0 else None)
+    return levels, lum, fits
+
+
 def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
                     monitor_name: str, resolution_px, width_cm: float, distance_cm: float,
                     refresh_hz: float, instrument: dict | None = None,
@@ -195,16 +220,8 @@ def fit_calibration(readings: pd.DataFrame, *, calibration_id: str, device: str,
     -------
     Calibration
     """
-    centre = centre_readings(readings)
-    levels = centre["level"].to_numpy(float)
-    lum = centre["luminance_cd_m2"].to_numpy(float)
-    # A zero says the light was below the meter's own floor: the one given, else the
-    # device's documented floor, else at most the lowest positive reading (zero_bound).
-    positive = lum[lum > 0]
-    zero = float(floor_cd_m2) if floor_cd_m2 is not None else zero_bound(
-        device, float(positive.min()) if positive.size else None, 0.0)[0]
-    fits = fit_gamma_models(levels, lum, dac_bits=dac_bits, floor_cd_m2=floor_cd_m2,
-                            zero_floor_cd_m2=zero if zero > 0 else None)
+    levels, lum, fits = _fit_centre(readings, device=device, dac_bits=dac_bits,
+                                    floor_cd_m2=floor_cd_m2)
     best = choose_gamma_model(fits)
     warn = list(warnings) + monotonicity_warnings(levels, lum) + list(best.warnings)
     if measured_utc is None:

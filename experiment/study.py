@@ -305,6 +305,40 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
     StudyError
         No files, a column missing, responses outside the scale, a stimulus not in the table.
     """
+    frame, notes, n_files = _read_trial_files(study)
+    frame, said = _numeric_responses(frame, study, n_files)
+    notes += said
+    if participants is not None:
+        want = {str(p) for p in participants}
+        absent = sorted(want - set(frame["participant"]))
+        if absent:
+            raise StudyError(f"participants {absent} are not in the study's files (it has "
+                             f"{sorted(set(frame['participant']))}); fix --participants")
+        frame = frame[frame["participant"].isin(want)]
+    _check_trial_numbers(frame, study)
+    frame, said = _on_the_scale(frame, study)
+    notes += said
+    stim = _stimuli(study)
+    frame = frame.merge(stim, on="stimulus", how="left")
+    unknown = sorted(set(frame.loc[frame["factor"].isna(), "stimulus"]))
+    if unknown:
+        raise StudyError(f"stimuli {unknown[:5]} of the trial files are not in "
+                         f"{study.stimuli_table}; add them to the stimuli table")
+    if frame["trial"].isna().any():
+        raise StudyError(f"{int(frame['trial'].isna().sum())} rows have no number in the trial "
+                         f"column {study.columns['trial']!r}; fix [columns] trial")
+    frame = frame.sort_values(["participant", "trial"], ignore_index=True)
+    return frame, _dedupe(notes)
+
+
+def _read_trial_files(study: Study) -> tuple[pd.DataFrame, list[str], int]:
+    """Every trial file's study columns, as written (stripped text), with its ``file`` name.
+
+    Returns
+    -------
+    (DataFrame, notes, number of files)
+        Notes: the repairs :func:`read_lab_csv` made.
+    """
     files = sorted(study.folder.glob(study.files))
     if not files:
         raise StudyError(f"no trial files match {study.files!r} in {study.folder}; fix study.toml's "
@@ -321,7 +355,13 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
         out = pd.DataFrame({k: raw[c].str.strip() for k, c in study.columns.items()})
         out["file"] = path.name
         frames.append(out)
-    frame = pd.concat(frames, ignore_index=True)
+    return pd.concat(frames, ignore_index=True), notes, len(files)
+
+
+def _numeric_responses(frame: pd.DataFrame, study: Study, n_files: int
+                       ) -> tuple[pd.DataFrame, list[str]]:
+    """Responses, trial numbers and response times as numbers (``rt_s`` NaN without); rows
+    without a numeric response skipped, and a response column with none refused."""
     written = frame["response"].copy()
     for k in ("response", "trial", "rt_s"):
         if k in frame:
@@ -332,26 +372,23 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
     if empty.all():
         seen = sorted(set(written))[:3]
         raise StudyError(f"the response column {study.columns['response']!r} holds no number in "
-                         f"any of the {len(frame)} rows of {len(files)} file(s) (it holds "
+                         f"any of the {len(frame)} rows of {n_files} file(s) (it holds "
                          f"{seen}); point study.toml's [columns] response at the column of "
                          "the responses")
     if empty.any():
-        notes.append(f"{int(empty.sum())} rows without a numeric response (skipped)")
-        frame = frame[~empty]
-    if participants is not None:
-        want = {str(p) for p in participants}
-        absent = sorted(want - set(frame["participant"]))
-        if absent:
-            raise StudyError(f"participants {absent} are not in the study's files (it has "
-                             f"{sorted(set(frame['participant']))}); fix --participants")
-        frame = frame[frame["participant"].isin(want)]
-    _check_trial_numbers(frame, study)
+        return frame[~empty], [f"{int(empty.sum())} rows without a numeric response (skipped)"]
+    return frame, []
+
+
+def _on_the_scale(frame: pd.DataFrame, study: Study) -> tuple[pd.DataFrame, list[str]]:
+    """Refuse responses outside the scale; note an end of the scale no one used, and round
+    responses off the scale's steps to the nearest step (saying so)."""
     lo, hi = study.scale
     out_of = (frame["response"] < lo) | (frame["response"] > hi)
     if out_of.any():
         raise StudyError(f"{int(out_of.sum())} responses lie outside the scale {[lo, hi]} (e.g. "
                          f"{frame.loc[out_of, 'response'].iloc[0]:g}); fix [response] scale")
-    notes += _unused_scale_end(frame["response"], study)
+    notes = _unused_scale_end(frame["response"], study)
     if study.step > 0:
         k = (frame["response"] - lo) / study.step
         off = ~np.isclose(k, np.round(k), atol=1e-6)
@@ -359,17 +396,7 @@ def read_study_trials(study: Study, participants=None) -> tuple[pd.DataFrame, li
             notes.append(f"{int(off.sum())} responses are not on the scale's steps of "
                          f"{study.step:g}; rounded to the nearest step")
             frame["response"] = lo + np.round(k) * study.step
-    stim = _stimuli(study)
-    frame = frame.merge(stim, on="stimulus", how="left")
-    unknown = sorted(set(frame.loc[frame["factor"].isna(), "stimulus"]))
-    if unknown:
-        raise StudyError(f"stimuli {unknown[:5]} of the trial files are not in "
-                         f"{study.stimuli_table}; add them to the stimuli table")
-    if frame["trial"].isna().any():
-        raise StudyError(f"{int(frame['trial'].isna().sum())} rows have no number in the trial "
-                         f"column {study.columns['trial']!r}; fix [columns] trial")
-    frame = frame.sort_values(["participant", "trial"], ignore_index=True)
-    return frame, _dedupe(notes)
+    return frame, notes
 
 
 def _check_trial_numbers(frame: pd.DataFrame, study: Study) -> None:

@@ -258,6 +258,43 @@ def _mixture_pdf(bsdf, ctx, wi, wo):
     return pdf
 
 
+def _sample(bsdf, ctx, si, sample1, sample2, active):
+    """:meth:`sample`: choose a lobe with ``sample1`` (glossy with the lobe probability), draw
+    the outgoing direction from it with ``sample2``, and weight by f cos / the mixture pdf.
+
+    Returns
+    -------
+    (mi.BSDFSample3f, mi.Spectrum)
+        The sample, and its weight (0 where inactive, below the surface or of pdf 0).
+    """
+    import drjit as dr
+    import mitsuba as mi
+
+    wi = si.wi
+    has_d, has_s, p_s = _lobe_weights(ctx, bsdf.rho_d, bsdf.rho_s, bsdf.lobe_probability)
+    active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0)
+    choose_s = sample1 < p_s
+    if not has_d:
+        choose_s = mi.Bool(True)
+    if not has_s:
+        choose_s = mi.Bool(False)
+    wo_s = _sample_glossy(wi, bsdf.alpha, sample2)
+    wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
+    wo = dr.select(choose_s, wo_s, wo_d)
+    active &= mi.Frame3f.cos_theta(wo) > 0
+
+    bs = dr.zeros(mi.BSDFSample3f)
+    bs.wo = wo
+    bs.pdf = _mixture_pdf(bsdf, ctx, wi, wo)
+    bs.eta = 1.0
+    bs.sampled_type = dr.select(choose_s, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
+                                mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
+    bs.sampled_component = dr.select(choose_s, mi.UInt32(1), mi.UInt32(0))
+    active &= bs.pdf > 0
+    weight = _f_cos(bsdf, ctx, wi, wo) / dr.maximum(bs.pdf, 1e-20)
+    return (bs, dr.select(active, mi.Spectrum(weight), mi.Spectrum(0.0)))
+
+
 def _make_class():
     """Define the plugin class for the current Mitsuba variant (mi.BSDF is per variant)."""
     import drjit as dr
@@ -285,30 +322,7 @@ def _make_class():
 
         # -- the BSDF interface --------------------------------------------------------------
         def sample(self, ctx, si, sample1, sample2, active=True):
-            wi = si.wi
-            has_d, has_s, p_s = _lobe_weights(ctx, self.rho_d, self.rho_s,
-                                              self.lobe_probability)
-            active = mi.Bool(active) & (mi.Frame3f.cos_theta(wi) > 0)
-            choose_s = sample1 < p_s
-            if not has_d:
-                choose_s = mi.Bool(True)
-            if not has_s:
-                choose_s = mi.Bool(False)
-            wo_s = _sample_glossy(wi, self.alpha, sample2)
-            wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
-            wo = dr.select(choose_s, wo_s, wo_d)
-            active &= mi.Frame3f.cos_theta(wo) > 0
-
-            bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = wo
-            bs.pdf = _mixture_pdf(self, ctx, wi, wo)
-            bs.eta = 1.0
-            bs.sampled_type = dr.select(choose_s, mi.UInt32(+mi.BSDFFlags.GlossyReflection),
-                                        mi.UInt32(+mi.BSDFFlags.DiffuseReflection))
-            bs.sampled_component = dr.select(choose_s, mi.UInt32(1), mi.UInt32(0))
-            active &= bs.pdf > 0
-            weight = _f_cos(self, ctx, wi, wo) / dr.maximum(bs.pdf, 1e-20)
-            return (bs, dr.select(active, mi.Spectrum(weight), mi.Spectrum(0.0)))
+            return _sample(self, ctx, si, sample1, sample2, active)
 
         def eval(self, ctx, si, wo, active=True):
             ok = mi.Bool(active) & (mi.Frame3f.cos_theta(si.wi) > 0) & (mi.Frame3f.cos_theta(wo) > 0)

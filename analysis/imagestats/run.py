@@ -232,19 +232,9 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
         raise ImageStatsError(str(exc)) from exc
     meta = {"config": asdict(config), "extent_cm": float(design.array.extent_cm),
             "image": "exr_luminance", "region": "array_square"}
-    start(out, meta)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", DamagedPartWarning)
-        done = read_done(out)
-    notes = tuple(str(w.message) for w in caught if issubclass(w.category, DamagedPartWarning))
-    _check_done(done, manifest, out)
+    done, notes = _start(out, meta, manifest)
     problems = _folder_problems(manifest, root)
-    todo = manifest[~manifest["stimulus_id"].isin(set(done["stimulus_id"]))]
-    records = [
-        {k: (None if pd.isna(v) else v) for k, v in row.items()}
-        for row in todo[list(MANIFEST_COLUMNS)].to_dict(orient="records")
-    ]
-    batches = [records[i:i + batch_size] for i in range(0, len(records), batch_size)]
+    batches = _todo_batches(manifest, done, batch_size)
     n_computed, n_workers = 0, 0
     if batches:
         n_computed, n_workers = _measure(batches, out, problems, root=root, design=design,
@@ -262,6 +252,37 @@ def compute_stats(render_dir: str | Path, out: str | Path, *, design: StudyDesig
     return StatsRun(path=out, n_images=len(manifest), n_skipped=len(done),
                     n_computed=n_computed, problems=tuple(problems),
                     seconds=time.perf_counter() - t0, workers=n_workers, notes=notes)
+
+
+def _start(out: Path, meta: dict, manifest: pd.DataFrame) -> tuple[pd.DataFrame, tuple[str, ...]]:
+    """Start (or resume) the table ``out`` made with ``meta``, and read the images already in
+    it, refusing a table of other files than ``manifest`` lists.
+
+    Returns
+    -------
+    done : DataFrame
+        The statistics already in ``out`` (and its parts).
+    notes : tuple of str
+        What was said of damaged parts (their images are measured again).
+    """
+    start(out, meta)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DamagedPartWarning)
+        done = read_done(out)
+    notes = tuple(str(w.message) for w in caught if issubclass(w.category, DamagedPartWarning))
+    _check_done(done, manifest, out)
+    return done, notes
+
+
+def _todo_batches(manifest: pd.DataFrame, done: pd.DataFrame, batch_size: int) -> list[list[dict]]:
+    """The manifest rows not yet in ``done``, as plain records (None for missing values) in
+    batches of ``batch_size``."""
+    todo = manifest[~manifest["stimulus_id"].isin(set(done["stimulus_id"]))]
+    records = [
+        {k: (None if pd.isna(v) else v) for k, v in row.items()}
+        for row in todo[list(MANIFEST_COLUMNS)].to_dict(orient="records")
+    ]
+    return [records[i:i + batch_size] for i in range(0, len(records), batch_size)]
 
 
 def _measure(batches: list, out: Path, problems: list, *, root: Path, design: StudyDesign,

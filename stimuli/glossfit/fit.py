@@ -27,7 +27,13 @@ from stimuli.glossfit.output import (
 from stimuli.glossfit.photoset import GlossFitError, PhotoSet, load_photo_set, photo_name
 from stimuli.glossfit.registration import Registration, register, warp_photo
 from stimuli.glossfit.residuals import highlight_centroid, region_masks, region_rmse
-from stimuli.glossfit.scene import SphereScene, fit_camera, luminance, sphere_distance_px
+from stimuli.glossfit.scene import (
+    Camera,
+    SphereScene,
+    fit_camera,
+    luminance,
+    sphere_distance_px,
+)
 from stimuli.glossfit.table import gloss_table_from_fits
 
 __all__ = ["OUTPUT_NAMES", "FitRun", "fit_gloss", "fit_level"]
@@ -202,70 +208,17 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
     t0 = time.perf_counter()
     settings = FitSettings() if settings is None else settings
     out = Path(out_dir)
-    taken = [name for name in OUTPUT_NAMES if (out / name).exists()]
-    if taken:
-        raise FileExistsError(f"{out} already holds a fit's output ({', '.join(taken)}); give a "
-                              f"new output folder (nothing is overwritten)")
+    _refuse_taken(out)
     photo_set = load_photo_set(photo_set_dir, gloss_pct, lighting=lighting)
     (out / "residuals").mkdir(parents=True, exist_ok=True)
     (out / "figures").mkdir(exist_ok=True)
     warnings = list(photo_set.warnings)
     cam = fit_camera(photo_set.setup, resolution_px)
-    rows, details = [], []
-    with SphereScene(photo_set.envmap, cam, spp=spp, seed=seed,
-                     envmap_rotation_deg=photo_set.setup.envmap_rotation_deg) as scene:
-        reference = scene.render(*REFERENCE_WARD)
-        cache = BasisCache(scene)
-        for pct, photo in photo_set.photos.items():
-            name = photo_name(pct)
-            before = scene.n_renders
-            base = {"gloss_pct": pct, "method": settings.method}
-            try:
-                reg, fit, row, arrays = fit_level(
-                    photo, photo_set.clipped[pct], photo_set, scene, reference, cache, settings,
-                    name=name, max_highlight_offset_px=max_highlight_offset_px)
-            except GlossFitError as exc:
-                nan = float("nan")
-                row = {c: nan for c in ("rho_d", "rho_s", "alpha", "reg_sx", "reg_sy",
-                                        "reg_dx_px", "reg_dy_px", "rmse", "rmse_highlight",
-                                        "rmse_body", "rmse_rim", "rmse_background")}
-                row.update(reg_flag=True, clipped_fraction=photo_set.clipped_fraction(pct),
-                           warnings=f"not fitted: {exc}")
-                warnings.append(f"{name}: not fitted: {exc}")
-                arrays = None
-                details.append({"gloss_pct": pct, "error": str(exc)})
-            else:
-                details.append({"gloss_pct": pct, "registration": reg.to_dict(),
-                                "objective": fit.error, "r": fit.r, "iterations": fit.iterations})
-            row = {**base, **row, "n_renders": scene.n_renders - before}
-            append_fit_row(out / "fits.csv", row)
-            if arrays is not None:
-                stem = Path(name).stem
-                write_residuals(out / "residuals" / f"{stem}.npz", arrays)
-                write_level_figure(out / "figures" / f"{stem}.png", arrays["photo"],
-                                   arrays["render"], arrays["residual"], arrays["sphere"],
-                                   f"gloss {pct:g} %: rho_d {row['rho_d']:.3g}, rho_s "
-                                   f"{row['rho_s']:.3g}, alpha {row['alpha']:.3g} "
-                                   f"({settings.method})")
-                if row["warnings"]:
-                    warnings.append(f"{name}: {row['warnings']}")
-            rows.append(row)
-            if progress:
-                progress(f"{name}: rho_d {row['rho_d']:.4g} rho_s {row['rho_s']:.4g} alpha "
-                         f"{row['alpha']:.4g} rmse {row['rmse']:.3g} ({row['n_renders']} renders)")
-        n_renders = scene.n_renders
+    rows, details, n_renders = _fit_levels(out, photo_set, cam, settings, warnings, spp=spp,
+                                           seed=seed, progress=progress,
+                                           max_highlight_offset_px=max_highlight_offset_px)
     fits = pd.read_csv(out / "fits.csv")
-    table, summary = None, {}
-    try:
-        from stimuli.glosstable import write_gloss_table
-
-        undetermined = tuple(fits.loc[fits["warnings"].astype(str).str.contains(
-            _ALPHA_UNDETERMINED), "gloss_pct"])
-        table, summary = gloss_table_from_fits(fits, undetermined)
-        write_gloss_table(table, out / "gloss_table.csv")
-    except ValueError as exc:  # GlossFitError, GlossTableError
-        warnings.append(f"gloss_table.csv not written: {exc}")
-        table = None
+    table, summary = _write_gloss_table(fits, out, warnings)
     wall_s = time.perf_counter() - t0
     info = {"photo_set": str(Path(photo_set_dir)), "settings": asdict(settings),
             "setup": photo_set.setup.to_dict(), "resolution_px": resolution_px, "spp": spp,
@@ -282,6 +235,120 @@ def fit_gloss(photo_set_dir: str | Path, out_dir: str | Path, gloss_pct: tuple[f
                  [] if table is None else table.to_dict("records"))
     return FitRun(out_dir=out, fits=fits, table=table, n_renders=n_renders, wall_s=wall_s,
                   warnings=warnings)
+
+
+def _refuse_taken(out: Path) -> None:
+    """Refuse an output folder that already holds any of ``OUTPUT_NAMES`` (nothing is
+    overwritten)."""
+    taken = [name for name in OUTPUT_NAMES if (out / name).exists()]
+    if taken:
+        raise FileExistsError(f"{out} already holds a fit's output ({', '.join(taken)}); give a "
+                              f"new output folder (nothing is overwritten)")
+
+
+def _fit_levels(out: Path, photo_set: PhotoSet, cam: Camera, settings: FitSettings,
+                warnings: list[str], *, spp: int, seed: int, progress,
+                max_highlight_offset_px: float) -> tuple[list[dict], list[dict], int]:
+    """Fit every level of the photo set in one sphere scene, in the set's order, writing each
+    level's output as it is fitted and adding its warnings to ``warnings``.
+
+    Returns
+    -------
+    rows : list of dict
+        fits.csv's rows.
+    details : list of dict
+        fit.json's ``levels``.
+    n_renders : int
+        Renders made, the registration's reference included.
+    """
+    rows, details = [], []
+    with SphereScene(photo_set.envmap, cam, spp=spp, seed=seed,
+                     envmap_rotation_deg=photo_set.setup.envmap_rotation_deg) as scene:
+        reference = scene.render(*REFERENCE_WARD)
+        cache = BasisCache(scene)
+        for pct, photo in photo_set.photos.items():
+            row, detail, level_warnings = _fit_and_write_level(
+                out, pct, photo, photo_set, scene, reference, cache, settings,
+                max_highlight_offset_px=max_highlight_offset_px)
+            warnings += level_warnings
+            details.append(detail)
+            rows.append(row)
+            if progress:
+                progress(f"{photo_name(pct)}: rho_d {row['rho_d']:.4g} rho_s {row['rho_s']:.4g} "
+                         f"alpha {row['alpha']:.4g} rmse {row['rmse']:.3g} "
+                         f"({row['n_renders']} renders)")
+        return rows, details, scene.n_renders
+
+
+def _fit_and_write_level(out: Path, pct: float, photo: np.ndarray, photo_set: PhotoSet,
+                         scene: SphereScene, reference: np.ndarray, cache: BasisCache,
+                         settings: FitSettings, *, max_highlight_offset_px: float
+                         ) -> tuple[dict, dict, list[str]]:
+    """Fit one gloss level and write what it gives the moment it exists: its row of fits.csv,
+    and, when fitted, its residual arrays and figure.
+
+    Returns
+    -------
+    row : dict
+        The row appended to fits.csv (NaN parameters and ``reg_flag`` when not fitted).
+    detail : dict
+        The level's entry in fit.json's ``levels`` (registration and objective, or the error).
+    warnings : list of str
+        The level's warnings, named by its photo.
+    """
+    name = photo_name(pct)
+    before = scene.n_renders
+    base = {"gloss_pct": pct, "method": settings.method}
+    warnings = []
+    try:
+        reg, fit, row, arrays = fit_level(
+            photo, photo_set.clipped[pct], photo_set, scene, reference, cache, settings,
+            name=name, max_highlight_offset_px=max_highlight_offset_px)
+    except GlossFitError as exc:
+        nan = float("nan")
+        row = {c: nan for c in ("rho_d", "rho_s", "alpha", "reg_sx", "reg_sy",
+                                "reg_dx_px", "reg_dy_px", "rmse", "rmse_highlight",
+                                "rmse_body", "rmse_rim", "rmse_background")}
+        row.update(reg_flag=True, clipped_fraction=photo_set.clipped_fraction(pct),
+                   warnings=f"not fitted: {exc}")
+        warnings.append(f"{name}: not fitted: {exc}")
+        arrays = None
+        detail = {"gloss_pct": pct, "error": str(exc)}
+    else:
+        detail = {"gloss_pct": pct, "registration": reg.to_dict(),
+                  "objective": fit.error, "r": fit.r, "iterations": fit.iterations}
+    row = {**base, **row, "n_renders": scene.n_renders - before}
+    append_fit_row(out / "fits.csv", row)
+    if arrays is not None:
+        stem = Path(name).stem
+        write_residuals(out / "residuals" / f"{stem}.npz", arrays)
+        write_level_figure(out / "figures" / f"{stem}.png", arrays["photo"],
+                           arrays["render"], arrays["residual"], arrays["sphere"],
+                           f"gloss {pct:g} %: rho_d {row['rho_d']:.3g}, rho_s "
+                           f"{row['rho_s']:.3g}, alpha {row['alpha']:.3g} "
+                           f"({settings.method})")
+        if row["warnings"]:
+            warnings.append(f"{name}: {row['warnings']}")
+    return row, detail, warnings
+
+
+def _write_gloss_table(fits: pd.DataFrame, out: Path, warnings: list[str]
+                       ) -> tuple[pd.DataFrame | None, dict]:
+    """Write gloss_table.csv from the fits (levels whose alpha no photo determines marked);
+    when it cannot be made or written, say why in ``warnings`` and return no table (with the
+    summary, if the table was made)."""
+    table, summary = None, {}
+    try:
+        from stimuli.glosstable import write_gloss_table
+
+        undetermined = tuple(fits.loc[fits["warnings"].astype(str).str.contains(
+            _ALPHA_UNDETERMINED), "gloss_pct"])
+        table, summary = gloss_table_from_fits(fits, undetermined)
+        write_gloss_table(table, out / "gloss_table.csv")
+    except ValueError as exc:  # GlossFitError, GlossTableError
+        warnings.append(f"gloss_table.csv not written: {exc}")
+        table = None
+    return table, summary
 
 
 def _versions() -> dict:

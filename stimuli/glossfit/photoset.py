@@ -311,51 +311,20 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
         raise GlossFitError(f"photo set {folder} is not a folder")
     setup = load_setup(folder / "setup.toml")
     base = lighting_folder(folder, lighting)
-    env_path = base / "envmap.exr"
-    if not env_path.is_file():
-        raise GlossFitError(f"{env_path} not found; a photo set needs the room's lat-long "
-                            f"panorama as envmap.exr")
-    envmap = read_exr(env_path)
-    _check_finite(envmap, env_path)
-    eh, ew = envmap.shape[:2]
-    if ew != 2 * eh:
-        raise GlossFitError(f"{env_path} is {ew} x {eh} px; a lat-long panorama is twice as "
-                            f"wide as high (re-project it to equirectangular)")
-    if float(envmap.max()) <= 0:
-        raise GlossFitError(f"{env_path} is black; it cannot light the sphere")
-
+    envmap = _read_envmap(base / "envmap.exr")
     photo_dir = base / "photos"
-    if not photo_dir.is_dir():
-        raise GlossFitError(f"{photo_dir} not found; put the photos in photos/gloss_XXX.exr")
-    expected = {photo_name(p): float(p) for p in gloss_pct}
-    strays = sorted(p.name for p in photo_dir.glob("gloss_*.exr") if p.name not in expected)
-    if strays:
-        raise GlossFitError(
-            f"{photo_dir}: {strays} name no gloss level of the design "
-            f"({sorted(expected)}); rename them or use a design with those levels")
+    expected = _expected_photos(photo_dir, gloss_pct)
     photos: dict[float, np.ndarray] = {}
     clipped: dict[float, np.ndarray] = {}
     warnings: list[str] = []
     missing: list[float] = []
-    w, h = setup.resolution_px
     for name, pct in sorted(expected.items(), key=lambda kv: kv[1]):
         path = photo_dir / name
         if not path.is_file():
             missing.append(pct)
             continue
-        photo = read_exr(path)
-        if photo.shape[:2] != (h, w):
-            raise GlossFitError(
-                f"{path} is {photo.shape[1]} x {photo.shape[0]} px but setup.toml says "
-                f"resolution_px = [{w}, {h}]; photos and setup must match")
-        _check_finite(photo, path)
-        clip = clipped_mask(photo, setup.saturation_level)
+        photo, clip = _read_photo(path, setup, max_clipped_fraction)
         fraction = float(clip.mean())
-        if fraction > max_clipped_fraction:
-            raise GlossFitError(
-                f"{path}: {100 * fraction:.2f} % of pixels are clipped (limit "
-                f"{100 * max_clipped_fraction:.1f} %); merge more (shorter) exposures into the "
-                f"HDR photo")
         if fraction > 0:
             warnings.append(f"{name}: {100 * fraction:.3f} % of pixels clipped; left out of the fit")
         photos[pct] = photo
@@ -368,6 +337,58 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
                         + ", ".join(f"{p:g} %" for p in missing))
     return PhotoSet(folder=folder, setup=setup, envmap=envmap, photos=photos, clipped=clipped,
                     missing_pct=missing, warnings=warnings)
+
+
+def _read_envmap(env_path: Path) -> np.ndarray:
+    """The room's panorama, refused if missing, not finite and >= 0, not lat-long (twice as
+    wide as high) or black."""
+    if not env_path.is_file():
+        raise GlossFitError(f"{env_path} not found; a photo set needs the room's lat-long "
+                            f"panorama as envmap.exr")
+    envmap = read_exr(env_path)
+    _check_finite(envmap, env_path)
+    eh, ew = envmap.shape[:2]
+    if ew != 2 * eh:
+        raise GlossFitError(f"{env_path} is {ew} x {eh} px; a lat-long panorama is twice as "
+                            f"wide as high (re-project it to equirectangular)")
+    if float(envmap.max()) <= 0:
+        raise GlossFitError(f"{env_path} is black; it cannot light the sphere")
+    return envmap
+
+
+def _expected_photos(photo_dir: Path, gloss_pct: tuple[float, ...]) -> dict[str, float]:
+    """Photo file name -> gloss level (%) of each of the design's levels; refuses a missing
+    photos/ folder and a photo named for no level of the design."""
+    if not photo_dir.is_dir():
+        raise GlossFitError(f"{photo_dir} not found; put the photos in photos/gloss_XXX.exr")
+    expected = {photo_name(p): float(p) for p in gloss_pct}
+    strays = sorted(p.name for p in photo_dir.glob("gloss_*.exr") if p.name not in expected)
+    if strays:
+        raise GlossFitError(
+            f"{photo_dir}: {strays} name no gloss level of the design "
+            f"({sorted(expected)}); rename them or use a design with those levels")
+    return expected
+
+
+def _read_photo(path: Path, setup: PhotoSetup, max_clipped_fraction: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """One photo and its clipped-pixel mask, refused if its size is not setup.toml's, it has
+    NaN, infinite or negative pixels, or more than ``max_clipped_fraction`` of them clipped."""
+    w, h = setup.resolution_px
+    photo = read_exr(path)
+    if photo.shape[:2] != (h, w):
+        raise GlossFitError(
+            f"{path} is {photo.shape[1]} x {photo.shape[0]} px but setup.toml says "
+            f"resolution_px = [{w}, {h}]; photos and setup must match")
+    _check_finite(photo, path)
+    clip = clipped_mask(photo, setup.saturation_level)
+    fraction = float(clip.mean())
+    if fraction > max_clipped_fraction:
+        raise GlossFitError(
+            f"{path}: {100 * fraction:.2f} % of pixels are clipped (limit "
+            f"{100 * max_clipped_fraction:.1f} %); merge more (shorter) exposures into the "
+            f"HDR photo")
+    return photo, clip
 
 
 #: The folder of a photo set that holds one subfolder per lighting

@@ -160,20 +160,8 @@ def register(photo: np.ndarray, reference: np.ndarray, fit_cam: Camera, setup: P
         photo does not resemble the render (correlation < 0.5 over the frame).
     """
     photo_cam = photo_camera(setup)
-    lum = luminance(photo)
-    if valid is not None:
-        lum = np.where(valid, lum, 0.0)
-    n = _binning(fit_cam, photo_cam)
-    blurred = _bin(lum, n)
-    weight = _bin(np.ones_like(lum) if valid is None else valid.astype(np.float32), n)
+    sample = _sampler(photo, fit_cam, photo_cam, setup, valid)
     ref = _log_normalised(luminance(reference).astype(np.float64))
-    centre = setup.centre_px
-
-    def sample(params):
-        coords = _coords(params, fit_cam, photo_cam, centre, n)
-        img = ndimage.map_coordinates(blurred, coords, order=1, mode="constant", cval=0.0)
-        wgt = ndimage.map_coordinates(weight, coords, order=1, mode="constant", cval=0.0)
-        return img, wgt
 
     def cost(params):
         img, wgt = sample(params)
@@ -183,13 +171,7 @@ def register(photo: np.ndarray, reference: np.ndarray, fit_cam: Camera, setup: P
         return float(np.mean((_log_normalised(img, good)[good] - ref[good]) ** 2))
 
     radius_photo_px = fit_cam.sphere_radius_px * photo_cam.focal_px / fit_cam.focal_px
-    shifts = np.linspace(-radius_photo_px, radius_photo_px, 9)
-    start = min(((1.0, 1.0, dx, dy) for dx in shifts for dy in shifts), key=cost)
-    step = 0.25 * radius_photo_px
-    simplex = np.array([start, *(np.array(start) + np.diag([0.05, 0.05, step, step]))])
-    res = optimize.minimize(cost, start, method="Nelder-Mead",
-                            options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7,
-                                     "maxiter": 800})
+    res = _minimise(cost, radius_photo_px)
     sx, sy, dx, dy = (float(v) for v in res.x)
     if max(abs(sx - 1), abs(sy - 1)) > max_scale_error:
         raise GlossFitError(
@@ -206,7 +188,50 @@ def register(photo: np.ndarray, reference: np.ndarray, fit_cam: Camera, setup: P
         raise GlossFitError(
             f"{name}: sphere not found (correlation with the reference render {corr:.2f}); is "
             f"the photo taken in the room of envmap.exr, with the sphere in view?")
-    # Background: outside 1.1 sphere radii in the fit render.
+    bg_ratio, bg_mismatch = _background(img, good, reference, fit_cam)
+    return Registration(sx=sx, sy=sy, dx_px=dx, dy_px=dy, sse=float(res.fun),
+                        background_ratio=bg_ratio, background_mismatch=bg_mismatch)
+
+
+def _sampler(photo: np.ndarray, fit_cam: Camera, photo_cam: Camera, setup: PhotoSetup,
+             valid: np.ndarray | None):
+    """``sample(params) -> (luminance, weight)``: the photo's luminance (0 where not
+    ``valid``), binned to the fit pixels' size and resampled bilinearly on the fit grid under
+    the warp ``params`` = (sx, sy, dx, dy), with the share of valid photo pixels under each."""
+    lum = luminance(photo)
+    if valid is not None:
+        lum = np.where(valid, lum, 0.0)
+    n = _binning(fit_cam, photo_cam)
+    blurred = _bin(lum, n)
+    weight = _bin(np.ones_like(lum) if valid is None else valid.astype(np.float32), n)
+    centre = setup.centre_px
+
+    def sample(params):
+        coords = _coords(params, fit_cam, photo_cam, centre, n)
+        img = ndimage.map_coordinates(blurred, coords, order=1, mode="constant", cval=0.0)
+        wgt = ndimage.map_coordinates(weight, coords, order=1, mode="constant", cval=0.0)
+        return img, wgt
+
+    return sample
+
+
+def _minimise(cost, radius_photo_px: float) -> optimize.OptimizeResult:
+    """The source study's Nelder-Mead over (sx, sy, dx, dy), started from the best of a 9 x 9
+    grid of shifts up to one sphere radius (photo px), so that a poor centre guess converges."""
+    shifts = np.linspace(-radius_photo_px, radius_photo_px, 9)
+    start = min(((1.0, 1.0, dx, dy) for dx in shifts for dy in shifts), key=cost)
+    step = 0.25 * radius_photo_px
+    simplex = np.array([start, *(np.array(start) + np.diag([0.05, 0.05, step, step]))])
+    return optimize.minimize(cost, start, method="Nelder-Mead",
+                             options={"initial_simplex": simplex, "xatol": 1e-3, "fatol": 1e-7,
+                                      "maxiter": 800})
+
+
+def _background(img: np.ndarray, good: np.ndarray, reference: np.ndarray, fit_cam: Camera
+                ) -> tuple[float, float]:
+    """``Registration.background_ratio`` and ``background_mismatch`` of the registered photo
+    luminance ``img`` against the reference render, over the valid pixels outside 1.1 sphere
+    radii; NaN when too few (10) or dark."""
     w, h = fit_cam.resolution_px
     v, u = np.mgrid[0:h, 0:w] + 0.5
     bg = (np.hypot(u - fit_cam.centre_px[0], v - fit_cam.centre_px[1])
@@ -216,7 +241,5 @@ def register(photo: np.ndarray, reference: np.ndarray, fit_cam: Camera, setup: P
         bg_ratio = float(img[bg].mean() / raw_ref[bg].mean())
         bg_mismatch = float(np.sqrt(np.mean((img[bg] / img[bg].mean()
                                              - raw_ref[bg] / raw_ref[bg].mean()) ** 2)))
-    else:
-        bg_ratio, bg_mismatch = float("nan"), float("nan")
-    return Registration(sx=sx, sy=sy, dx_px=dx, dy_px=dy, sse=float(res.fun),
-                        background_ratio=bg_ratio, background_mismatch=bg_mismatch)
+        return bg_ratio, bg_mismatch
+    return float("nan"), float("nan")
