@@ -167,6 +167,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"make_pictures: {step.__name__:12s} {time.monotonic() - t:6.1f} s", flush=True)
     for html in sorted((run_dir / "gap").glob("*/*.html")):
         screenshot(html, pics / f"gap_{html.parent.name}.png")
+    for text in pics.glob("*.txt"):  # the run folder's path, as a reader's would read
+        text.write_text(text.read_text().replace(str(run_dir), "out/docs-run"))
     print(f"make_pictures: all steps {time.monotonic() - t0:6.1f} s -> {pics}")
     return 0
 
