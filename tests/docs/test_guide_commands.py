@@ -21,7 +21,7 @@ import pytest
 
 DOCS = Path(__file__).resolve().parents[2] / "docs"
 PAGES = [DOCS / "getting-started.md", *sorted((DOCS / "guides").glob("*.md"))]
-FENCE = re.compile(r"^```bash\n(.*?)^```", re.S | re.M)
+FENCE = re.compile(r"^```bash\n(.*?)^```", re.DOTALL | re.MULTILINE)
 COMMAND = re.compile(r"^(?:\.venv/bin/)?python -m (\S+)(.*)$")
 #: package -> (module, parser builder) of the parsers ``python -m PACKAGE`` uses.
 PARSERS = {
