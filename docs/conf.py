@@ -69,3 +69,4 @@ def setup(app):
     import sphinxarg.ext
 
     sphinxarg.ext.render_list = _plain_help(sphinxarg.ext.render_list)
+smartquotes = False  # "--filter" stays two hyphens in option help
