@@ -14,6 +14,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 
 from calibration.errors import CalibrationError
+from calibration.runmeta import read_meta, write_meta
 
 __all__ = ["refit_beside", "same_fit"]
 
@@ -25,16 +26,14 @@ def same_fit(a, b) -> bool:
     return da == db
 
 
-def refit_beside(out_dir: Path, cal, progress):
+def refit_beside(out_dir: Path, cal, progress, *, refit):
     """A refit that differs from ``out_dir``'s calibration: a new calibration folder beside it.
 
     ``<folder>-refit-<UTC time>`` gets copies of the readings, validation, rejected readings and
     settings, a ``run_meta.json`` whose fit writes the new id ``<id>-refit-<UTC time>`` (the
-    readings keep theirs), and the outputs of :func:`calibration.run.refit`. The old folder
-    is not touched.
+    readings keep theirs), and the outputs of ``refit`` (:func:`calibration.run.refit`, passed
+    in by it: the folder's own rules). The old folder is not touched.
     """
-    from calibration.run import _read_meta, _write_meta, refit  # the folder's own rules
-
     base = datetime.now(UTC).strftime("%Y%m%dT%H%M%SZ")
     for stamp in [base, *(f"{base}-{n}" for n in range(2, 100))]:  # refits within a second
         new_dir = out_dir.parent / f"{out_dir.name}-refit-{stamp}"
@@ -48,11 +47,11 @@ def refit_beside(out_dir: Path, cal, progress):
     for name in ("readings.csv", "validation.csv", "rejected.csv", "procedure.json"):
         if (out_dir / name).is_file():
             shutil.copy2(out_dir / name, new_dir / name)
-    meta = _read_meta(out_dir)
+    meta = read_meta(out_dir)
     new_id = f"{cal.calibration_id}-refit-{stamp}"
     meta["fit"] = dict(meta["fit"], calibration_id=new_id)
     meta["refit_of"] = str((out_dir / "calibration.json").resolve())
-    _write_meta(new_dir, meta)
+    write_meta(new_dir, meta)
     new_cal, paths = refit(new_dir, progress=progress, lock=False)
     progress(f"{out_dir / 'calibration.json'} is kept as it was (a session that recorded it "
              f"stays resumable); the refit differs from it, so it is a new calibration {new_id} "

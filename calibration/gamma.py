@@ -30,20 +30,21 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy import stats
-from scipy.optimize import least_squares
-from scipy.special import log_ndtr
 
 from calibration.errors import CalibrationError
+from calibration.gamma_likelihood import (
+    CensoredReadings,
+    censored_readings,
+    fit_one,
+    heldout_error,
+    leave_one_level_out,
+)
 from calibration.gamma_models import (
     GAMMA_MODELS,
     INTERPOLATING_MODELS,
-    SHAPE_BOUNDS,
     gamma_drive_for_luminance,
     gamma_luminance,
-    knots_to_params,
     model_complexity,
-    params_from_linear,
-    shape,
 )
 from calibration.noise import NoiseModel, fit_noise
 
@@ -67,9 +68,6 @@ MISFIT_P = 1e-3
 _PREFERENCE = ("power", "inner_power", "offset_power", "extended_power", "ptb_sigmoid",
                "ptb_weibull",
                "ptb_crt_poly_linear", "monotone_spline")
-#: Grid nodes per shape parameter, and how many of the best nodes are polished.
-_GRID_N = 25
-_N_POLISH = 4
 
 
 @dataclass(frozen=True)
@@ -229,190 +227,6 @@ def error_scale(luminance_cd_m2) -> np.ndarray:
     return np.maximum(y, floor)
 
 
-# --- the likelihood ------------------------------------------------------------------------------
-@dataclass(frozen=True)
-class _Data:
-    x: np.ndarray
-    y: np.ndarray
-    sd: np.ndarray          # noise SD of each reading (at its bound for censored ones)
-    censored: np.ndarray
-    floor: np.ndarray       # each censored reading's bound, cd/m^2
-
-
-def _data(x, y, noise: NoiseModel) -> _Data:
-    """Readings with their censoring: at or below the noise floor, at most that floor; a zero
-    (or less), at most the meter's own floor (:attr:`NoiseModel.zero_floor`). A negative floor
-    censors nothing (every reading taken as exact)."""
-    zero = (y <= 0) & (noise.floor_cd_m2 >= 0)
-    cens = (y <= noise.floor_cd_m2) | zero
-    bound = np.where(zero, noise.zero_floor, noise.floor_cd_m2)
-    sd = noise.sd(np.where(cens, bound, y))
-    return _Data(x, y, sd, cens, bound)
-
-
-def _residuals(mu: np.ndarray, d: _Data) -> np.ndarray:
-    """Residuals whose half sum of squares is the negative log-likelihood (up to a constant).
-
-    Uncensored: (y - mu) / sd. Censored: sqrt(-2 log P(L <= floor)), the Tobit term.
-    """
-    r = (d.y - mu) / d.sd
-    if d.censored.any():
-        z = (d.floor[d.censored] - mu[d.censored]) / d.sd[d.censored]
-        r[d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
-    return r
-
-
-def _theta_names(model: str) -> tuple[str, ...]:
-    return tuple(SHAPE_BOUNDS[model])
-
-
-def _grid(model: str, x_max: float) -> dict:
-    """Grid nodes over the shape parameters: a dict of column arrays, shape (G, 1)."""
-    names = _theta_names(model)
-    axes = []
-    for n in names:
-        lo, hi = SHAPE_BOUNDS[model][n]
-        if n == "x0":
-            hi = min(hi, x_max - 1e-3)
-            axes.append(np.linspace(lo, hi, 2 * _GRID_N))
-        elif n in ("gamma", "beta"):
-            axes.append(np.geomspace(max(lo, 0.5), min(hi, 8.0), _GRID_N))
-        elif n == "r":
-            axes.append(np.concatenate([[0.0], np.geomspace(1e-3, hi, _GRID_N - 1)]))
-        else:
-            axes.append(np.geomspace(lo, hi, _GRID_N))
-    mesh = np.meshgrid(*axes, indexing="ij")
-    return {n: m.reshape(-1, 1) for n, m in zip(names, mesh)}
-
-
-def _grid_costs(model: str, d: _Data) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
-    """(a, K) by weighted least squares on the uncensored readings at every grid node, and the
-    negative log-likelihood with the censored terms; infeasible nodes (K < 0) cost inf."""
-    theta = _grid(model, float(d.x.max()))
-    f = shape(model, d.x[None, :], theta)
-    u = ~d.censored
-    w = 1.0 / d.sd[u] ** 2
-    fu, yu = f[:, u], d.y[u]
-    sff, sfy = fu**2 @ w, fu @ (w * yu)
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        if model == "inner_power":
-            a = np.zeros(len(sff))
-            gain = sfy / sff
-        else:
-            sw, sy, sf = w.sum(), np.sum(w * yu), fu @ w
-            det = sw * sff - sf * sf
-            gain = (sw * sfy - sf * sy) / det
-            a = (sy - gain * sf) / sw
-        mu = a[:, None] + gain[:, None] * f
-        r = (d.y[None, :] - mu) / d.sd[None, :]
-        if d.censored.any():
-            z = (d.floor[d.censored] - mu[:, d.censored]) / d.sd[d.censored]
-            r[:, d.censored] = np.sqrt(np.maximum(-2.0 * log_ndtr(z), 0.0))
-        cost = 0.5 * np.sum(r**2, axis=1)
-    cost = np.where(np.isfinite(cost) & (gain >= 0), cost, np.inf)
-    return cost, a, gain, theta
-
-
-def _polish(model: str, start: tuple[float, float, dict], d: _Data, top: float):
-    names = _theta_names(model)
-    bounds_t = [SHAPE_BOUNDS[model][n] for n in names]
-    if "x0" in names:
-        i = names.index("x0")
-        bounds_t[i] = (bounds_t[i][0], min(bounds_t[i][1], float(d.x.max()) - 1e-6))
-    has_a = model != "inner_power"
-    lo = ([-top] if has_a else []) + [0.0] + [b[0] for b in bounds_t]
-    hi = ([top] if has_a else []) + [np.inf] + [b[1] for b in bounds_t]
-    a0, k0, t0 = start
-    p0 = ([a0] if has_a else []) + [k0] + [t0[n] for n in names]
-    p0 = np.clip(np.asarray(p0, float), np.asarray(lo) + 1e-12,
-                 np.where(np.isfinite(hi), np.asarray(hi) - 1e-12, np.inf))
-
-    def unpack(p):
-        j = 1 if has_a else 0
-        a = p[0] if has_a else 0.0
-        return a, p[j], dict(zip(names, p[j + 1:]))
-
-    def resid(p):
-        a, gain, theta = unpack(p)
-        return _residuals(a + gain * shape(model, d.x, theta), d)
-
-    res = least_squares(resid, p0, bounds=(lo, hi), x_scale="jac", max_nfev=2000)
-    return res.cost, unpack(res.x)
-
-
-def _fit_parametric(model: str, d: _Data, extra_starts=(), n_polish: int = _N_POLISH
-                    ) -> tuple[dict, tuple]:
-    """Grid over theta with (a, K) exact, then bounded polish of the best nodes.
-
-    The ``extra_starts`` (a held-in refit gets the full fit's optimum) are polished first; a
-    grid node is polished only if its cost beats the best polished so far, so a refit costs
-    one polish unless the grid finds a better basin.
-    """
-    top = 10 * max(float(np.max(np.abs(d.y))), 1e-3) + 10
-    cost, a, gain, theta = _grid_costs(model, d)
-    order = [i for i in np.argsort(cost)[:n_polish] if np.isfinite(cost[i])]
-    best = None
-    for s in extra_starts:
-        r = _polish(model, s, d, top)
-        best = r if best is None or r[0] < best[0] else best
-    for i in order:
-        if best is not None and cost[i] >= best[0]:
-            continue
-        s = (float(a[i]), float(gain[i]), {n: float(v[i, 0]) for n, v in theta.items()})
-        r = _polish(model, s, d, top)
-        best = r if best is None or r[0] < best[0] else best
-    if best is None:
-        raise CalibrationError(f"gamma model {model!r}: no starting point fits the readings")
-    a_, gain_, theta_ = best[1]
-    return params_from_linear(model, float(a_), float(gain_), theta_), best[1]
-
-
-def _pava(y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """Weighted isotonic (non-decreasing) regression by pool-adjacent-violators."""
-    vals, wts, sizes = [], [], []
-    for v, wt in zip(y, w):
-        vals.append(v)
-        wts.append(wt)
-        sizes.append(1)
-        while len(vals) > 1 and vals[-2] > vals[-1]:
-            wsum = wts[-2] + wts[-1]
-            v2 = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
-            s = sizes[-2] + sizes[-1]
-            vals[-2:], wts[-2:], sizes[-2:] = [v2], [wsum], [s]
-    return np.repeat(vals, sizes)
-
-
-def _fit_interpolating(model: str, d: _Data) -> dict:
-    uniq, inv, counts = np.unique(d.x, return_inverse=True, return_counts=True)
-    means = np.bincount(inv, weights=d.y) / counts
-    if model == "monotone_spline":
-        sd_mean = np.sqrt(np.bincount(inv, weights=d.sd**2) / counts) / np.sqrt(counts)
-        means = _pava(means, 1.0 / sd_mean**2)
-    return knots_to_params(uniq, means)
-
-
-def _fit_one(model: str, d: _Data, extra_starts=(), n_polish: int = _N_POLISH
-             ) -> tuple[dict, tuple | None]:
-    if model in INTERPOLATING_MODELS:
-        return _fit_interpolating(model, d), None
-    return _fit_parametric(model, d, extra_starts, n_polish)
-
-
-def _subset(d: _Data, keep: np.ndarray) -> _Data:
-    return _Data(d.x[keep], d.y[keep], d.sd[keep], d.censored[keep], d.floor[keep])
-
-
-def _heldout_error(mu: np.ndarray, d: _Data) -> np.ndarray:
-    """Reading minus prediction, cd/m^2; a censored reading (it says only "at most the floor")
-    counts only a prediction above the floor, as minus its excess."""
-    return np.where(d.censored, -np.maximum(mu - d.floor, 0.0), d.y - mu)
-
-
-def _z(mu: np.ndarray, d: _Data) -> np.ndarray:
-    """Error in noise SDs; a censored reading counts only a prediction above the floor."""
-    return _heldout_error(mu, d) / d.sd
-
-
 # --- misfit --------------------------------------------------------------------------------------
 def _runs_test(signs: np.ndarray) -> tuple[int, float]:
     """Wald-Wolfowitz runs test (one-sided: too few runs = systematic misfit)."""
@@ -429,7 +243,7 @@ def _runs_test(signs: np.ndarray) -> tuple[int, float]:
     return runs, float(stats.norm.cdf((runs + 0.5 - mean) / math.sqrt(var)))
 
 
-def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
+def _misfit(model: str, d: CensoredReadings, mu: np.ndarray, n_params: int,
             noise: NoiseModel) -> tuple[dict, tuple]:
     u = ~d.censored
     z = (d.y[u] - mu[u]) / d.sd[u]
@@ -460,6 +274,25 @@ def _misfit(model: str, d: _Data, mu: np.ndarray, n_params: int,
            f"b = {noise.rel:.3g} ({where}); the model misses the curve's shape: look at the "
            "residual plot, check the photometer's aim and the warm-up, or remeasure")
     return out, (msg,)
+
+
+def _check_fittable(d: CensoredReadings, noise: NoiseModel) -> None:
+    """Refuse readings no model can be fitted to: fewer than 3 levels above the meter's floor,
+    or level means that do not rise by more than 5 noise SDs."""
+    x, y = d.x, d.y
+    if (~d.censored).sum() < 3 or np.unique(x[~d.censored]).size < 3:
+        raise CalibrationError(
+            f"only {int((~d.censored).sum())} readings lie above the meter's floor "
+            f"({noise.floor_cd_m2:.3g} cd/m^2); measure brighter levels or pass a lower floor"
+        )
+    uniq = np.unique(x)
+    means = np.array([y[x == v].mean() for v in uniq])
+    if means.max() - means.min() <= 5 * float(noise.sd(means.max())):
+        raise CalibrationError(
+            f"the readings do not rise with the drive (level means {means.min():.4g} to "
+            f"{means.max():.4g} cd/m^2, within 5 noise SDs): check that the photometer is "
+            "aimed at the patch and the display is on, then remeasure"
+        )
 
 
 # --- public API ----------------------------------------------------------------------------------
@@ -510,35 +343,11 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
     x, y = _check_readings(levels, luminance_cd_m2)
     x = displayed_drive(x, dac_bits)
     noise = noise or fit_noise(x, y, floor_cd_m2=floor_cd_m2, zero_floor_cd_m2=zero_floor_cd_m2)
-    d = _data(x, y, noise)
-    if (~d.censored).sum() < 3 or np.unique(x[~d.censored]).size < 3:
-        raise CalibrationError(
-            f"only {int((~d.censored).sum())} readings lie above the meter's floor "
-            f"({noise.floor_cd_m2:.3g} cd/m^2); measure brighter levels or pass a lower floor"
-        )
-    uniq = np.unique(x)
-    means = np.array([y[x == v].mean() for v in uniq])
-    if means.max() - means.min() <= 5 * float(noise.sd(means.max())):
-        raise CalibrationError(
-            f"the readings do not rise with the drive (level means {means.min():.4g} to "
-            f"{means.max():.4g} cd/m^2, within 5 noise SDs): check that the photometer is "
-            "aimed at the patch and the display is on, then remeasure"
-        )
-    params, linear = _fit_one(model, d)
+    d = censored_readings(x, y, noise)
+    _check_fittable(d, noise)
+    params, linear = fit_one(model, d)
     fitted = gamma_luminance(x, model=model, params=params)
-    heldout = np.empty_like(y)
-    level_loss = np.empty(uniq.size)
-    z_all = np.empty_like(y)
-    for i, level in enumerate(uniq):
-        out = x == level
-        held_in = _subset(d, ~out)
-        extra = [linear] if linear is not None else []
-        # The full fit's optimum starts each refit; the held-in grid's best nodes too if better.
-        p, _ = _fit_one(model, held_in, extra)
-        heldout[out] = gamma_luminance(x[out], model=model, params=p)
-        z = _z(heldout[out], _subset(d, out))
-        z_all[out] = z
-        level_loss[i] = float(np.mean(z**2))
+    heldout, z_all, level_loss = leave_one_level_out(model, d, linear)
     n_params = model_complexity(model, params)
     misfit, warnings = _misfit(model, d, fitted, n_params, noise)
     return GammaFit(
@@ -549,7 +358,7 @@ def fit_gamma(levels, luminance_cd_m2, *, model: str = "extended_power",
         levels=tuple(float(v) for v in x),
         luminance_cd_m2=tuple(float(v) for v in y),
         residuals_cd_m2=tuple(float(v) for v in y - fitted),
-        heldout_rms_pct=float(100 * np.sqrt(np.mean((_heldout_error(heldout, d)
+        heldout_rms_pct=float(100 * np.sqrt(np.mean((heldout_error(heldout, d)
                                                      / error_scale(y)) ** 2))),
         heldout_rms_z=float(np.sqrt(np.mean(z_all**2))),
         heldout_level_loss=tuple(float(v) for v in level_loss),

@@ -38,7 +38,8 @@ from calibration.gamma import DAC_BITS, gamma_luminance
 from calibration.readings import READINGS_COLUMNS, parse_utc
 from calibration.record import DEFAULT_CRT, Calibration, load_calibration, utc_now_iso
 from calibration.report import report_text, write_outputs
-from calibration.run import _lock, _write_imported_readings, _write_meta, refit
+from calibration.run import _lock, _write_imported_readings, refit
+from calibration.runmeta import write_meta
 from labfiles.clock import future_problem
 
 __all__ = ["PsychopyProfile", "import_psychopy_profile", "read_psychopy_profile"]
@@ -328,7 +329,7 @@ def import_psychopy_profile(source, out_dir, design, *, calib_name: str | None =
         out_dir.mkdir(parents=True, exist_ok=True)
         _write_imported_readings(out_dir / "readings.csv", frame[list(READINGS_COLUMNS)],
                                  profile.path)
-        _write_meta(out_dir, {"calibration_id": cal_id, "source": str(profile.path.resolve()),
+        write_meta(out_dir, {"calibration_id": cal_id, "source": str(profile.path.resolve()),
                               "measured_utc": measured, "source_notes": notes,
                               "fit": {**meta, "dac_bits": DAC_BITS,
                                       "warnings": warn + [source_note]}})

@@ -47,7 +47,9 @@ from calibration.readings import (
 )
 from calibration.record import DEFAULT_CRT, load_calibration
 from calibration.report import report_text, write_outputs
-from labfiles import FolderLock, atomic_write_text, csv_record, write_new_file
+from calibration.runmeta import read_meta as _read_meta
+from calibration.runmeta import write_meta as _write_meta
+from labfiles import FolderLock, csv_record, write_new_file
 from labfiles.clock import future_problem
 
 __all__ = [
@@ -76,27 +78,6 @@ def display_warnings(design, resolution_px, refresh_hz: float | None) -> tuple[l
         warn.append(f"measured refresh rate {refresh_hz:.1f} Hz differs from the design's "
                     f"nominal {nominal:g} Hz (recorded as measured)")
     return warn, float(refresh_hz)
-
-
-def _write_meta(out_dir: Path, meta: dict) -> None:
-    atomic_write_text(out_dir / "run_meta.json", json.dumps(meta, indent=2) + "\n")
-
-
-def _read_meta(out_dir: Path) -> dict:
-    path = out_dir / "run_meta.json"
-    if not path.is_file():
-        raise CalibrationError(
-            f"{path} not found: {out_dir} is not a calibration folder. Measure with `python -m "
-            "calibration run`, or fit a readings file with `python -m calibration fit "
-            "READINGS.csv --out DIR`")
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-        if not isinstance(meta.get("fit"), dict) or "calibration_id" not in meta:
-            raise KeyError("calibration_id or fit")
-    except (ValueError, KeyError, TypeError) as exc:
-        raise CalibrationError(f"{path} is malformed ({exc}); rerun `python -m calibration "
-                               "run` into a new --out") from exc
-    return meta
 
 
 def _usable_rows(table, path: Path, progress, why_empty: str):
@@ -155,9 +136,9 @@ def refit(out_dir, *, progress=print, lock: bool = True, force_profile: bool = F
             kept = load_calibration(old)
         except CalibrationError as exc:  # damaged: kept for whoever looks, the refit beside
             progress(f"warning: {exc}")
-            return refit_beside(out_dir, cal, progress)
+            return refit_beside(out_dir, cal, progress, refit=refit)
         if not same_fit(kept, cal):
-            return refit_beside(out_dir, cal, progress)
+            return refit_beside(out_dir, cal, progress, refit=refit)
         cal = kept  # not written again: the same bytes, the same SHA-256
     paths = write_outputs(cal, readings, out_dir, validation, notes=notes,
                           force_profile=force_profile, keep_calibration=keep)

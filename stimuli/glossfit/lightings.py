@@ -26,48 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from stimuli.glossfit.photoset import GlossFitError
+from stimuli.glossfit.photoset import LIGHTINGS, GlossFitError, lighting_folder, lighting_names
 
 __all__ = ["LIGHTINGS", "is_lighting_fit", "lighting_folder", "lighting_names",
            "predict_lighting", "synth_lightings", "turned_room"]
 
-#: The folder of a photo set that holds one subfolder per lighting.
-LIGHTINGS = "lightings"
 _PHOTO_RE = re.compile(r"^gloss_(\d{3})\.exr$")
-
-
-def lighting_names(folder) -> list[str]:
-    """The lightings of a photo set (``lightings/NAME/`` folders), sorted; [] for today's
-    single-panorama layout."""
-    d = Path(folder) / LIGHTINGS
-    return sorted(p.name for p in d.iterdir() if p.is_dir()) if d.is_dir() else []
-
-
-def lighting_folder(folder, lighting: str | None) -> Path:
-    """The folder holding ``envmap.exr`` and ``photos/`` of ``lighting`` (None: the set's
-    own, today's layout).
-
-    Raises
-    ------
-    GlossFitError
-        A set of several lightings without ``lighting``, or a lighting it lacks.
-    """
-    folder = Path(folder)
-    names = lighting_names(folder)
-    if lighting is None:
-        if names:
-            raise GlossFitError(
-                f"{folder} holds photos in {len(names)} lightings ({', '.join(names)}); name "
-                f"the one to fit: python -m stimuli fit-gloss {folder} --lights {names[0]} "
-                "--out FIT")
-        return folder
-    if not names:
-        raise GlossFitError(f"--lights {lighting}: {folder} has one lighting (no {LIGHTINGS}/ "
-                            "folder); leave --lights out")
-    if lighting not in names:
-        raise GlossFitError(f"--lights {lighting}: {folder} has no lighting of that name; its "
-                            f"lightings: {', '.join(names)}")
-    return folder / LIGHTINGS / lighting
 
 
 def is_lighting_fit(fit_dir) -> bool:

@@ -32,10 +32,13 @@ from labfiles import LabFileError, read_toml
 from stimuli.glossfit.exr import read_exr
 
 __all__ = [
+    "LIGHTINGS",
     "GlossFitError",
     "PhotoSet",
     "PhotoSetup",
     "clipped_mask",
+    "lighting_folder",
+    "lighting_names",
     "load_photo_set",
     "load_setup",
     "photo_name",
@@ -307,8 +310,6 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
     if not folder.is_dir():
         raise GlossFitError(f"photo set {folder} is not a folder")
     setup = load_setup(folder / "setup.toml")
-    from stimuli.glossfit.lightings import lighting_folder
-
     base = lighting_folder(folder, lighting)
     env_path = base / "envmap.exr"
     if not env_path.is_file():
@@ -367,3 +368,42 @@ def load_photo_set(folder: str | Path, gloss_pct: tuple[float, ...], *,
                         + ", ".join(f"{p:g} %" for p in missing))
     return PhotoSet(folder=folder, setup=setup, envmap=envmap, photos=photos, clipped=clipped,
                     missing_pct=missing, warnings=warnings)
+
+
+#: The folder of a photo set that holds one subfolder per lighting
+#: (:mod:`stimuli.glossfit.lightings`).
+LIGHTINGS = "lightings"
+
+
+def lighting_names(folder) -> list[str]:
+    """The lightings of a photo set (``lightings/NAME/`` folders), sorted; [] for today's
+    single-panorama layout."""
+    d = Path(folder) / LIGHTINGS
+    return sorted(p.name for p in d.iterdir() if p.is_dir()) if d.is_dir() else []
+
+
+def lighting_folder(folder, lighting: str | None) -> Path:
+    """The folder holding ``envmap.exr`` and ``photos/`` of ``lighting`` (None: the set's
+    own, today's layout).
+
+    Raises
+    ------
+    GlossFitError
+        A set of several lightings without ``lighting``, or a lighting it lacks.
+    """
+    folder = Path(folder)
+    names = lighting_names(folder)
+    if lighting is None:
+        if names:
+            raise GlossFitError(
+                f"{folder} holds photos in {len(names)} lightings ({', '.join(names)}); name "
+                f"the one to fit: python -m stimuli fit-gloss {folder} --lights {names[0]} "
+                "--out FIT")
+        return folder
+    if not names:
+        raise GlossFitError(f"--lights {lighting}: {folder} has one lighting (no {LIGHTINGS}/ "
+                            "folder); leave --lights out")
+    if lighting not in names:
+        raise GlossFitError(f"--lights {lighting}: {folder} has no lighting of that name; its "
+                            f"lightings: {', '.join(names)}")
+    return folder / LIGHTINGS / lighting
