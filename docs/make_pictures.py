@@ -26,7 +26,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
 XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24"]
-CHROMIUM = "/usr/bin/chromium"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
 def run(cmd: list[str], *, log: Path, stdout: Path | None = None, ok=(0,)) -> None:
