@@ -1,7 +1,8 @@
 """``python -m analysis``: turn session data into results.
 
 Subcommands: ``units`` (slider matches to %/cm), ``fit`` (one mixed model by lme4 formula),
-``report`` (the HTML analysis report), ``gap``, ``gapbench`` and ``imagestats`` (passed on to
+``report`` (the HTML analysis report), ``power`` (power by simulation for planning a study,
+`analysis.power_cli`), ``gap``, ``gapbench`` and ``imagestats`` (passed on to
 ``analysis.gap``, ``analysis.gapbench`` and ``analysis.imagestats``; ``gap benchmark`` goes to
 ``analysis.gapbench``, where the blind benchmarks moved).
 """
@@ -149,7 +150,7 @@ def _cmd_report(args) -> int:
             print(f"warning: {note}", file=sys.stderr)
         index = build_report(args.data_dir, args.out, design,
                              n_boot=args.bootstrap, seed=args.seed, n_jobs=args.jobs,
-                             progress=not args.quiet)
+                             progress=not args.quiet, power_dirs=args.power)
     except (ReportExistsError, SessionDataError, DesignError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -236,7 +237,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed (recorded)")
     p.add_argument("--jobs", type=int, default=2, help="parallel bootstrap workers")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.add_argument("--power", metavar="POWER_DIR", nargs="+", default=[],
+                   help="include `python -m analysis power` results (section 'Planning a study: "
+                   "power')")
     p.set_defaults(func=_cmd_report)
+    from analysis.power_cli import add_power_parser
+
+    add_power_parser(sub)
     for name, (_, help_text) in _PASSTHROUGH.items():
         sub.add_parser(name, help=help_text, add_help=False)
     return parser

@@ -281,6 +281,85 @@ def _schur5(XtXy, R0, R1, R2, J, m_yy):
     return m_yy - c40 * c40 - c41 * c41 - c42 * c42 - c43 * c43, (b0, b1, b2, b3)
 
 
+def _pattern_gradient(theta, G, cols, S, nk, M, Q, beta):
+    """One pattern's two parts of :func:`deviance_gradient`, lower triangles in theta's order:
+    ``P = G T A^-1`` (the log-determinant's, times ``2 n_k``) and ``H = (I - G K) C T A^-1``
+    (the residual's, times ``-2 n / r^2``). ``M = L^-1`` and ``Q`` come from
+    `_pattern_terms`."""
+    t0, t1, t2, t3, t4, t5 = theta
+    (g00, g01, g02), (_, g11, g12), (_, _, g22) = G
+    m00, m10, m11, m20, m21, m22 = M
+    q00, q01, q02, q10, q11, q12, q20, q21, q22 = Q
+    # A^-1 = M'M (M = L^-1, lower triangular), symmetric.
+    a00 = m00 * m00 + m10 * m10 + m20 * m20
+    a01 = m10 * m11 + m20 * m21
+    a02 = m20 * m22
+    a11 = m11 * m11 + m21 * m21
+    a12 = m21 * m22
+    a22 = m22 * m22
+    # F = T A^-1 (T lower triangular).
+    f00, f01, f02 = t0 * a00, t0 * a01, t0 * a02
+    f10, f11, f12 = t1 * a00 + t3 * a01, t1 * a01 + t3 * a11, t1 * a02 + t3 * a12
+    f20 = t2 * a00 + t4 * a01 + t5 * a02
+    f21 = t2 * a01 + t4 * a11 + t5 * a12
+    f22 = t2 * a02 + t4 * a12 + t5 * a22
+    # P = G T A^-1 = G F, lower triangle.
+    p00 = g00 * f00 + g01 * f10 + g02 * f20
+    p10 = g01 * f00 + g11 * f10 + g12 * f20
+    p11 = g01 * f01 + g11 * f11 + g12 * f21
+    p20 = g02 * f00 + g12 * f10 + g22 * f20
+    p21 = g02 * f01 + g12 * f11 + g22 * f21
+    p22 = g02 * f02 + g12 * f12 + g22 * f22
+    # K = T A^-1 T' = Q'Q (symmetric).
+    k00 = q00 * q00 + q10 * q10 + q20 * q20
+    k01 = q00 * q01 + q10 * q11 + q20 * q21
+    k02 = q00 * q02 + q10 * q12 + q20 * q22
+    k11 = q01 * q01 + q11 * q11 + q21 * q21
+    k12 = q01 * q02 + q11 * q12 + q21 * q22
+    k22 = q02 * q02 + q12 * q12 + q22 * q22
+    # E = I - G K.
+    e00 = 1.0 - (g00 * k00 + g01 * k01 + g02 * k02)
+    e01 = -(g00 * k01 + g01 * k11 + g02 * k12)
+    e02 = -(g00 * k02 + g01 * k12 + g02 * k22)
+    e10 = -(g01 * k00 + g11 * k01 + g12 * k02)
+    e11 = 1.0 - (g01 * k01 + g11 * k11 + g12 * k12)
+    e12 = -(g01 * k02 + g11 * k12 + g12 * k22)
+    e20 = -(g02 * k00 + g12 * k01 + g22 * k02)
+    e21 = -(g02 * k01 + g12 * k11 + g22 * k12)
+    e22 = 1.0 - (g02 * k02 + g12 * k12 + g22 * k22)
+    # C = S - n_k (m w' + w m') + n_k w w', w = W beta, m the mean Z'y.
+    w0 = w1 = w2 = 0.0
+    for (a, b, c), bk in zip(cols, beta):
+        w0 += a * bk
+        w1 += b * bk
+        w2 += c * bk
+    mu0, mu1, mu2 = cols[-1]
+    (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
+    c00 = s00 + nk * (w0 * w0 - 2.0 * mu0 * w0)
+    c11 = s11 + nk * (w1 * w1 - 2.0 * mu1 * w1)
+    c22 = s22 + nk * (w2 * w2 - 2.0 * mu2 * w2)
+    c01 = s01 + nk * (w0 * w1 - mu0 * w1 - w0 * mu1)
+    c02 = s02 + nk * (w0 * w2 - mu0 * w2 - w0 * mu2)
+    c12 = s12 + nk * (w1 * w2 - mu1 * w2 - w1 * mu2)
+    # D = E C; H = D F (lower triangle only).
+    d00 = e00 * c00 + e01 * c01 + e02 * c02
+    d01 = e00 * c01 + e01 * c11 + e02 * c12
+    d02 = e00 * c02 + e01 * c12 + e02 * c22
+    d10 = e10 * c00 + e11 * c01 + e12 * c02
+    d11 = e10 * c01 + e11 * c11 + e12 * c12
+    d12 = e10 * c02 + e11 * c12 + e12 * c22
+    d20 = e20 * c00 + e21 * c01 + e22 * c02
+    d21 = e20 * c01 + e21 * c11 + e22 * c12
+    d22 = e20 * c02 + e21 * c12 + e22 * c22
+    h00 = d00 * f00 + d01 * f10 + d02 * f20
+    h10 = d10 * f00 + d11 * f10 + d12 * f20
+    h20 = d20 * f00 + d21 * f10 + d22 * f20
+    h11 = d10 * f01 + d11 * f11 + d12 * f21
+    h21 = d20 * f01 + d21 * f11 + d22 * f21
+    h22 = d20 * f02 + d21 * f12 + d22 * f22
+    return (p00, p10, p20, p11, p21, p22), (h00, h10, h20, h11, h21, h22)
+
+
 def deviance_gradient(theta, cp: CrossProducts):
     """The profiled ML deviance of `_deviance_fast` and its gradient in theta (q = 3).
 
@@ -313,7 +392,6 @@ def deviance_gradient(theta, cp: CrossProducts):
     deviance : float
     gradient : list of 6 float
     """
-    t0, t1, t2, t3, t4, t5 = theta
     x = cp.py_XtXy
     m_yy = cp.yty
     parts, kept, ldL2 = [], [], 0.0
@@ -332,81 +410,7 @@ def deviance_gradient(theta, cp: CrossProducts):
     scale = 2.0 * n / pwrss
     g = [0.0] * 6
     for (G, cols, S, nk), (M, Q) in zip(cp.patterns, kept):
-        (g00, g01, g02), (_, g11, g12), (_, _, g22) = G
-        m00, m10, m11, m20, m21, m22 = M
-        q00, q01, q02, q10, q11, q12, q20, q21, q22 = Q
-        # A^-1 = M'M (M = L^-1, lower triangular), symmetric.
-        a00 = m00 * m00 + m10 * m10 + m20 * m20
-        a01 = m10 * m11 + m20 * m21
-        a02 = m20 * m22
-        a11 = m11 * m11 + m21 * m21
-        a12 = m21 * m22
-        a22 = m22 * m22
-        # F = T A^-1 (T lower triangular).
-        f00, f01, f02 = t0 * a00, t0 * a01, t0 * a02
-        f10, f11, f12 = t1 * a00 + t3 * a01, t1 * a01 + t3 * a11, t1 * a02 + t3 * a12
-        f20 = t2 * a00 + t4 * a01 + t5 * a02
-        f21 = t2 * a01 + t4 * a11 + t5 * a12
-        f22 = t2 * a02 + t4 * a12 + t5 * a22
-        # P = G T A^-1 = G F, lower triangle.
-        p00 = g00 * f00 + g01 * f10 + g02 * f20
-        p10 = g01 * f00 + g11 * f10 + g12 * f20
-        p11 = g01 * f01 + g11 * f11 + g12 * f21
-        p20 = g02 * f00 + g12 * f10 + g22 * f20
-        p21 = g02 * f01 + g12 * f11 + g22 * f21
-        p22 = g02 * f02 + g12 * f12 + g22 * f22
-        # K = T A^-1 T' = Q'Q (symmetric).
-        k00 = q00 * q00 + q10 * q10 + q20 * q20
-        k01 = q00 * q01 + q10 * q11 + q20 * q21
-        k02 = q00 * q02 + q10 * q12 + q20 * q22
-        k11 = q01 * q01 + q11 * q11 + q21 * q21
-        k12 = q01 * q02 + q11 * q12 + q21 * q22
-        k22 = q02 * q02 + q12 * q12 + q22 * q22
-        # E = I - G K.
-        e00 = 1.0 - (g00 * k00 + g01 * k01 + g02 * k02)
-        e01 = -(g00 * k01 + g01 * k11 + g02 * k12)
-        e02 = -(g00 * k02 + g01 * k12 + g02 * k22)
-        e10 = -(g01 * k00 + g11 * k01 + g12 * k02)
-        e11 = 1.0 - (g01 * k01 + g11 * k11 + g12 * k12)
-        e12 = -(g01 * k02 + g11 * k12 + g12 * k22)
-        e20 = -(g02 * k00 + g12 * k01 + g22 * k02)
-        e21 = -(g02 * k01 + g12 * k11 + g22 * k12)
-        e22 = 1.0 - (g02 * k02 + g12 * k12 + g22 * k22)
-        # C = S - n_k (m w' + w m') + n_k w w', w = W beta, m the mean Z'y.
-        w0 = w1 = w2 = 0.0
-        for (a, b, c), bk in zip(cols, beta):
-            w0 += a * bk
-            w1 += b * bk
-            w2 += c * bk
-        mu0, mu1, mu2 = cols[-1]
-        (s00, s01, s02), (_, s11, s12), (_, _, s22) = S
-        c00 = s00 + nk * (w0 * w0 - 2.0 * mu0 * w0)
-        c11 = s11 + nk * (w1 * w1 - 2.0 * mu1 * w1)
-        c22 = s22 + nk * (w2 * w2 - 2.0 * mu2 * w2)
-        c01 = s01 + nk * (w0 * w1 - mu0 * w1 - w0 * mu1)
-        c02 = s02 + nk * (w0 * w2 - mu0 * w2 - w0 * mu2)
-        c12 = s12 + nk * (w1 * w2 - mu1 * w2 - w1 * mu2)
-        # D = E C; H = D F (lower triangle only).
-        d00 = e00 * c00 + e01 * c01 + e02 * c02
-        d01 = e00 * c01 + e01 * c11 + e02 * c12
-        d02 = e00 * c02 + e01 * c12 + e02 * c22
-        d10 = e10 * c00 + e11 * c01 + e12 * c02
-        d11 = e10 * c01 + e11 * c11 + e12 * c12
-        d12 = e10 * c02 + e11 * c12 + e12 * c22
-        d20 = e20 * c00 + e21 * c01 + e22 * c02
-        d21 = e20 * c01 + e21 * c11 + e22 * c12
-        d22 = e20 * c02 + e21 * c12 + e22 * c22
-        h00 = d00 * f00 + d01 * f10 + d02 * f20
-        h10 = d10 * f00 + d11 * f10 + d12 * f20
-        h20 = d20 * f00 + d21 * f10 + d22 * f20
-        h11 = d10 * f01 + d11 * f11 + d12 * f21
-        h21 = d20 * f01 + d21 * f11 + d22 * f21
-        h22 = d20 * f02 + d21 * f12 + d22 * f22
-        two_n = 2.0 * nk
-        g[0] += two_n * p00 - scale * h00
-        g[1] += two_n * p10 - scale * h10
-        g[2] += two_n * p20 - scale * h20
-        g[3] += two_n * p11 - scale * h11
-        g[4] += two_n * p21 - scale * h21
-        g[5] += two_n * p22 - scale * h22
+        p, h = _pattern_gradient(theta, G, cols, S, nk, M, Q, beta)
+        for i in range(6):
+            g[i] += 2.0 * nk * p[i] - scale * h[i]
     return dev, g

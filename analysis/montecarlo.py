@@ -22,6 +22,7 @@ Written by hand because no library does this for our own simulate-and-refit func
 
 from __future__ import annotations
 
+import itertools
 import math
 import sys
 import time
@@ -32,13 +33,16 @@ import numpy as np
 from scipy import stats
 
 __all__ = [
+    "Progress",
     "Rate",
     "SizeSearch",
-    "Progress",
     "decision_rate",
-    "rate_curve",
-    "smallest_size",
+    "decision_rates",
     "one_at_a_time",
+    "rate_curve",
+    "rates_curve",
+    "size_search",
+    "smallest_size",
 ]
 
 DrawBatch = Callable[[np.random.Generator, int], np.ndarray]
@@ -130,13 +134,15 @@ def one_at_a_time(decide: Callable[[np.random.Generator], bool]) -> DrawBatch:
     return draws
 
 
-def _chunk(draws: DrawBatch, seed: int, key: tuple, k: int) -> int:
+def _chunk(draws: DrawBatch, seed: int, key: tuple, k: int, columns: int | None = None):
     rng = np.random.default_rng(np.random.SeedSequence(seed, spawn_key=key))
     out = np.asarray(draws(rng, k), dtype=bool)
-    if out.shape != (k,):
-        raise ValueError(f"a draw function returned shape {out.shape}; it must return {k} "
+    want = (k,) if columns is None else (k, columns)
+    if out.shape != want:
+        raise ValueError(f"a draw function returned shape {out.shape}; it must return "
+                         f"{k if columns is None else want} "
                          "decisions (a bool array of the batch size it was asked for)")
-    return int(out.sum())
+    return int(out.sum()) if columns is None else out.sum(axis=0).astype(int)
 
 
 def _chunks(n_sim: int, chunk: int) -> list[int]:
@@ -172,31 +178,56 @@ def decision_rate(draws: DrawBatch, n_sim: int, *, seed: int, point: int = 0, ch
     -------
     Rate
     """
+    return _count(draws, n_sim, seed=seed, point=point, chunk=chunk, client=client,
+                  progress=progress, columns=None)
+
+
+def decision_rates(draws, n_sim: int, *, columns: int, seed: int, point: int = 0,
+                   chunk: int = 25, client=None,
+                   progress: Callable[[int, int], None] | None = None) -> tuple:
+    """`decision_rate` for draws that make ``columns`` decisions on each simulated data set
+    (``draws(rng, k) -> bool (k, columns)``: e.g. one test per term of a refitted model), one
+    `Rate` per column, from the same draws."""
+    if columns < 1:
+        raise ValueError(f"columns is {columns}; a draw makes at least 1 decision")
+    return _count(draws, n_sim, seed=seed, point=point, chunk=chunk, client=client,
+                  progress=progress, columns=columns)
+
+
+def _count(draws, n_sim, *, seed, point, chunk, client, progress, columns):
     if n_sim < 1:
         raise ValueError(f"n_sim is {n_sim}; ask for at least 1 simulated data set")
     if chunk < 1:
         raise ValueError(f"chunk is {chunk}; use at least 1 draw per chunk")
     sizes = _chunks(n_sim, chunk)
-    hits = 0
+    hits = 0 if columns is None else np.zeros(columns, int)
     done = 0
+
+    def result():
+        if columns is None:
+            return Rate(int(hits), n_sim)
+        return tuple(Rate(int(h), n_sim) for h in hits)
+
     if client is None:
         for i, k in enumerate(sizes):
-            hits += _chunk(draws, seed, (point, i), k)
+            hits = hits + _chunk(draws, seed, (point, i), k, columns)
             done += k
             if progress is not None:
                 progress(done, n_sim)
-        return Rate(hits, n_sim)
+        return result()
     from distributed import as_completed
 
-    futures = [client.submit(_chunk, draws, seed, (point, i), k, pure=False)
+    # Sent to the workers once, not with every chunk (a model's matrices are megabytes).
+    shared = client.scatter(draws, hash=False)
+    futures = [client.submit(_chunk, shared, seed, (point, i), k, columns, pure=False)
                for i, k in enumerate(sizes)]
     size_of = {f.key: k for f, k in zip(futures, sizes)}
     for fut in as_completed(futures):
-        hits += fut.result()
+        hits = hits + fut.result()
         done += size_of[fut.key]
         if progress is not None:
             progress(done, n_sim)
-    return Rate(hits, n_sim)
+    return result()
 
 
 def rate_curve(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n_sim: int, *,
@@ -223,6 +254,30 @@ def rate_curve(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n
     return tuple(out)
 
 
+def rates_curve(draws_at: Callable, sizes: Sequence, n_sim: int, *, columns: int, seed: int,
+                chunk: int = 25, client=None,
+                progress: Callable[[int, int], None] | None = None) -> tuple:
+    """`rate_curve` for draws of ``columns`` decisions each: ``((size, (Rate, ...)), ...)``.
+
+    A size may be any value ``draws_at`` takes (e.g. (participants, sessions, repeats)).
+    """
+    sizes = list(sizes)
+    if not sizes:
+        raise ValueError("no sizes given; give at least one size to simulate")
+    total = n_sim * len(sizes)
+    out = []
+    for j, size in enumerate(sizes):
+        base = j * n_sim
+
+        def tick(done, _total, base=base):
+            if progress is not None:
+                progress(base + done, total)
+
+        out.append((size, decision_rates(draws_at(size), n_sim, columns=columns, seed=seed,
+                                         point=j, chunk=chunk, client=client, progress=tick)))
+    return tuple(out)
+
+
 def smallest_size(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n_sim: int, *,
                   seed: int, target: float = 0.8, chunk: int = 25, client=None,
                   progress: Callable[[int, int], None] | None = None,
@@ -239,7 +294,7 @@ def smallest_size(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float]
     sizes = list(sizes)
     if not sizes:
         raise ValueError("no sizes given; give at least one size to simulate")
-    if any(b <= a for a, b in zip(sizes, sizes[1:])):
+    if any(b <= a for a, b in itertools.pairwise(sizes)):
         raise ValueError(f"sizes {sizes} are not increasing; list them smallest first")
     curve = []
     total = n_sim * len(sizes)
@@ -255,10 +310,12 @@ def smallest_size(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float]
         curve.append((size, r))
         if stop_early and r.ci[0] >= target:
             break
-    return _search_result(curve, target)
+    return size_search(curve, target)
 
 
-def _search_result(curve: list, target: float) -> SizeSearch:
+def size_search(curve, target: float) -> SizeSearch:
+    """The smallest size of a curve already simulated (``((size, Rate), ...)``, sizes
+    increasing) that reaches ``target``, bracketed by the rates' intervals (`SizeSearch`)."""
     size = next((s for s, r in curve if r.rate >= target), None)
     lo = next((s for s, r in curve if r.ci[1] >= target), None)
     hi = next((s for s, r in curve if r.ci[0] >= target), None)

@@ -18,6 +18,7 @@ import html
 import json
 import operator
 import platform
+import shutil
 from dataclasses import asdict
 from datetime import UTC, datetime
 from pathlib import Path
@@ -186,7 +187,8 @@ def _respecified(models: dict, extra: dict) -> dict:
 
 
 def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000,
-                 seed: int = 0, n_jobs: int = 2, progress: bool = True) -> Path:
+                 seed: int = 0, n_jobs: int = 2, progress: bool = True,
+                 power_dirs=()) -> Path:
     """Analyse a data folder into ``out_dir/index.html``.
 
     Parameters
@@ -204,6 +206,10 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
         Parallel bootstrap workers.
     progress : bool
         Show progress bars.
+    power_dirs : sequence of str or Path
+        ``python -m analysis power`` result folders: their curves and sentences become the
+        report's section "Planning a study: power" (each power.png copied beside index.html
+        as power-<k>.png).
 
     Returns
     -------
@@ -224,18 +230,13 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             f"{index} exists; reports are never overwritten: pass another --out or move it away")
     data = load_sessions(data_dir, design)
     frame = data.frame
+    powers = [_read_power(d) for d in power_dirs]
     out.mkdir(parents=True, exist_ok=True)
     n_part = len(data.participants)
     models = fit_source_study_models(frame, design)
     extra = fit_design_models(frame, design)
     every = {**models, **extra}
-    boots = {}
-    if n_boot > 0:
-        mf = model_frame(frame, design)
-        for k, (name, res) in enumerate(every.items()):
-            boots[name] = parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(),
-                                               n_boot=n_boot, seed=seed + k, n_jobs=n_jobs,
-                                               progress=progress)
+    boots = _bootstraps(every, model_frame(frame, design), n_boot, seed, n_jobs, progress)
     # Metamers exist only if depth changes perceived gloss: without a significant depth effect
     # in the gloss model, pairs that happen to match are noise (hundreds of pairs are tried).
     depth_p = {t.term: t.p for t in models["gloss"].tests}["depth"]
@@ -253,8 +254,33 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
     patterns = {"source": source_study_pattern(models, frame)}
     if respecified != models:
         patterns["respecified"] = source_study_pattern(respecified, frame)
+    results = _results(data_dir, data, design, every, boots, seed, metamers, patterns,
+                       respecified)
+    for k, d in enumerate(power_dirs):
+        shutil.copyfile(Path(d) / "power.png", out / f"power-{k + 1}.png")
+    if powers:
+        results["power"] = powers
+    atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
+    page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
+    _write_new(index, page)
+    return index
+
+
+def _bootstraps(every: dict, mf, n_boot: int, seed: int, n_jobs: int, progress: bool) -> dict:
+    """Each model's parametric bootstrap (model k with seed + k); none when n_boot is 0."""
+    if n_boot <= 0:
+        return {}
+    return {name: parametric_bootstrap(mf, res.fit, observed_chi2=res.chi2(), n_boot=n_boot,
+                                       seed=seed + k, n_jobs=n_jobs, progress=progress)
+            for k, (name, res) in enumerate(every.items())}
+
+
+def _results(data_dir, data, design, every, boots, seed, metamers, patterns,
+             respecified) -> dict:
+    """Every number of the report (results.json), power results aside."""
+    frame = data.frame
     created = datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
-    results = {
+    return {
         "created_utc": created, "data_dir": str(data_dir), "files": list(data.files),
         "design": design.source, "participants": data.participants, "n_trials": len(frame),
         "warnings": list(data.warnings),
@@ -271,10 +297,24 @@ def build_report(data_dir, out_dir, design: StudyDesign, *, n_boot: int = 10_000
             for which, pattern in patterns.items()},
         "versions": _versions(),
     }
-    atomic_write_text(out / "results.json", json.dumps(results, indent=1, ensure_ascii=False))
-    page = _page(data, every, boots, metamers, patterns, figures, results, n_part, n_boot, seed)
-    _write_new(index, page)
-    return index
+
+
+def _read_power(power_dir):
+    """A power result folder's power.json, checked before anything is computed."""
+    path = Path(power_dir) / "power.json"
+    if not path.is_file() or not (Path(power_dir) / "power.png").is_file():
+        raise ValueError(f"--power {power_dir}: no power.json and power.png there; make them "
+                         f"with `python -m analysis power DATA --out {power_dir}`")
+    return json.loads(path.read_text())
+
+
+def _power_section(powers) -> str:
+    if not powers:
+        return ""
+    from analysis.powerplan import power_html
+
+    return "<h2>Planning a study: power</h2>" + "".join(
+        power_html(p, png=f"power-{k + 1}.png") for k, p in enumerate(powers))
 
 
 def _calibrations_line(data) -> str:
@@ -356,6 +396,7 @@ depend on the scale). Type II Wald χ² as car::Anova(type = 2); the same hypoth
 with Satterthwaite's denominator degrees of freedom, as lmerTest (Kuznetsova et al. 2017).
 {esc(boot_note)}</p>
 {''.join(_model_section(models[k], boots.get(k)) for k in models)}
+{_power_section(results.get("power"))}
 <h2>Software</h2><p>{esc(', '.join(f'{k} {v}' for k, v in results['versions'].items()))}.
 All numbers: <a href="results.json">results.json</a>.</p>
 </body></html>

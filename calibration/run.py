@@ -218,6 +218,64 @@ def load_display_file(path) -> dict:
     return dict(table)
 
 
+def _imported_id(frame, calibration_id: str | None, readings_path: Path) -> str:
+    """The id of a calibration fitted from a file: ``calibration_id``, else the file's single
+    id, else ``import-<file stem>``; refused if it holds other characters or is reserved."""
+    file_ids = sorted(set(frame["calibration_id"]) - {""})
+    cal_id = calibration_id or (file_ids[0] if file_ids else
+                                "import-" + re.sub(r"[^A-Za-z0-9_-]+", "-",
+                                                   readings_path.stem).strip("-"))
+    if not cal_id.replace("-", "").replace("_", "").isalnum():
+        raise CalibrationError(f"calibration id {cal_id!r} may hold letters, digits, '-' "
+                               "and '_' only; pass --calibration-id")
+    if reserved_id_problem(cal_id):
+        raise CalibrationError(reserved_id_problem(cal_id))
+    return cal_id
+
+
+def _measured_time(frame, measured_utc: str | None, readings_path: Path) -> str:
+    """When the readings were taken (ISO 8601 UTC): the newest ``timestamp_utc`` of the file,
+    else ``--measured-utc``; refused when both or neither are given, or in the future."""
+    newest, _ = newest_timestamp(frame)
+    if newest is not None and measured_utc is not None:
+        raise CalibrationError(
+            f"{readings_path} has timestamp_utc values (newest {newest}); --measured-utc is "
+            "for files without them: leave it out")
+    measured = newest or measured_utc
+    if measured is None:
+        raise CalibrationError(
+            f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
+            "calibration's age is unknown; pass --measured-utc with the time the readings "
+            "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
+    problem = future_problem(parse_utc(measured, "--measured-utc"),
+                             "--measured-utc" if newest is None
+                             else f"{readings_path}: newest timestamp_utc")
+    if problem:
+        raise CalibrationError(problem + (" with --measured-utc" if newest is None else
+                                          " in the file's timestamp_utc column"))
+    return measured
+
+
+def _imported_fit_meta(frame, display: dict, design, cal_id: str, *, dac_bits,
+                       floor_cd_m2: float | None, readings_path: Path) -> dict:
+    """``run_meta.json``'s ``fit`` of a calibration fitted from a file: the display, the
+    instrument (the file's single device, else ``unknown``), the DAC bits, the floor
+    (refused unless finite and >= 0, cd/m^2) and the warnings."""
+    devices = sorted(set(frame["device"]) - {""})
+    device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
+    warn, fit_meta = _display_meta(display, design, cal_id, device)
+    fit_meta["dac_bits"] = dac_bits
+    if floor_cd_m2 is not None:
+        if not (math.isfinite(floor_cd_m2) and floor_cd_m2 >= 0):
+            raise CalibrationError(f"--floor-cd-m2 {floor_cd_m2!r}: give the photometer's "
+                                   "lowest reading in cd/m^2 (>= 0), e.g. 0.01")
+        fit_meta["floor_cd_m2"] = float(floor_cd_m2)
+    fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
+    fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
+                                    "READINGS.csv`), not measured by the procedure")]
+    return fit_meta
+
+
 def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.0,
                       position=None, calibration_id: str | None = None,
                       display: dict | None = None, measured_utc: str | None = None,
@@ -281,45 +339,11 @@ def fit_readings_file(readings_path, out_dir, design, *, level_scale: float = 1.
         if position is not None:
             frame = select_position(frame, position)
         centre_readings(frame)  # before anything is written
-        file_ids = sorted(set(frame["calibration_id"]) - {""})
-        cal_id = calibration_id or (file_ids[0] if file_ids else
-                                    "import-" + re.sub(r"[^A-Za-z0-9_-]+", "-",
-                                                       readings_path.stem).strip("-"))
-        if not cal_id.replace("-", "").replace("_", "").isalnum():
-            raise CalibrationError(f"calibration id {cal_id!r} may hold letters, digits, '-' "
-                                   "and '_' only; pass --calibration-id")
-        if reserved_id_problem(cal_id):
-            raise CalibrationError(reserved_id_problem(cal_id))
+        cal_id = _imported_id(frame, calibration_id, readings_path)
         frame = frame.assign(calibration_id=cal_id)
-        newest, _ = newest_timestamp(frame)
-        if newest is not None and measured_utc is not None:
-            raise CalibrationError(
-                f"{readings_path} has timestamp_utc values (newest {newest}); --measured-utc is "
-                "for files without them: leave it out")
-        measured = newest or measured_utc
-        if measured is None:
-            raise CalibrationError(
-                f"{readings_path} has no timestamp_utc column (or none with a zone), so the "
-                "calibration's age is unknown; pass --measured-utc with the time the readings "
-                "were taken (ISO 8601 UTC, e.g. 2026-08-01T10:00:00Z)")
-        problem = future_problem(parse_utc(measured, "--measured-utc"),
-                                 "--measured-utc" if newest is None
-                                 else f"{readings_path}: newest timestamp_utc")
-        if problem:
-            raise CalibrationError(problem + (" with --measured-utc" if newest is None else
-                                              " in the file's timestamp_utc column"))
-        devices = sorted(set(frame["device"]) - {""})
-        device = str(display.get("device") or (devices[0] if len(devices) == 1 else "unknown"))
-        warn, fit_meta = _display_meta(display, design, cal_id, device)
-        fit_meta["dac_bits"] = dac_bits
-        if floor_cd_m2 is not None:
-            if not (math.isfinite(floor_cd_m2) and floor_cd_m2 >= 0):
-                raise CalibrationError(f"--floor-cd-m2 {floor_cd_m2!r}: give the photometer's "
-                                       "lowest reading in cd/m^2 (>= 0), e.g. 0.01")
-            fit_meta["floor_cd_m2"] = float(floor_cd_m2)
-        fit_meta["instrument"] = {"device": device, "source": str(readings_path.resolve())}
-        fit_meta["warnings"] = [*warn, (f"fitted from {readings_path.name} (`calibration fit "
-                                        "READINGS.csv`), not measured by the procedure")]
+        measured = _measured_time(frame, measured_utc, readings_path)
+        fit_meta = _imported_fit_meta(frame, display, design, cal_id, dac_bits=dac_bits,
+                                      floor_cd_m2=floor_cd_m2, readings_path=readings_path)
         meta = {"calibration_id": cal_id, "source": str(readings_path.resolve()),
                 "level_scale": level_scale,
                 "position": None if position is None else list(position),

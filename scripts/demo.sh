@@ -134,10 +134,29 @@ xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
 "$PY" -m experiment simulate --observer ideal --participants D01 D02 --data "$RUN/data_ideal" --seed 1
 # --- end experiment ---
 
+# --- power ---
+step "power: how many participants for the seed's gloss x depth interaction, from a pilot"
+# A pilot of four simulated humanlike observers (no app; the gap step below fits the observers to
+# it too), the gloss model fitted to it, planned studies of 4, 6, ..., 24 new participants drawn
+# from its random effects, 1,000 simulated studies per N, refitted and tested (Type II Wald).
+"$PY" -m experiment simulate --observer humanlike --participants PILOT1 PILOT2 PILOT3 PILOT4 \
+  --data "$RUN/pilot" --seed 2
+"$PY" -m analysis power "$RUN/pilot" --out "$RUN/power" --model gloss --term gloss:depth \
+  --participants 4:24:2 --n-sim 1000 --seed 1 --workers 2 --quiet
+# The pilot's interaction is large (every N reaches 80 %); the same at a quarter of its size,
+# 200 studies per N (to keep the step short), with the smallest effect 12 participants detect.
+"$PY" -m analysis power "$RUN/pilot" --out "$RUN/power-quarter" --model gloss --term gloss:depth \
+  --participants 4:24:2 --n-sim 200 --seed 1 --workers 2 --quiet --scale gloss:depth=0.25 \
+  --detect 12
+# --- end power ---
+
 # --- analysis report ---
-step "analysis report: figures, mixed models (lme4's formulation), bootstrap"
+step "analysis report: figures, mixed models (lme4's formulation), bootstrap, power"
 # 2,000 bootstrap runs per model instead of the default 10,000, to keep the demo near a minute.
-"$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1
+POWER_OPT=()
+[ -f "$RUN/power-quarter/power.json" ] && POWER_OPT=(--power "$RUN/power" "$RUN/power-quarter")
+"$PY" -m analysis report "$RUN/data" --out "$RUN/report" --bootstrap 2000 --seed 1 \
+  ${POWER_OPT[@]+"${POWER_OPT[@]}"}
 # --- end analysis report ---
 
 # --- image statistics ---
@@ -167,8 +186,9 @@ GAP_REAL=(); GAP_SIM=()
 # against the ideal observer (expected: central tendency + crosstalk, the humanlike observer's
 # known effects), each with three bootstrap seeds: the verdicts must not depend on --seed.
 if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
-  "$PY" -m experiment simulate --observer humanlike --participants PILOT1 PILOT2 PILOT3 PILOT4 \
-    --data "$RUN/pilot" --seed 2
+  # (made by the power step above; made here when that step was left out)
+  [ -d "$RUN/pilot/sessions" ] || "$PY" -m experiment simulate --observer humanlike \
+    --participants PILOT1 PILOT2 PILOT3 PILOT4 --data "$RUN/pilot" --seed 2
   OBS_SIM="$RUN/data_ideal/sessions"; SIMS=("ideal=$OBS_SIM")
   if "$PY" -m experiment fit-observer "$RUN/pilot" --out "$GAP/observers.toml"; then
     OBS_SIM="$GAP/observers.toml"; SIMS=("fitted=$OBS_SIM" "${SIMS[@]}")

@@ -1,18 +1,23 @@
 """Build the shipped light fields (stimuli/probes/*_WxH.hdr) and their manifest from the captures.
 
+    PYTHONPATH=. .venv/bin/python scripts/make_lightfields.py ../shared/data/hdr/polyhaven --check
     PYTHONPATH=. .venv/bin/python scripts/make_lightfields.py ../shared/data/hdr/polyhaven \\
-        --factor 4 [--check]
+        --out NEW_FOLDER [--factor 2]
 
 For each capture listed in SOURCE/SOURCES.tsv (Poly Haven, CC0, 1024 x 512 Radiance RGBE,
-linear, unclipped): shrink it by ``--factor`` with the solid-angle-weighted box filter
-(``stimuli.illumination.downsample_latlong``, which keeps the power from every region of the
-sphere), write it as run-length encoded RGBE into stimuli/probes/, and append a row to
-stimuli/probes/lightfields.tsv: the shipped file, its kind and scene, the source file and its
+linear, unclipped): shrink it by ``--factor`` (2, the default, gives the shipped 512 x 256) with
+the solid-angle-weighted box filter (``stimuli.illumination.downsample_latlong``, which keeps the
+power from every region of the sphere), write it as run-length encoded RGBE into ``--out``, and
+write a row of ``--out``/lightfields.tsv: the file, its kind and scene, the source file and its
 SHA-256, where the source came from (repository, commit, path), the licence, both resolutions,
-the shipped file's SHA-256, and its scale by the design's rule (a matte white facing the viewer
-has luminance 1, ``stimuli.diffuse_white_scale``). Prints the ``light_fields`` lines of
-design.toml. ``--check`` rebuilds in memory and compares with what is shipped (exit 1 if any
-file or row differs).
+the file's SHA-256, and its scale by the design's rule (a matte white facing the viewer has
+luminance 1, ``stimuli.diffuse_white_scale``). Prints the ``light_fields`` lines of design.toml.
+``--check`` rebuilds in a temporary folder and compares with what is shipped (exit 1 if any file
+or row differs).
+
+Nothing is replaced: ``--out`` must not hold lightfields.tsv or any file the build writes (the
+shipped folder, stimuli/probes, holds them all: its provenance table is a record). To change
+what is shipped, build into a new folder, compare, and copy by hand.
 """
 
 from __future__ import annotations
@@ -34,13 +39,38 @@ COLUMNS = ["file", "kind", "light_field", "scene", "resolution", "sha256", "scal
            "licence", "author_site"]
 
 
-def build(source: Path, factor: int, out_dir: Path) -> list[dict]:
-    rows = []
-    with open(source / "SOURCES.tsv", encoding="utf-8", newline="") as fh:
+def read_sources(source: Path, factor: int) -> list[dict]:
+    """The rows of SOURCE/SOURCES.tsv, each with its capture read (``"image"``), checked first.
+
+    Raises
+    ------
+    ValueError
+        A missing folder, table or capture, or a factor that does not divide a capture's sides.
+    """
+    table = source / "SOURCES.tsv"
+    if not table.is_file():
+        what = "no such folder" if not source.is_dir() else "not a capture folder"
+        raise ValueError(f"{source} holds no SOURCES.tsv ({what}); give the folder of the 1k "
+                         "captures, e.g. ../shared/data/hdr/polyhaven")
+    with open(table, encoding="utf-8", newline="") as fh:
         sources = list(csv.DictReader(fh, delimiter="\t"))
     for src in sources:
-        original = read_rgbe(source / src["file"])
-        small = downsample_latlong(original, factor)
+        if not (source / src["file"]).is_file():
+            raise ValueError(f"{table} lists {src['file']}, which is not in {source}; restore it")
+        src["image"] = read_rgbe(source / src["file"])
+        h, w = src["image"].shape[:2]
+        if factor < 1 or h % factor or w % factor:
+            fits = [f for f in (1, 2, 4, 8, 16) if not h % f and not w % f]
+            raise ValueError(f"--factor {factor} does not divide {src['file']}'s {w} x {h} px "
+                             f"(a pixel cannot be split); use one of {fits} (2 gives the shipped "
+                             f"{w // 2} x {h // 2})")
+    return sources
+
+
+def build(sources: list[dict], source: Path, factor: int, out_dir: Path) -> list[dict]:
+    rows = []
+    for src in sources:
+        small = downsample_latlong(src["image"], factor)
         h, w = small.shape[:2]
         name = src["file"].removesuffix(".hdr").removesuffix("_1k")
         out = out_dir / f"{name}_{w}x{h}.hdr"
@@ -58,6 +88,15 @@ def build(source: Path, factor: int, out_dir: Path) -> list[dict]:
     return rows
 
 
+def _taken(sources: list[dict], factor: int, out_dir: Path) -> list[str]:
+    """The files of a build already in ``out_dir`` (which it would replace)."""
+    names = ["lightfields.tsv"]
+    for src in sources:
+        h, w = (n // factor for n in src["image"].shape[:2])
+        names.append(f"{src['file'].removesuffix('.hdr').removesuffix('_1k')}_{w}x{h}.hdr")
+    return [n for n in names if (out_dir / n).exists()]
+
+
 def _tsv(rows: list[dict]) -> str:
     buf = io.StringIO()
     writer = csv.DictWriter(buf, COLUMNS, delimiter="\t", lineterminator="\n")
@@ -66,18 +105,34 @@ def _tsv(rows: list[dict]) -> str:
     return buf.getvalue()
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("source", type=Path, help="folder with SOURCES.tsv and the 1k .hdr files")
-    ap.add_argument("--factor", type=int, default=4, help="shrink factor (4: 256 x 128)")
+    ap.add_argument("--factor", type=int, default=2,
+                    help="shrink factor (2, the default: the shipped 512 x 256; 4: 256 x 128)")
+    ap.add_argument("--out", type=Path, help="a new folder for the light fields and their "
+                    "lightfields.tsv (never the shipped stimuli/probes: nothing is replaced)")
     ap.add_argument("--check", action="store_true",
                     help="rebuild into a temporary folder and compare with what is shipped")
-    args = ap.parse_args()
+    args = ap.parse_args(argv)
+    try:
+        return _run(args)
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+
+
+def _run(args) -> int:
+    if not args.check and args.out is None:
+        raise ValueError("give --out NEW_FOLDER for the light fields (the shipped ones in "
+                         f"{SHIPPED_PROBES} and their provenance table are never replaced), or "
+                         "--check to compare a rebuild with them")
+    sources = read_sources(args.source, args.factor)
     if args.check:
         import tempfile
 
         with tempfile.TemporaryDirectory() as tmp:
-            rows = build(args.source, args.factor, Path(tmp))
+            rows = build(sources, args.source, args.factor, Path(tmp))
         shipped = MANIFEST.read_text(encoding="utf-8") if MANIFEST.is_file() else ""
         bad = [r["file"] for r in rows if not (SHIPPED_PROBES / r["file"]).is_file()
                or sha256_file(SHIPPED_PROBES / r["file"]) != r["sha256"]]
@@ -85,9 +140,16 @@ def main() -> int:
         print(f"{len(rows)} light fields rebuilt: {len(bad)} differ from the shipped files "
               f"{bad}; manifest {'identical' if same else 'DIFFERS'}")
         return 0 if not bad and same else 1
-    rows = build(args.source, args.factor, SHIPPED_PROBES)
-    atomic_write_text(MANIFEST, _tsv(rows))
-    print(f"wrote {len(rows)} light fields and {MANIFEST}; design.toml [imagestats]:")
+    taken = _taken(sources, args.factor, args.out)
+    if taken:
+        raise ValueError(f"{args.out} already holds {', '.join(taken[:4])}"
+                         f"{' ...' if len(taken) > 4 else ''}, which this build would replace "
+                         "(the shipped light fields' table is a record); give a new --out folder")
+    args.out.mkdir(parents=True, exist_ok=True)
+    rows = build(sources, args.source, args.factor, args.out)
+    atomic_write_text(args.out / "lightfields.tsv", _tsv(rows))
+    print(f"wrote {len(rows)} light fields and {args.out / 'lightfields.tsv'}; design.toml "
+          "[imagestats] (files given by path unless copied into stimuli/probes):")
     print("light_fields = [")
     for r in rows:
         print(f'  {{ name = "{r["light_field"]}", kind = "{r["kind"]}", '

@@ -165,9 +165,9 @@ def _cmd_render(args) -> int:
 
 
 def _cmd_verify(args) -> int:
-    from stimuli.manifest import verify_manifest
+    from stimuli.manifest import verify_folder
 
-    problems = verify_manifest(args.folder, kinds=("png", "exr"))
+    problems = verify_folder(args.folder)
     for p in problems:
         print(p, file=sys.stderr)
     print(f"{'OK' if not problems else 'FAILED'}: {len(problems)} problems in {args.folder}")
@@ -286,14 +286,22 @@ def _cmd_plan_spp(args) -> int:
 def _cmd_probe_scale(args) -> int:
     import numpy as np
 
+    from stimuli.errors import IlluminationError
     from stimuli.illumination import (
         diffuse_white_luminance,
         diffuse_white_scale,
         load_light_probe,
         luminance,
     )
+    from stimuli.probecheck import NEEDS, light_field_problems
 
     probe = load_light_probe(args.file, normalise="none")
+    problems, warnings = light_field_problems(probe.rgb)
+    for w in warnings:
+        print(f"warning: {probe.path}: {w}; {NEEDS}", file=sys.stderr)
+    if problems:
+        raise IlluminationError(f"{probe.path} is not a light field: {'; '.join(problems)}; "
+                                f"{NEEDS}")
     scale = diffuse_white_scale(probe.rgb)
     y = luminance(probe.rgb)
     row, col = np.unravel_index(int(np.argmax(y)), y.shape)
@@ -390,7 +398,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_render)
 
-    p = sub.add_parser("verify", help="check a rendered folder's files against its manifest")
+    p = sub.add_parser("verify", help="check a rendered folder: its files against the manifest, "
+                       "rendered files the manifest lacks, and tonemaps.csv")
     p.add_argument("folder", type=Path)
     p.set_defaults(func=_cmd_verify)
 

@@ -265,7 +265,10 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
     depth = design.depth.rendered_levels[-1]
     geometry = draw_array(design, float(design.depth.cm(depth)), stimulus_seed(depth))
     if probes is None:
-        probes = [load_light_probe(il.envmap) for il in design.illuminations]
+        from stimuli.sets import design_envmap
+
+        probes = [load_light_probe(design_envmap(design, il.envmap))
+                  for il in design.illuminations]
     renderer = StimulusRenderer(camera, size_px=size_px, spp=pilot_spp)
     n0 = renderer.spp
     pilot = np.zeros((len(probes), len(levels)))

@@ -39,14 +39,23 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from labfiles import TEMPORARY_GLOB, append_csv_record, atomic_open, read_csv_records
+from labfiles import TEMPORARY_GLOB, append_csv_record, read_csv_records
 from stimuli.dask_cluster import ClusterError
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss
 from stimuli.illumination import load_light_probe, probe_path, read_exr, write_exr
-from stimuli.manifest import append_manifest_row, load_manifest, sha256_file
+from stimuli.manifest import (
+    TONEMAP_COLUMNS,
+    append_manifest_row,
+    check_one_calibration,
+    load_manifest,
+    record_tone_curves,
+    sha256_file,
+)
+from stimuli.probecheck import refuse_bad_light_fields
 from stimuli.render import CameraGeometry, StimulusRenderer
+from stimuli.sets import refuse_mixed_sets
 from stimuli.tonemap import (
     display_fraction,
     gamma_encode,
@@ -62,13 +71,6 @@ RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px"
                       "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
 #: Render-log columns read as text (a checksum of digits and one "e" would read as a number).
 _LOG_TEXT = {"stimulus_id": str, "exr_sha256": str, "envmap_sha256": str}
-#: ``tonemaps.csv``: per light field, its probe and the tone curve of its PNGs
-#: (:mod:`stimuli.tonemap`; L_max over the images of the light field in the folder).
-TONEMAP_COLUMNS = ["light_field", "illumination", "envmap", "envmap_sha256", "envmap_scale",
-                   "n_images", "lmax_percentile", "tonemap_lmax", "knee_luminance",
-                   "logistic_rate", "linear_fraction", "knee_value", "max_value"]
-
-
 @dataclass(frozen=True)
 class RenderJob:
     """Settings shared by every image of a run (shipped to the workers).
@@ -374,20 +376,8 @@ def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, to
                 bar.update(1)
     finally:
         bar.close()
-    _record_tone_curves(out / "tonemaps.csv", curves)
+    record_tone_curves(out / "tonemaps.csv", curves)
     return n_png, n_png_skipped, manifest_path
-
-
-def _record_tone_curves(path: Path, curves: list[dict]) -> None:
-    """Write ``tonemaps.csv``: this run's light fields, and those of earlier runs into the same
-    folder that this run did not touch (kept as recorded)."""
-    frame = pd.DataFrame(curves, columns=TONEMAP_COLUMNS)
-    if path.is_file():
-        old = read_csv_records(path, dtype={"light_field": str, "envmap_sha256": str})
-        old = old[~old["light_field"].isin(frame["light_field"])]
-        frame = pd.concat([old[TONEMAP_COLUMNS], frame], ignore_index=True)
-    with atomic_open(path, "w", newline="", encoding="utf-8") as fh:
-        frame.to_csv(fh, index=False)
 
 
 def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibration,
@@ -412,35 +402,6 @@ def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibra
                            "EXRs are rendered)" if complete and rest else "")
             + "; re-run the same command to finish: it resumes, finished EXRs are not rendered "
             "again")
-
-
-def _check_one_calibration(manifest_path: Path, calibration, calibration_sha256: str) -> None:
-    """One manifest, one gamma correction: a resume into a folder whose PNGs were corrected
-    for another calibration is refused before anything is rendered. Another calibration is
-    another id, or the same id in a file of other content (a recalibration that kept its id:
-    the SHA-256 the manifest records differs from ``calibration_sha256``)."""
-    if not manifest_path.exists():
-        return
-    manifest = load_manifest(manifest_path)
-    ids = sorted(set(manifest["calibration_id"].astype(str)))
-    if ids and ids != [calibration.calibration_id]:
-        raise StimuliError(
-            f"{manifest_path} lists PNGs gamma-corrected for calibration {ids}; this run uses "
-            f"{calibration.calibration_id!r}, and one manifest holds one calibration's images: "
-            f"render into a new --out folder, or pass the calibration of {ids[0]!r} with "
-            "--calibration to finish this set")
-    shas = sorted(set(manifest["calibration_sha256"].astype(str)) - {""})
-    if calibration_sha256 and shas and shas != [calibration_sha256]:
-        from calibration import display_model_words
-
-        raise StimuliError(
-            f"{manifest_path} lists PNGs gamma-corrected for calibration {ids[0]!r} as in the "
-            f"file of SHA-256 {' and '.join(shas)}; this run's calibration {ids[0]!r} is "
-            f"another file (SHA-256 {calibration_sha256}: "
-            f"{display_model_words(calibration.display_model)}): the display was recalibrated "
-            "under the same id, and one manifest holds one calibration's images: render into a "
-            "new --out folder, or pass the calibration file the folder was rendered with "
-            "(`sha256sum` shows which) with --calibration to finish this set")
 
 
 def render_set(
@@ -500,13 +461,13 @@ def render_set(
         the message says what is kept and that re-running the same command resumes.
     """
     out = Path(out_dir)
-    _check_one_calibration(out / "manifest.csv", calibration, calibration_sha256)
+    check_one_calibration(out / "manifest.csv", calibration, calibration_sha256)
+    refuse_mixed_sets(out, table)
     for sub in ("exr", "png"):
         (out / sub).mkdir(parents=True, exist_ok=True)
     stale = _remove_stale_temporaries(out)
     plan = _plan_rows(table, gloss_table, job)
-    for env in plan["envmap"].unique():
-        probe_path(env)  # fail early, naming the file, before any worker starts
+    refuse_bad_light_fields(plan, say=lambda m: print(m, file=sys.stderr))  # before any worker
     t0 = time.perf_counter()
 
     try:

@@ -22,17 +22,23 @@ probe file's values are multiplied by; NaN: mean luminance 1) and ``rotation_deg
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
 
 import pandas as pd
 
 from stimuli.geometry import stimulus_seed
+from stimuli.illumination import SHIPPED_PROBES
 from studydesign import StudyDesign
 
 __all__ = [
     "SET_COLUMNS",
     "SET_NAMES",
     "apply_filters",
+    "design_envmap",
     "parse_filters",
+    "refuse_mixed_sets",
+    "set_family",
     "slice_levels",
     "stimulus_set",
 ]
@@ -43,12 +49,30 @@ SET_COLUMNS = ["stimulus_id", "illumination", "gloss_level", "depth_level", "tru
                "rotation_deg"]
 
 
+def design_envmap(design: StudyDesign, envmap: str) -> str:
+    """The panorama a design's ``envmap`` names, as recorded in the set and the manifest.
+
+    A relative path is read from the design file's folder (never the current directory, so a
+    design renders the same panoramas from wherever the command runs) and given as an absolute
+    path; a bare name with no such file there is the shipped probe of that name, given by its
+    name. An absolute path is kept. A missing file is returned too (the render names it).
+    """
+    path = Path(envmap)
+    if path.is_absolute():
+        return str(path)
+    here = Path(design.source).resolve().parent / path
+    if not here.is_file() and not path.parent.parts and (SHIPPED_PROBES / path.name).is_file():
+        return path.name
+    return str(here)
+
+
 def _experiment(design: StudyDesign) -> pd.DataFrame:
     t = design.stimuli().copy()
     t["light_field"] = t["illumination"]
     t["array_index"] = 0
     t["seed"] = [stimulus_seed(d, 0) for d in t["depth_level"]]
-    t["envmap"] = [design.illumination(il).envmap for il in t["illumination"]]
+    t["envmap"] = [design_envmap(design, design.illumination(il).envmap)
+                   for il in t["illumination"]]
     scales = [design.illumination(il).scale for il in t["illumination"]]
     t["envmap_scale"] = [math.nan if v is None else float(v) for v in scales]
     t["rotation_deg"] = 0.0
@@ -60,8 +84,9 @@ def _imagestats_rows(design: StudyDesign, lf, cells) -> list[tuple]:
     condition = design.illumination_of_kind(lf.kind)
     pct = dict(zip(design.gloss.labels, design.gloss.physical_pct))
     cm = dict(zip(design.depth.labels, design.depth.physical_cm))
+    envmap = design_envmap(design, lf.envmap)
     return [(f"{lf.name}_g{g:02d}_d{d:02d}_a{a:02d}", condition, g, d, pct[g], cm[d], lf.name, a,
-             stimulus_seed(d, a), lf.envmap, float(lf.scale), 0.0) for g, d, a in cells]
+             stimulus_seed(d, a), envmap, float(lf.scale), 0.0) for g, d, a in cells]
 
 
 def _imagestats(design: StudyDesign) -> pd.DataFrame:
@@ -168,3 +193,43 @@ def apply_filters(table: pd.DataFrame, filters: dict[str, list[str]], *,
         raise ValueError(f"the filters {filters} select no stimuli; check the values "
                          "(`python -m stimuli list --set NAME` shows them)")
     return out.reset_index(drop=True)
+
+
+#: The two kinds of folder a set renders into: the experiment's stimuli (``experiment`` and its
+#: ``preview``; ids ``indoor_g05_d07``) and the image-statistics images (``imagestats`` and its
+#: ``imagestats_slice``; ids end in the array, ``noon_grass_g05_d07_a03``).
+_FAMILIES = {"experiment": "the experiment's stimuli (--set experiment or preview)",
+             "imagestats": "the image-statistics set (--set imagestats or imagestats_slice)"}
+
+
+def set_family(stimulus_id: str) -> str:
+    """``"imagestats"`` for an image-statistics id (ending ``_aNN``), else ``"experiment"``."""
+    return "imagestats" if re.search(r"_a\d+$", str(stimulus_id)) else "experiment"
+
+
+def refuse_mixed_sets(out, plan: pd.DataFrame) -> None:
+    """Refuse to render one family of sets into a folder that holds the other's images.
+
+    The experiment reads a folder's manifest as its stimuli, and the image statistics a folder
+    as its set: the two mixed in one manifest would show image-statistics images in sessions,
+    or measure the experiment's. Looks at ``manifest.csv`` and ``renders.csv`` of ``out``.
+
+    Raises
+    ------
+    ValueError
+        Naming what the folder holds and the fix (another ``--out``).
+    """
+    from labfiles import read_csv_records
+
+    new = {set_family(s) for s in plan["stimulus_id"]}
+    held: set[str] = set()
+    for name in ("manifest.csv", "renders.csv"):
+        path = Path(out) / name
+        if path.is_file():
+            ids = read_csv_records(path, usecols=["stimulus_id"], dtype=str)["stimulus_id"]
+            held |= {set_family(s) for s in ids}
+    if held and held != new:
+        raise ValueError(f"{out} holds {' and '.join(_FAMILIES[f] for f in sorted(held))}; this "
+                         f"run renders {' and '.join(_FAMILIES[f] for f in sorted(new))}, and one "
+                         "folder (one manifest) holds one set: render into another --out folder "
+                         "(nothing was rendered or changed)")

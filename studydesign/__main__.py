@@ -88,6 +88,25 @@ def _light_fields(design) -> str:
     return "\n".join(lines)
 
 
+def _check(design) -> int:
+    """The design check: the file's values (checked on loading), then every panorama it names
+    (read from the design's folder where relative): a light field, at its own scale."""
+    from stimuli.probecheck import design_light_field_report
+
+    problems, warnings = design_light_field_report(design)
+    for w in warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if problems:
+        print(f"error: {design.source}: {len(problems)} problem(s) with its panoramas:\n  "
+              + "\n  ".join(problems), file=sys.stderr)
+        return 1
+    files = {il.envmap for il in design.illuminations} | {
+        lf.envmap for lf in design.imagestats.light_fields}
+    print(f"ok: {design.source} is a valid design ({design.n_stimuli} stimuli)\n"
+          f"ok: its {len(files)} panoramas are light fields at their own scales")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m studydesign``: one subparser per subcommand."""
     parser = argparse.ArgumentParser(
@@ -115,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "show":
         print(_summary(design))
     elif args.command == "check":
-        print(f"ok: {design.source} is a valid design ({design.n_stimuli} stimuli)")
+        return _check(design)
     elif args.command == "stimuli":
         table = design.stimuli()
         if args.out == "-":

@@ -78,6 +78,67 @@ def _light_field_section(frame: pd.DataFrame, names: list[str], out: Path,
             "means):</p>" + _table(spread))
 
 
+def _perception_sections(frame, names, stats, data_dir, design, out, results, *, n_boot, seed
+                         ) -> list[str]:
+    """The perception analyses of the report: perceived gloss regressed on the statistics
+    (participant bootstrap) and the image-statistics observer (``observer.json``,
+    ``observer_fit.png``); adds their figures to ``results``. Returns the HTML sections."""
+    parts: list[str] = []
+    trials = load_sessions(data_dir, design).frame
+    joined, how, missing = join_perception(frame, names, trials)
+    if missing:
+        covered = ~pd.MultiIndex.from_frame(trials[list(CELL)]).isin(missing)
+        trials = trials[covered]
+    rng = np.random.default_rng(seed)
+    reg = gloss_regression(joined, names, n_boot=n_boot, rng=rng)
+    observer = ImageStatsObserver.fit(stats, trials)
+    atomic_write_text(out / "observer.json", observer.to_json())
+    obs_cells = trials.groupby(list(CELL), as_index=False)[
+        ["gloss_match_pct", "true_depth_cm"]].mean()
+    pred = pd.DataFrame({"pred": observer.predict_trials(trials, stats)},
+                        index=trials.index).join(trials[list(CELL)])
+    pred = pred.groupby(list(CELL), as_index=False)["pred"].mean()
+    obs_cells = obs_cells.merge(pred, on=list(CELL))
+    save_figure(plot_observer_fit(obs_cells["gloss_match_pct"].to_numpy(),
+                                  obs_cells["pred"].to_numpy(),
+                                  obs_cells["true_depth_cm"].to_numpy()),
+                out / "observer_fit.png")
+    if missing:
+        parts.append(f"<p><b>Note:</b> {len(missing)} stimulus cells the sessions show have "
+                     f"no image in the table and are left out, e.g. {missing[:5]}.</p>")
+    results.update({"sessions": str(Path(data_dir).resolve()), "joined_by": how,
+                    "cells_without_images": [list(c) for c in missing],
+                    "gloss_regression": reg, "observer": json.loads(observer.to_json())})
+    rows = [{"statistic": r["statistic"],
+             **{f"{k} {part}": r[k][part] for k in ("coef", "r2", "depth_share")
+                for part in ("estimate", "ci_low", "ci_high")}}
+            for r in reg["per_statistic"]]
+    rows.append({"statistic": "all together",
+                 **{f"{k} {part}": reg["all"][k][part] for k in ("r2", "depth_share")
+                    for part in ("estimate", "ci_low", "ci_high")}})
+    de, r2a, r2g = reg["depth_effect"], reg["r2_A"], reg["r2_gloss_only"]
+    parts.append(
+        "<h2>Perceived gloss regressed on the statistics</h2>"
+        f"<p>{reg['n_rows']} participant x cell means, {reg['n_participants']} participants, "
+        f"trials matched to images by {how}. The observers' depth effect (gloss ~ true gloss "
+        f"+ true depth): {de['estimate']:.2f} % per cm [{de['ci_low']:.2f}, "
+        f"{de['ci_high']:.2f}], R² {r2a['estimate']:.3f} (true gloss alone: "
+        f"{r2g['estimate']:.3f}). Below, each statistic replaces depth (gloss ~ true gloss + "
+        "statistic): its coefficient (% per SD), R², and the share of the depth effect the "
+        "model reproduces (1 = all). 95 % CIs from "
+        f"{reg['n_boot']} participant-bootstrap resamples (seed {seed}). On cell means any "
+        "statistic that changes monotonically with depth can stand in for depth; the "
+        "observer model below must carry gloss as well.</p>" + _table(pd.DataFrame(rows)))
+    parts.append(
+        "<h2>Image-statistics observer</h2>"
+        f"<p>Ridge regression of the cell-mean perceived gloss on {list(observer.features)} "
+        f"(penalty {observer.penalty:g} by leave-one-out CV): R² = {observer.r2:.3f}, "
+        f"leave-one-out R² = {observer.loo_r2:.3f} over {observer.n_cells} cells. "
+        "Saved as observer.json (<code>ImageStatsObserver.from_json</code>).</p>"
+        '<img src="observer_fit.png">')
+    return parts
+
+
 def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
                         n_boot: int = 1000, seed: int = 0,
                         n_ps_components: int = 3) -> Path:
@@ -144,58 +205,8 @@ def build_relate_report(stats_path, out, design: StudyDesign, *, data_dir=None,
         save_figure(plot_stat_grid(cells, name), out / f"grid_{name}.png")
         parts.append(f'<h3>{name}</h3><img src="grid_{name}.png">')
     if data_dir is not None:
-        trials = load_sessions(data_dir, design).frame
-        joined, how, missing = join_perception(frame, names, trials)
-        if missing:
-            covered = ~pd.MultiIndex.from_frame(trials[list(CELL)]).isin(missing)
-            trials = trials[covered]
-        rng = np.random.default_rng(seed)
-        reg = gloss_regression(joined, names, n_boot=n_boot, rng=rng)
-        observer = ImageStatsObserver.fit(stats, trials)
-        atomic_write_text(out / "observer.json", observer.to_json())
-        obs_cells = trials.groupby(list(CELL), as_index=False)[
-            ["gloss_match_pct", "true_depth_cm"]].mean()
-        pred = pd.DataFrame({"pred": observer.predict_trials(trials, stats)},
-                            index=trials.index).join(trials[list(CELL)])
-        pred = pred.groupby(list(CELL), as_index=False)["pred"].mean()
-        obs_cells = obs_cells.merge(pred, on=list(CELL))
-        save_figure(plot_observer_fit(obs_cells["gloss_match_pct"].to_numpy(),
-                                      obs_cells["pred"].to_numpy(),
-                                      obs_cells["true_depth_cm"].to_numpy()),
-                    out / "observer_fit.png")
-        if missing:
-            parts.append(f"<p><b>Note:</b> {len(missing)} stimulus cells the sessions show have "
-                         f"no image in the table and are left out, e.g. {missing[:5]}.</p>")
-        results.update({"sessions": str(Path(data_dir).resolve()), "joined_by": how,
-                        "cells_without_images": [list(c) for c in missing],
-                        "gloss_regression": reg, "observer": json.loads(observer.to_json())})
-        rows = [{"statistic": r["statistic"],
-                 **{f"{k} {part}": r[k][part] for k in ("coef", "r2", "depth_share")
-                    for part in ("estimate", "ci_low", "ci_high")}}
-                for r in reg["per_statistic"]]
-        rows.append({"statistic": "all together",
-                     **{f"{k} {part}": reg["all"][k][part] for k in ("r2", "depth_share")
-                        for part in ("estimate", "ci_low", "ci_high")}})
-        de, r2a, r2g = reg["depth_effect"], reg["r2_A"], reg["r2_gloss_only"]
-        parts.append(
-            "<h2>Perceived gloss regressed on the statistics</h2>"
-            f"<p>{reg['n_rows']} participant x cell means, {reg['n_participants']} participants, "
-            f"trials matched to images by {how}. The observers' depth effect (gloss ~ true gloss "
-            f"+ true depth): {de['estimate']:.2f} % per cm [{de['ci_low']:.2f}, "
-            f"{de['ci_high']:.2f}], R² {r2a['estimate']:.3f} (true gloss alone: "
-            f"{r2g['estimate']:.3f}). Below, each statistic replaces depth (gloss ~ true gloss + "
-            "statistic): its coefficient (% per SD), R², and the share of the depth effect the "
-            "model reproduces (1 = all). 95 % CIs from "
-            f"{reg['n_boot']} participant-bootstrap resamples (seed {seed}). On cell means any "
-            "statistic that changes monotonically with depth can stand in for depth; the "
-            "observer model below must carry gloss as well.</p>" + _table(pd.DataFrame(rows)))
-        parts.append(
-            "<h2>Image-statistics observer</h2>"
-            f"<p>Ridge regression of the cell-mean perceived gloss on {list(observer.features)} "
-            f"(penalty {observer.penalty:g} by leave-one-out CV): R² = {observer.r2:.3f}, "
-            f"leave-one-out R² = {observer.loo_r2:.3f} over {observer.n_cells} cells. "
-            "Saved as observer.json (<code>ImageStatsObserver.from_json</code>).</p>"
-            '<img src="observer_fit.png">')
+        parts += _perception_sections(frame, names, stats, data_dir, design, out, results,
+                                      n_boot=n_boot, seed=seed)
     else:
         parts.append("<p>No session data given (--sessions): perception analyses left out.</p>")
     atomic_write_text(out / "results.json", json.dumps(results, indent=1, default=float))

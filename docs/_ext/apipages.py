@@ -14,11 +14,20 @@ import importlib
 import inspect
 from pathlib import Path
 
-#: The packages with a public API, in the order of the pipeline.
-PACKAGES = ("labfiles", "studydesign", "calibration", "calibration.photometers", "stimuli",
-            "stimuli.glossfit", "experiment", "analysis", "analysis.imagestats", "analysis.gap",
-            "analysis.gap.engine", "analysis.gap.observer", "analysis.gap.display",
-            "analysis.gap.render", "analysis.gapbench")
+#: The top-level packages, in the order of the pipeline.
+TOP = ("labfiles", "studydesign", "calibration", "stimuli", "experiment", "analysis")
+
+
+def packages(root: Path) -> list[str]:
+    """Every package under ``TOP`` whose ``__init__.py`` defines ``__all__`` (its public API),
+    each top-level package followed by its subpackages in name order: a new subpackage with an
+    ``__all__`` gets its page without a change here."""
+    found = []
+    for top in TOP:
+        for init in [root / top / "__init__.py", *sorted((root / top).rglob("*/__init__.py"))]:
+            if "__all__" in init.read_text(encoding="utf-8"):
+                found.append(".".join(init.parent.relative_to(root).parts))
+    return found
 
 
 def _directive(obj) -> str:
@@ -61,7 +70,11 @@ def _generate(app) -> None:
     folder = Path(app.srcdir) / "reference" / "api"
     folder.mkdir(parents=True, exist_ok=True)
     seen: dict[int, str] = {}
-    for package in PACKAGES:
+    listed = packages(Path(app.srcdir).parent)
+    for stale in folder.glob("*.rst"):  # a package gone or without __all__ now
+        if stale.stem not in listed:
+            stale.unlink()
+    for package in listed:
         target = folder / f"{package}.rst"
         text = page(package, seen)
         if not target.exists() or target.read_text() != text:

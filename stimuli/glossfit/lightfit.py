@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage, optimize
 
-from stimuli.glossfit.lightset import LightSet, load_light_set
+from stimuli.glossfit.lightset import LightSet, load_light_set, refuse_over_exposed
 from stimuli.glossfit.output import write_json, write_level_figure, write_residuals
 from stimuli.glossfit.photoset import GlossFitError
 from stimuli.glossfit.scene import FIT_LOBE_PROBABILITY
@@ -230,6 +230,7 @@ def fit_lights(photo_set_dir, out_dir, lights, *, spp: int = 4, seed: int = 0,
         raise FileExistsError(f"{out} already holds a fit's output ({', '.join(taken)}); give a "
                               "new output folder (nothing is overwritten)")
     ls = load_light_set(photo_set_dir, lights)
+    saturation = refuse_over_exposed(ls)
     with LightScene(ls.mask.shape, ls.geometry, spp=spp, seed=seed) as scene:
         px = {k: _fit_pixels(ls, k, min_cos) for k in ls.lights}
         few = [k for k in ls.lights if px[k].sum() < 20]
@@ -243,7 +244,7 @@ def fit_lights(photo_set_dir, out_dir, lights, *, spp: int = 4, seed: int = 0,
             return [scene.render(ls.directions[k], 0.0, 1.0, alpha)[px[k]] for k in ls.lights]
         rho_d, rho_s, alpha, _ = _fit_alpha(lum, diffuse, spec_of, alpha_bounds)
         ward = {"rho_d": rho_d, "rho_s": rho_s, "alpha": alpha}
-        warnings = list(ls.warnings)
+        warnings = list(ls.warnings) + saturation
         if alpha <= alpha_bounds[0] * 1.001 or alpha >= alpha_bounds[1] * 0.999:
             warnings.append(f"alpha {alpha:.4g} at the search bound {tuple(alpha_bounds)}")
         (out / "residuals").mkdir(parents=True, exist_ok=True)

@@ -35,7 +35,7 @@ from stimuli.glossfit.photoset import GlossFitError
 from studydesign import rec709_luminance
 
 __all__ = ["LightSet", "is_light_set", "load_light_set", "parse_lights", "read_png16",
-           "sphere_geometry"]
+           "refuse_over_exposed", "sphere_geometry"]
 
 LIGHT_FILES = ("filenames.txt", "light_directions.txt", "light_intensities.txt", "mask.png")
 #: Pixels at one code below the file's top that make a clip level: with a camera's noise on
@@ -384,3 +384,51 @@ def load_light_set(folder: str | Path, lights: tuple[int, ...] | str | None = No
                     intensities={k: ints[k - 1] for k in lights}, photos=photos,
                     saturated=saturated, mask=mask, normals=normals, geometry=geometry,
                     normals_source=source, n_lights=n, warnings=warnings)
+
+
+#: A set whose median photo has more of the sphere saturated than this is over-exposed (a
+#: well-exposed photo saturates its highlight only: about 1 % of the sphere in the synthetic
+#: sets; 2x over-exposed: 8-44 %, 8x: 70-92 %).
+OVER_EXPOSED_FRACTION = 0.25
+#: A photo with more of the sphere saturated than this is named in a warning.
+SATURATED_WARN_FRACTION = 0.05
+
+
+def refuse_over_exposed(ls: LightSet) -> list[str]:
+    """Refuse an over-exposed set; warn of single photos with much of the sphere saturated.
+
+    Saturated pixels are censored, so an over-exposed set leaves the fit the sphere's dim edge
+    and shadow: its Ward parameters come out wrong with nothing but "alpha at the search bound"
+    to say so.
+
+    Returns
+    -------
+    list of str
+        Warnings, one per photo above :data:`SATURATED_WARN_FRACTION`.
+
+    Raises
+    ------
+    GlossFitError
+        If the median photo has more than :data:`OVER_EXPOSED_FRACTION` of the sphere saturated.
+    """
+    n = max(int(ls.mask.sum()), 1)
+    frac = {k: float((ls.saturated[k] & ls.mask).sum()) / n for k in ls.lights}
+    if np.median(list(frac.values())) > OVER_EXPOSED_FRACTION:
+        worst = sorted(frac, key=frac.get, reverse=True)[:4]
+        raise GlossFitError(
+            f"{ls.folder}: the photos are over-exposed: {100 * min(frac.values()):.0f}-"
+            f"{100 * max(frac.values()):.0f} % of the sphere is saturated (at the top code or "
+            f"the clip level) in lights {_span(ls.lights)} (most: "
+            + ", ".join(f"{ls.names[k]} {100 * frac[k]:.0f} %" for k in worst)
+            + "); a well-exposed photo saturates its highlight only (about 1 %). Saturated "
+            "pixels are left out, so the fit would rest on the sphere's dim edge and its Ward "
+            "parameters would be wrong. Re-shoot at a shorter exposure (the brightest "
+            "highlight below the top code), or export the raw codes unclipped")
+    return [f"{ls.names[k]}: {100 * f:.0f} % of the sphere saturated (left out of the fit); "
+            "a shorter exposure keeps it" for k, f in frac.items()
+            if f > SATURATED_WARN_FRACTION]
+
+
+def _span(lights) -> str:
+    return f"{lights[0]}-{lights[-1]}" if len(lights) > 1 else f"{lights[0]}"
+

@@ -4,8 +4,16 @@ seeds, and the smallest size that reaches a target rate."""
 import numpy as np
 import pytest
 
-from analysis.montecarlo import (Rate, decision_rate, one_at_a_time, rate_curve,
-                                 smallest_size)
+from analysis.montecarlo import (
+    Rate,
+    decision_rate,
+    decision_rates,
+    one_at_a_time,
+    rate_curve,
+    rates_curve,
+    size_search,
+    smallest_size,
+)
 
 
 def coin(p):
@@ -71,3 +79,23 @@ def test_a_curve_keeps_its_points_apart():
     assert [s for s, _ in curve] == [0.2, 0.8]
     assert curve[0][1].rate < curve[1][1].rate
     assert isinstance(curve[0][1], Rate)
+
+
+def test_several_decisions_per_draw_are_counted_per_column_from_the_same_draws():
+    def two(rng, k):
+        u = rng.random(k)
+        return np.column_stack([u < 0.2, u < 0.6])
+
+    rates = decision_rates(two, 1000, columns=2, seed=5)
+    assert rates[0].hits <= rates[1].hits  # same draws: u < 0.2 implies u < 0.6
+    assert rates[0].rate == pytest.approx(0.2, abs=4 * rates[0].mc_se)
+    assert rates[1].rate == pytest.approx(0.6, abs=4 * rates[1].mc_se)
+    curve = rates_curve(lambda s: two, ["a", "b"], 50, columns=2, seed=5)
+    assert [s for s, _ in curve] == ["a", "b"] and len(curve[0][1]) == 2
+
+
+def test_a_curve_already_simulated_gives_the_same_search_as_walking_it():
+    sizes = [2, 4, 6, 9, 12]
+    walked = smallest_size(lambda n: coin(1 - np.exp(-n / 5)), sizes, 500, seed=3,
+                           stop_early=False)
+    assert size_search(walked.curve, 0.8) == walked

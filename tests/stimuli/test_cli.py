@@ -228,7 +228,8 @@ def test_resume_under_another_probe_is_refused_before_anything_is_replaced(tmp_p
     before = exr.read_bytes()
     other = tmp_path / "design.toml"
     other.write_text(default_design_path().read_text().replace(
-        '"aerodynamics_workshop_512x256.hdr"', '"lebombo_512x256.hdr"', 1))
+        '"aerodynamics_workshop_512x256.hdr"', '"lebombo_512x256.hdr"', 1).replace(
+        "scale = 0.976623", "scale = 1.11829", 1))  # lebombo's own scale (lightfields.tsv)
     assert main(["--design", str(other), *args]) == 1
     err = capsys.readouterr().err
     assert "another light probe" in err and "new --out folder" in err

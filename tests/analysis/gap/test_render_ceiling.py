@@ -158,11 +158,12 @@ def test_clearcoat_form_follows_a_coat_lit_by_a_key_light(tmp_path):
     render's own shading ('lights') leaves 0.04-0.05."""
     from analysis.gap.render import load_render
     from analysis.gapbench import bench_render as br
+    from analysis.gapbench import render_photos as rp
 
     br.write_analytic_fit(tmp_path, {}, np.random.default_rng(0))
     level = load_render(tmp_path).levels[1]
-    _, plain, _ = (br._crop(c) for c in br._components(1, {}))
-    _, coat, _ = (br._crop(c) for c in br._components(1, {"clearcoat": 1.0}))
+    _, plain, _ = (rp._crop(c) for c in rp._components(1, {}))
+    _, coat, _ = (rp._crop(c) for c in rp._components(1, {"clearcoat": 1.0}))
     m = level["fit"]
     fits = []
     for factor in level["coat"].values():
@@ -185,15 +186,15 @@ def _lamp_lit_coat(folder, lamp_half_deg: float):
     (IOR 1.5): at entry from each direction and at exit along the view."""
     from functools import partial
 
-    from analysis.gapbench import bench_render as br
+    from analysis.gapbench import render_photos as rp
 
-    frame = br._FRAME
-    nx, ny, nz, inside, _ = br._subpixels(frame)
-    lamp = br._unit([-0.45, 0.75, 0.5])
+    frame = rp._FRAME
+    nx, ny, nz, inside, _ = rp._subpixels(frame)
+    lamp = rp._unit([-0.45, 0.75, 0.5])
 
     def t(c):
-        return (1 - br._fresnel_dielectric(c, 1.5)) / (1 - br._fresnel_dielectric(1.0, 1.5))
-    e1 = br._unit(np.cross(lamp, [1.0, 0.0, 0.0]))
+        return (1 - rp._fresnel_dielectric(c, 1.5)) / (1 - rp._fresnel_dielectric(1.0, 1.5))
+    e1 = rp._unit(np.cross(lamp, [1.0, 0.0, 0.0]))
     e2 = np.cross(lamp, e1)
     angles = (np.arange(24) + 0.5) / 24 * np.radians(lamp_half_deg)
     plain, coated, weights = np.zeros_like(nx), np.zeros_like(nx), 0.0
@@ -207,16 +208,16 @@ def _lamp_lit_coat(folder, lamp_half_deg: float):
     sky = 0.05
     plain = plain / weights + np.pi * sky
     coated = coated / weights + 2 * np.pi * sky * np.mean(mu * t(mu))
-    d0 = br._crop(0.45 / np.pi * np.where(inside, plain, 0.0).mean(axis=-1))
-    coat = br._crop(0.45 / np.pi * np.where(inside, coated * t(nz), 0.0).mean(axis=-1))
-    s0 = br._crop(0.05 * np.where(inside, br._lobe_terms((nx, ny, nz), lamp, 0.12, 1.0),
+    d0 = rp._crop(0.45 / np.pi * np.where(inside, plain, 0.0).mean(axis=-1))
+    coat = rp._crop(0.45 / np.pi * np.where(inside, coated * t(nz), 0.0).mean(axis=-1))
+    s0 = rp._crop(0.05 * np.where(inside, rp._lobe_terms((nx, ny, nz), lamp, 0.12, 1.0),
                                   0.0).mean(axis=-1))
-    bg = br._crop(np.where(inside, 0.0, 0.05).mean(axis=-1))
-    masks_of = partial(br._masks, frame)
+    bg = rp._crop(np.where(inside, 0.0, 0.05).mean(axis=-1))
+    masks_of = partial(rp._masks, frame)
     rng = np.random.default_rng(0)
-    photo = br._noisy(bg + d0 + s0, masks_of(s0)["sphere"], br._ANALYTIC_PHOTONS,
-                      br._ANALYTIC_READ, rng)
-    br._write_level(folder, 50, photo, bg, d0, s0, masks_of)
+    photo = rp._noisy(bg + d0 + s0, masks_of(s0)["sphere"], rp._ANALYTIC_PHOTONS,
+                      rp._ANALYTIC_READ, rng)
+    rp._write_level(folder, 50, photo, bg, d0, s0, masks_of)
     return d0, coat
 
 

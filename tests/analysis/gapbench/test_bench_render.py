@@ -11,10 +11,11 @@ from analysis.gap.diagnose import diagnose
 from analysis.gap.engine import catalogue, effect, out_of_catalogue
 from analysis.gap.render import load_render
 from analysis.gapbench import bench_render as br
+from analysis.gapbench import render_photos as rp
 
 
 def _plain(level):
-    return br._crop(sum(br._components(level, {})))
+    return rp._crop(sum(rp._components(level, {})))
 
 
 def _centroid(img, thresh):
@@ -41,8 +42,8 @@ def test_analytic_effects_act_where_their_physics_says():
     plain = _plain(2)
     h = plain.shape[0]
     yy, xx = np.mgrid[0:h, 0:h]
-    cy, cx = br._FRAME.centre[0] - br._FRAME.offset[0], br._FRAME.centre[1] - br._FRAME.offset[1]
-    r = np.hypot(yy - cy, xx - cx) / br._FRAME.radius_px
+    cy, cx = rp._FRAME.centre[0] - rp._FRAME.offset[0], rp._FRAME.centre[1] - rp._FRAME.offset[1]
+    r = np.hypot(yy - cy, xx - cx) / rp._FRAME.radius_px
     rim, centre = (r > 0.9) & (r < 0.97), r < 0.3
     fres = br.analytic_photo(2, {"fresnel": 6.0}, rng) / plain
     # Fresnel: the photo (diffuse included) brighter towards grazing, not at the centre.

@@ -104,3 +104,24 @@ def test_the_clean_set_fits_without_a_word(clean_set, tmp_path):
                           str(tmp_path / "fit")]) == 0
     info = json.loads((tmp_path / "fit" / "fit.json").read_text())
     assert info["warnings"] == [] and info["misfit_pct_fit"] < 20
+
+
+def test_an_over_exposed_set_is_refused_naming_the_saturation(ball, tmp_path, capsys):
+    """8x the exposure (issue 44, item 8): 70-92 % of the sphere at 65535; the fit gave Ward
+    parameters with only "alpha at the search bound". Now refused before any render."""
+    for png in sorted((ball / "images").glob("*.png")):
+        codes, _ = read_png16(png)
+        _write_png16(png, np.minimum(codes * 8, 65535))
+    line = _fit_refused(ball, tmp_path, capsys, "over-exposed", "of the sphere is saturated",
+                        "shorter exposure")
+    assert "lights 1-4" in line
+
+
+def test_a_photo_with_much_of_the_sphere_saturated_is_warned(ball):
+    from stimuli.glossfit.lightset import refuse_over_exposed
+
+    codes, _ = read_png16(ball / "images" / "002.png")
+    _write_png16(ball / "images" / "002.png", np.minimum(codes * 8, 65535))
+    said = refuse_over_exposed(load_light_set(ball, "1-4"))  # one photo of four: warned
+    assert len(said) == 1 and said[0].startswith("002.png: ") and "saturated" in said[0]
+    assert refuse_over_exposed(load_light_set(ball, "3-6")) == []
