@@ -54,20 +54,47 @@ html_theme_options = {
 html_static_path = []
 
 
+def _laid_out(text: str) -> bool:
+    """Text laid out with indented lines (a RawDescriptionHelpFormatter's examples)."""
+    return any(line[:1].isspace() for line in text.splitlines()[1:])
+
+
 def _plain_help(render_list):
     """sphinx-argparse parses each help string as reStructuredText; ours are plain text
-    ("sessions/*.csv" would open an emphasis): escape the two characters that mean markup there."""
+    ("sessions/*.csv" would open an emphasis): escape the two characters that mean markup there,
+    and show text laid out with indented lines as --help prints it, in a literal block."""
+    from docutils import nodes
 
     def render(items, markdown_help, settings=None):
-        items = [i.replace("*", r"\*").replace("|", r"\|") if isinstance(i, str) else i
-                 for i in items]
-        return render_list(items, markdown_help, settings)
+        out = []
+        for item in items:
+            if isinstance(item, str) and _laid_out(item):
+                out.append(nodes.literal_block(item, item))
+            else:
+                if isinstance(item, str):
+                    item = item.replace("*", r"\*").replace("|", r"\|")
+                out += render_list([item], markdown_help, settings)
+        return out
 
     return render
+
+
+def _laid_out_text(nested_parse_paragraph):
+    """The same for a top-level parser's description and epilog."""
+    from docutils import nodes
+
+    def parse(self, text):
+        if _laid_out(text):
+            return nodes.literal_block(text, text)
+        return nested_parse_paragraph(self, text)
+
+    return parse
 
 
 def setup(app):
     import sphinxarg.ext
 
     sphinxarg.ext.render_list = _plain_help(sphinxarg.ext.render_list)
+    directive = sphinxarg.ext.ArgParseDirective
+    directive._nested_parse_paragraph = _laid_out_text(directive._nested_parse_paragraph)
 smartquotes = False  # "--filter" stays two hyphens in option help
