@@ -101,3 +101,16 @@ def test_the_home_page_questions_link_to_targets_that_exist():
     assert "{ref}`design-gap-display-tolerance-pct`" in home
     page = designkeys.page(ROOT / "studydesign" / "design.toml")
     assert "(design-gap-display-tolerance-pct)=\n### `gap.display_tolerance_pct`" in page
+
+
+def test_every_command_line_has_a_reference_page_built_from_its_parser():
+    from analysis.__main__ import _PASSTHROUGH
+
+    pages = {p.stem: p.read_text(encoding="utf-8")
+             for p in (DOCS / "reference" / "commands").glob("*.md")}
+    wanted = {pkg: f"{pkg}.__main__" for pkg in
+              ("studydesign", "calibration", "stimuli", "experiment", "analysis")}
+    wanted |= {f"analysis-{name}": module for name, (module, _) in _PASSTHROUGH.items()}
+    for page, module in wanted.items():
+        assert page in pages, f"no docs/reference/commands/{page}.md for {module}"
+        assert f":module: {module}\n" in pages[page], f"{page}.md does not read {module}'s parser"
