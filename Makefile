@@ -28,12 +28,13 @@ DEB_PACKAGES := xvfb xauth libglu1-mesa libgl1 libegl1 libfontconfig1 libasound2
 	chromium slurm-wlm munge
 XVFB := xvfb-run -a -s "-screen 0 1280x1024x24"
 
-.PHONY: help demo test test-fast system-deps venv lint bench clean-venv
+.PHONY: help demo test test-fast docs system-deps venv lint bench clean-venv
 
 help:
 	@echo "make demo   - set up and run the whole pipeline on embedded defaults into $(OUT)/"
 	@echo "make test   - set up and run the test suite (slow tests included)"
 	@echo "make test-fast - the tests without those marked slow"
+	@echo "make docs   - the documentation site into $(DOCS_HTML)/ (pictures made by the pipeline)"
 	@echo "make lint   - ruff"
 
 # apt-get only when something is missing, so a set-up machine needs no root.
@@ -50,7 +51,7 @@ system-deps:
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
-	$(PY) -m pip install -q -e '.[test]'
+	$(PY) -m pip install -q -e '.[test,docs]'
 	touch $@
 
 venv: $(STAMP)
@@ -74,12 +75,27 @@ test: system-deps $(STAMP)
 		$(foreach d,$(SERIAL_TESTS),--ignore=$(d)) $(PYTEST_ARGS); first=$$?; \
 	echo "== real-time tests, one at a time: $(SERIAL_TESTS) =="; \
 	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
+	echo "== the documentation site, warnings as errors =="; \
+	$(DOCS_BUILD); third=$$?; \
 	echo "== make test: parallel part exit $$first, real-time part exit $$second," \
-		"$$(( $$(date +%s) - start )) s in all =="; \
-	[ $$first -eq 0 ] && [ $$second -eq 0 ]
+		"docs exit $$third, $$(( $$(date +%s) - start )) s in all =="; \
+	[ $$first -eq 0 ] && [ $$second -eq 0 ] && [ $$third -eq 0 ]
 
 test-fast: PYTEST_ARGS += -m "not slow"
 test-fast: test
+
+# The documentation site (docs/): docs/make_pictures.py runs small versions of the pipeline's
+# steps for the pictures (about a minute on 2 cores), then Sphinx builds every page again (-E)
+# with warnings as errors. `make test` runs the same after the tests.
+DOCS_HTML := docs/_build/html
+DOCS_BUILD = dstart=$$(date +%s); mkdir -p $(PROJECT_HOME); \
+	HOME=$(PROJECT_HOME) $(PY) docs/make_pictures.py \
+	&& HOME=$(PROJECT_HOME) $(PY) -m sphinx -b html -E -W --keep-going -q docs $(DOCS_HTML); \
+	rc=$$?; echo "== docs: exit $$rc, $$(( $$(date +%s) - dstart )) s; open $(DOCS_HTML)/index.html =="; \
+	[ $$rc -eq 0 ]
+
+docs: system-deps $(STAMP)
+	@$(DOCS_BUILD)
 
 demo: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)

@@ -186,6 +186,16 @@ def main(argv: list[str] | None = None) -> int:
             if i == 0:
                 return _passthrough(word, argv[1:])
             break
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command in _PASSTHROUGH:
+        return _passthrough(args.command, argv[argv.index(args.command) + 1:])
+    return args.func(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m analysis``; ``gap``, ``gapbench`` and ``imagestats`` are
+    listed here and parsed by their own packages' ``build_parser``."""
     parser = argparse.ArgumentParser(prog="python -m analysis", description="Analyse session data.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
     sub = parser.add_subparsers(dest="command", required=True)
@@ -236,10 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     add_power_parser(sub)
     for name, (_, help_text) in _PASSTHROUGH.items():
         sub.add_parser(name, help=help_text, add_help=False)
-    args = parser.parse_args(argv)
-    if args.command in _PASSTHROUGH:
-        return _passthrough(args.command, argv[argv.index(args.command) + 1:])
-    return args.func(args)
+    return parser
 
 
 if __name__ == "__main__":

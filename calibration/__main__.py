@@ -484,7 +484,7 @@ _SUBCOMMANDS = (_add_ports, _add_fake_photometer, _add_run, _add_fit, _add_impor
                 _add_check, _add_default)
 
 
-def _build_parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m calibration``: one subparser per subcommand."""
     parser = argparse.ArgumentParser(prog="python -m calibration",
                                      description="Calibrate the display.")
@@ -496,7 +496,7 @@ def _build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Parse ``argv`` and run the subcommand's handler; returns its exit code."""
-    args = _build_parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     import warnings
 
     warnings.showwarning = _show_warning  # one line per warning, no source line

@@ -529,7 +529,8 @@ def _cmd_fit_observer(args) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m experiment``: one subparser per subcommand."""
     parser = argparse.ArgumentParser(prog="python -m experiment",
                                      description="The gloss x depth session app.")
     parser.add_argument("--design", help="a design.toml (default: the shipped one)")
@@ -600,8 +601,11 @@ def main(argv: list[str] | None = None) -> int:
                                    "study')")
     f.add_argument("--participants", nargs="+", help="with --study: fit only these participants")
     f.set_defaults(func=_cmd_fit_observer)
+    return parser
 
-    args = parser.parse_args(argv)
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     from experiment.signals import SessionSignal, ending_signals
 
     try:

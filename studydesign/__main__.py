@@ -107,7 +107,8 @@ def _check(design) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m studydesign``: one subparser per subcommand."""
     parser = argparse.ArgumentParser(
         prog="python -m studydesign", description="Show, check and export the study design."
     )
@@ -120,7 +121,11 @@ def main(argv: list[str] | None = None) -> int:
                                                "without --force)")
     st.add_argument("--force", action="store_true", help="replace an existing --out")
     sub.add_parser("json", help="print the design as JSON")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         design = load_design(args.design)
     except DesignError as exc:

@@ -86,6 +86,25 @@ def main(argv=None) -> int:
     if argv[:1] == ["benchmark"]:
         print(f"error: {MOVED}", file=sys.stderr)
         return 2
+    args = build_parser().parse_args(argv)
+    design = load_design()
+    out = Path(args.out)
+    created = not out.exists()
+    try:
+        if not (out / "index.html").exists():  # an existing report: refused later
+            prepare_out_dir(args.out)
+        return _diagnose(args, design)
+    except (GapError, OutDirError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        _remove_if_made_empty(out, created)
+        return 2
+    except OSError as exc:  # a write that failed after the check (a full disk)
+        print(f"error: {write_error_line(exc)}", file=sys.stderr)
+        return 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m analysis gap``."""
     ap = argparse.ArgumentParser(prog="python -m analysis.gap")
     sub = ap.add_subparsers(dest="cmd", required=True)
     # Listed so that --help shows where the benchmark went (main answers before parsing).
@@ -116,21 +135,7 @@ def main(argv=None) -> int:
     d.add_argument("--out", required=True)
     d.add_argument("--seed", type=int, default=0,
                    help="the bootstrap's seed (the observer layer's folds do not depend on it)")
-    args = ap.parse_args(argv)
-    design = load_design()
-    out = Path(args.out)
-    created = not out.exists()
-    try:
-        if not (out / "index.html").exists():  # an existing report: refused later
-            prepare_out_dir(args.out)
-        return _diagnose(args, design)
-    except (GapError, OutDirError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        _remove_if_made_empty(out, created)
-        return 2
-    except OSError as exc:  # a write that failed after the check (a full disk)
-        print(f"error: {write_error_line(exc)}", file=sys.stderr)
-        return 1
+    return ap
 
 
 def _remove_if_made_empty(out: Path, created: bool) -> None:

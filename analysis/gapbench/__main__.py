@@ -77,7 +77,8 @@ def _benchmark(args, design) -> int:
     return 0
 
 
-def _parser() -> argparse.ArgumentParser:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m analysis gapbench``."""
     b = argparse.ArgumentParser(prog="python -m analysis gapbench",
                                 description="blind benchmark with injected effects")
     b.add_argument("--layer", choices=[*LAYERS, "all"], default="all")
@@ -101,7 +102,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv=None) -> int:
-    args = _parser().parse_args(argv)
+    args = build_parser().parse_args(argv)
     design = load_design()
     try:
         if args.trials < 1:

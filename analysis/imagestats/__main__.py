@@ -17,7 +17,7 @@ from studydesign import DesignError, load_design
 _USAGE = __doc__.split("\n\n", 1)[1]
 
 
-def _compute_parser() -> argparse.ArgumentParser:
+def compute_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m analysis imagestats",
         description="Per-image statistics (mean luminance, RMS contrast, skewness, kurtosis, "
@@ -48,7 +48,7 @@ def _compute_parser() -> argparse.ArgumentParser:
     return p
 
 
-def _relate_parser() -> argparse.ArgumentParser:
+def relate_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="python -m analysis imagestats relate",
         description="Which statistics change with depth at fixed gloss, regression of perceived "
@@ -72,7 +72,7 @@ def _compute(argv: list[str]) -> int:
     from analysis.imagestats.run import compute_stats, problems_path
     from analysis.imagestats.store import parts_dir
 
-    args = _compute_parser().parse_args(argv)
+    args = compute_parser().parse_args(argv)
     try:
         design = load_design(args.design)
         spec = None
@@ -122,7 +122,7 @@ def _relate(argv: list[str]) -> int:
     from analysis.imagestats.report import ReportExistsError, build_relate_report
     from analysis.load import SessionDataError
 
-    args = _relate_parser().parse_args(argv)
+    args = relate_parser().parse_args(argv)
     try:
         index = build_relate_report(args.stats, args.out, load_design(args.design),
                                     data_dir=args.sessions, n_boot=args.n_boot, seed=args.seed,

@@ -29,7 +29,7 @@ def line_with_loo(x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     coef : ndarray, shape (2,)
         (a, b).
     loo_error : ndarray, shape (n,)
-        |y_i - line fitted without point i, at x_i|; NaN for every point when n < 3.
+        abs(y_i - line fitted without point i, at x_i); NaN for every point when n < 3.
     """
     x = np.asarray(x, float)
     y = np.asarray(y, float)

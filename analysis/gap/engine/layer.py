@@ -25,26 +25,26 @@ __all__ = ["LayerPlan"]
 class LayerPlan:
     """What a layer prepares for one diagnosis.
 
-    ========== =========================================================================
-    field      meaning
-    ========== =========================================================================
-    functions  the layer's loss, floor, ceiling, where and size (:class:`LayerFunctions`)
-    settings   the statistical choices (:class:`DiagnosisSettings`)
-    localise   ``localise(diag, rng) -> table``: where real and simulated data part, with
-               the diagnosis's chosen effects (drawn from the same Generator, after it)
-    folds      cross-fitting folds ``[(train, test), ...]``, or None with ``train`` and
-               ``test`` (one split)
-    split      how the held-out units were made, in words
-    loss_info  what the loss assumes (noise model, base model), recorded in the result
-    warnings   notes on the input, shown with the verdict
-    candidates the candidates that apply to this data (Candidate objects, in the order
-               their terms apply); empty: the layer's whole catalogue
-    sizes      ``sizes(diag) -> dict``: :class:`Diagnosis` fields measured once the chosen
-               effects are known (the render layer's ``misfit_pct_before`` / ``_after``, the
-               observer layer's ``misfit_*``), or None; the words are written again after
-    not_identifiable  ``{effect: reason}``: catalogue effects the data cannot identify (left
-               out of the ranking, named in the words)
-    ========== =========================================================================
+    ================ =========================================================================
+    field            meaning
+    ================ =========================================================================
+    functions        the layer's loss, floor, ceiling, where and size (:class:`LayerFunctions`)
+    settings         the statistical choices (:class:`DiagnosisSettings`)
+    localise         ``localise(diag, rng) -> table``: where real and simulated data part, with
+                     the diagnosis's chosen effects (drawn from the same Generator, after it)
+    folds            cross-fitting folds ``[(train, test), ...]``, or None with ``train`` and
+                     ``test`` (one split)
+    split            how the held-out units were made, in words
+    loss_info        what the loss assumes (noise model, base model), recorded in the result
+    warnings         notes on the input, shown with the verdict
+    candidates       the candidates that apply to this data (Candidate objects, in the order
+                     their terms apply); empty: the layer's whole catalogue
+    sizes            ``sizes(diag) -> dict``: :class:`Diagnosis` fields measured once the chosen
+                     effects are known (the render layer's ``misfit_pct_before`` / ``_after``, the
+                     observer layer's ``misfit_*``), or None; the words are written again after
+    not_identifiable ``{effect: reason}``: catalogue effects the data cannot identify (left
+                     out of the ranking, named in the words)
+    ================ =========================================================================
     """
 
     functions: LayerFunctions

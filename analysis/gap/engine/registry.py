@@ -49,30 +49,30 @@ class ParamDoc:
 class Candidate:
     """One catalogue entry: everything about one effect, in one place.
 
-    ============== ============================ ===============================================
-    field          type                         meaning
-    ============== ============================ ===============================================
-    name           str                          the effect's name in verdicts and reports
-    fit            ``fit(train, chosen)``       its parameters fitted on training data, given
-                                                the already chosen ``[(name, params), ...]``
-    description    str                          one line for reports
-    apply          callable or None             its term in the layer's mean or likelihood
-                                                (signature per layer, e.g. the observer's
-                                                ``apply(data, prediction, params)``)
-    inject         callable or None             its injector for the blind benchmark (per
-                                                layer; never called by the diagnosis)
-    default_strength float                      the benchmark's moderate strength
-    units          str                          units of the strength
-    truth          ``truth(strength, **ctx)``   the fitted parameters the injected strength
-                                                should give, ``[(name, params), ...]`` (the
-                                                benchmark's shrinkage score)
-    params         dict of str -> ParamDoc      how each key ``fit`` returns reads in reports
-                                                (name, unit); key ``"*"``: every key is what
-                                                the value is for (e.g. per response)
-    words          ``words(params) -> str``     the fitted effect in plain words for the
-                   or None                      summary ("the display is 27 % brighter than
-                                                its calibration at every level")
-    ============== ============================ ===============================================
+    ================ ============================ ===============================================
+    field            type                         meaning
+    ================ ============================ ===============================================
+    name             str                          the effect's name in verdicts and reports
+    fit              ``fit(train, chosen)``       its parameters fitted on training data, given
+                                                  the already chosen ``[(name, params), ...]``
+    description      str                          one line for reports
+    apply            callable or None             its term in the layer's mean or likelihood
+                                                  (signature per layer, e.g. the observer's
+                                                  ``apply(data, prediction, params)``)
+    inject           callable or None             its injector for the blind benchmark (per
+                                                  layer; never called by the diagnosis)
+    default_strength float                        the benchmark's moderate strength
+    units            str                          units of the strength
+    truth            ``truth(strength, **ctx)``   the fitted parameters the injected strength
+                                                  should give, ``[(name, params), ...]`` (the
+                                                  benchmark's shrinkage score)
+    params           dict of str -> ParamDoc      how each key ``fit`` returns reads in reports
+                                                  (name, unit); key ``"*"``: every key is what
+                                                  the value is for (e.g. per response)
+    words            ``words(params) -> str``     the fitted effect in plain words for the
+                     or None                      summary ("the display is 27 % brighter than
+                                                  its calibration at every level")
+    ================ ============================ ===============================================
     """
 
     name: str

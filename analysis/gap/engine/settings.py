@@ -105,40 +105,40 @@ class LayerFunctions:
 class DiagnosisSettings:
     """The statistical choices of one diagnosis (loss units: nats per held-out unit).
 
-    ============ ============ ======= ===========================================================
-    field        type         default meaning
-    ============ ============ ======= ===========================================================
-    alpha        float        0.05    family-wise error rate, in (0, 1): of the ranking (Holm),
-                                      of each greedy step and of the test of what remains
-    n_boot       int          2000    bootstrap resamples of the held-out units, >= 1
-    max_steps    int or None  None    most candidates the greedy combination adds (None: the
-                                      whole catalogue). At each step every candidate not yet
-                                      chosen is re-fitted and re-tested; a step must reduce the
-                                      held-out loss significantly (one-sided p times the number
-                                      of candidates left < alpha) by at least ``min_gain``
-    min_share    float        0.0     in [0, 1]: an attribution needs the chosen candidates to
-                                      remove at least this share of the held-out gap; below it
-                                      the verdict is 'unexplained' (the partial steps are kept)
-    min_gain     float        0.0     a candidate, a greedy step or a remaining gap counts only
-                                      if it is at least this many nats per unit
-    refit_rounds int          2       after each greedy step, rounds of backfitting (every
-                                      chosen candidate re-fitted given the others; their
-                                      reported parameters are the re-fitted ones); 0: none
-    min_size     float        0.0     the practical tolerance, >= 0, for the layer's ``size``
-                                      (same units)
-    size_unit    str          ""      words for ``size``'s unit (e.g. "% of the photos' RMS
-                                      luminance")
-    size_source  str          ""      where the tolerance is set (e.g. "the design's [gap]
-                                      render_tolerance_pct"), for the summary
-    tolerate_chosen bool      False   hold the plain simulation's misfit to the tolerance
-                                      too: where its ``size`` (``size_before``) is below
-                                      ``min_size`` and nothing significant remains, chosen
-                                      effects are reported but the verdict is no gap that
-                                      matters (a change smaller than the tolerance)
-    floor_sd     float        0.0     SD (>= 0) of the floor's mean from its own estimation
-                                      (e.g. a noise measured from n pairs of repeats): a gap is
-                                      called below the floor only beyond it and its CI
-    ============ ============ ======= ===========================================================
+    =============== ============ ======= ===========================================================
+    field           type         default meaning
+    =============== ============ ======= ===========================================================
+    alpha           float        0.05    family-wise error rate, in (0, 1): of the ranking (Holm),
+                                         of each greedy step and of the test of what remains
+    n_boot          int          2000    bootstrap resamples of the held-out units, >= 1
+    max_steps       int or None  None    most candidates the greedy combination adds (None: the
+                                         whole catalogue). At each step every candidate not yet
+                                         chosen is re-fitted and re-tested; a step must reduce the
+                                         held-out loss significantly (one-sided p times the number
+                                         of candidates left < alpha) by at least ``min_gain``
+    min_share       float        0.0     in [0, 1]: an attribution needs the chosen candidates to
+                                         remove at least this share of the held-out gap; below it
+                                         the verdict is 'unexplained' (the partial steps are kept)
+    min_gain        float        0.0     a candidate, a greedy step or a remaining gap counts only
+                                         if it is at least this many nats per unit
+    refit_rounds    int          2       after each greedy step, rounds of backfitting (every
+                                         chosen candidate re-fitted given the others; their
+                                         reported parameters are the re-fitted ones); 0: none
+    min_size        float        0.0     the practical tolerance, >= 0, for the layer's ``size``
+                                         (same units)
+    size_unit       str          ""      words for ``size``'s unit (e.g. "% of the photos' RMS
+                                         luminance")
+    size_source     str          ""      where the tolerance is set (e.g. "the design's [gap]
+                                         render_tolerance_pct"), for the summary
+    tolerate_chosen bool         False   hold the plain simulation's misfit to the tolerance
+                                         too: where its ``size`` (``size_before``) is below
+                                         ``min_size`` and nothing significant remains, chosen
+                                         effects are reported but the verdict is no gap that
+                                         matters (a change smaller than the tolerance)
+    floor_sd        float        0.0     SD (>= 0) of the floor's mean from its own estimation
+                                         (e.g. a noise measured from n pairs of repeats): a gap is
+                                         called below the floor only beyond it and its CI
+    =============== ============ ======= ===========================================================
 
     Raises
     ------
