@@ -226,8 +226,11 @@ def main_run(req) -> int:
         log = (f"log {res.log_file}" if res.log_file is not None else
                "its run log could not be written (see the warning above; the trials are all "
                "kept, the log's timing and dropped-frame figures are not)")
+        late = res.signal_after_last_answer
+        late = (f" ({'Ctrl-C' if late == 'SIGINT' else late} came after the last answer: the "
+                "run's log and end were recorded first)" if late else "")
         print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
-              f"in {res.data_file}; {log}")
+              f"in {res.data_file}; {log}{late}")
     return 0
 
 
@@ -282,7 +285,7 @@ def _cmd_status(args) -> int:
                 problem = _session_gaps(rows, path, {
                     history: runs, slider_file: sliders,
                     **frame_records(data / "logs", path.stem)},
-                    runs=history, restore=(slider_file,))
+                    runs=history, restore=(slider_file,), total=n)
             except DataFileError as exc:
                 problem = str(exc)
             if problem:
