@@ -281,7 +281,13 @@ def _batch_client(spec: JobSpec):
     ends it when a job is refused or can never start; Ctrl-C cancels the jobs at once."""
     from distributed import Client
 
-    from stimuli.job_submission import JobWatch, cancel_jobs, check_slurm_job, end_jobs
+    from stimuli.job_submission import (
+        JobWatch,
+        cancel_jobs,
+        check_slurm_job,
+        end_jobs,
+        forget_refused,
+    )
 
     cluster = _jobqueue_cluster(spec)
     with contextlib.ExitStack() as stack:
@@ -304,6 +310,7 @@ def _batch_client(spec: JobSpec):
             cancel_jobs(cluster, adaptive, spec.system)
             raise
         except BaseException:
+            forget_refused(cluster)
             end_jobs(cluster, client, adaptive, spec.system)
             raise
         else:

@@ -32,7 +32,7 @@ import time
 from pathlib import Path
 
 __all__ = ["NEVER_REASONS", "JobWatch", "cancel_jobs", "check_slurm_job", "end_jobs",
-           "import_jobqueue", "refusal_line", "submitted_job_ids"]
+           "forget_refused", "import_jobqueue", "refusal_line", "submitted_job_ids"]
 
 #: Seconds ``sbatch --test-only`` may take (a stale controller address fails after ~20 s).
 SBATCH_TIMEOUT_S = 45.0
@@ -150,21 +150,35 @@ class JobWatch:
 
     @contextlib.contextmanager
     def refusals(self):
-        """Record (and keep off stderr) the submissions the event loop saw fail."""
+        """Record every submission the batch system refuses (the cluster's new jobs are of a
+        class that records it), and keep the traceback the event loop logs of one off stderr
+        (a failed job start at a run's start reaches tornado's log, a replacement's is a
+        warning of Dask's adaptive scaling, silenced)."""
+        refused = self.refused
+        base = self.cluster.new_spec["cls"]
+
+        class RecordedJob(base):
+            async def _submit_job(self, script_filename):
+                try:
+                    return await super()._submit_job(script_filename)
+                except RuntimeError as exc:
+                    refused.append(str(exc).split("stderr:", 1)[-1])
+                    raise
+
+        self.cluster.new_spec["cls"] = RecordedJob
         logger = logging.getLogger("tornado.application")
 
         def keep(record: logging.LogRecord) -> bool:
             exc = record.exc_info[1] if record.exc_info else None
-            if isinstance(exc, RuntimeError) and "Command exited with non-zero" in str(exc):
-                self.refused.append(str(exc).split("stderr:", 1)[-1])
-                return False
-            return True
+            return not (isinstance(exc, RuntimeError)
+                        and "Command exited with non-zero" in str(exc))
 
         logger.addFilter(keep)
         try:
             yield self
         finally:
             logger.removeFilter(keep)
+            self.cluster.new_spec["cls"] = base
 
     def check(self) -> None:
         """Raise :class:`~stimuli.dask_cluster.ClusterError` if a job was refused or can never
@@ -194,6 +208,20 @@ class JobWatch:
                         "partition, account or QOS allows; `scontrol show job "
                         f"{job}` says more); its jobs are cancelled, finished work is kept: "
                         "fix the options and run the same command again")
+
+
+def forget_refused(cluster) -> None:
+    """Mark the jobs the batch system refused (no job id) as failed and drop them from
+    ``cluster``: closing it asserts each job it made closed or failed, and a refused one stays
+    "created" (an AssertionError after the run's own error)."""
+    from distributed.core import Status
+
+    for job in list(getattr(cluster, "_created", ())):
+        if not getattr(job, "job_id", None) and job.status == Status.created:
+            job.status = Status.failed
+    for key, job in list(cluster.workers.items()):
+        if not getattr(job, "job_id", None):
+            del cluster.workers[key]
 
 
 def cancel_jobs(cluster, adaptive, system: str) -> None:

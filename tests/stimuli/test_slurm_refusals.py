@@ -26,10 +26,10 @@ pytestmark = [pytest.mark.slurm]
 JOB = ["--cores", "1", "--memory", "1GiB", "--walltime", "00:10:00", "--jobs", "1"]
 
 
-def _render(tmp_path, *options) -> list[str]:
-    return ["stimuli", "render", "--set", "imagestats", "--limit", "4", "--out",
+def _render(tmp_path, *options, limit: int = 4, spp: int = 4) -> list[str]:
+    return ["stimuli", "render", "--set", "imagestats", "--limit", str(limit), "--out",
             str(tmp_path / "r"), "--cluster", "slurm", *JOB, *options, "--size", "32",
-            "--spp", "4", "--no-progress", "--no-worker-timeout", "5"]
+            "--spp", str(spp), "--no-progress", "--no-worker-timeout", "5"]
 
 
 def _start(args, cwd, slurm, env=None) -> subprocess.Popen:
@@ -153,3 +153,38 @@ def test_ctrl_c_on_slurm_ends_non_zero_cancelling_the_jobs(command, tmp_path, sl
     while slurm.jobs() and time.monotonic() < deadline:
         time.sleep(0.2)
     assert slurm.jobs() == [] and slurm.job_state(jobs[0]) == "CANCELLED"
+
+
+@pytest.mark.slow
+def test_a_replacement_job_sbatch_refuses_mid_run_ends_the_run(tmp_path, slurm):
+    """The worker job's worker joined, then the partition was made inactive and the job
+    cancelled: Dask's replacement is refused by sbatch (a warning Dask silences, then waiting
+    for ever). The run says sbatch's reason in one line and ends (exit 1), keeping what it
+    rendered."""
+    err_path = tmp_path / "render.err"
+    with open(err_path, "w") as err_file:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", *_render(tmp_path, limit=40, spp=64)],
+            cwd=tmp_path, env={**os.environ, **slurm.env, "PYTHONPATH": str(REPO),
+                               "DASK_DISTRIBUTED__DEPLOY__LOST_WORKER_TIMEOUT": "1s"},
+            stdout=subprocess.PIPE, stderr=err_file, text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 90
+        while "Dask worker(s) joined" not in err_path.read_text():
+            assert proc.poll() is None, err_path.read_text()
+            assert time.monotonic() < deadline, "no worker joined in 90 s\n" + slurm.logs()
+            time.sleep(0.1)
+        slurm.command("scontrol", "update", "PartitionName=local", "State=INACTIVE")
+        slurm.command("scancel", *slurm.jobs())
+        t0 = time.monotonic()
+        proc.communicate(timeout=90)
+    finally:
+        kill(proc)
+        slurm.command("scontrol", "update", "PartitionName=local", "State=UP")
+    err = err_path.read_text()
+    line = _one_error_line(err, submitted=True)
+    print(f"refused mid-run: exit {proc.returncode} after {time.monotonic() - t0:.1f} s: {line}")
+    assert proc.returncode == 1, err
+    assert "SLURM refused the worker job (sbatch: Batch job submission failed: Required " \
+           "partition not available" in line, line
+    assert "kept:" in err and slurm.jobs() == []
