@@ -83,6 +83,7 @@ from experiment.runlog import (
     versions,
 )
 from experiment.signals import SessionSignal, ending_signals, held_signals, run_ending
+from experiment.simulate import start_hand
 from experiment.trial import TrialResult, run_trial
 from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning
 from stimuli import load_manifest
@@ -226,21 +227,7 @@ def prepare_session(req: SessionRequest) -> Prepared:
             participant=req.participant, notes=notes,
             run_logs=lambda k: [log for _, log in run_logs(
                 req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
-        other = [c for c in stim.calibration_ids if c != cal.calibration_id]
-        # The same id in a file of other content is another calibration too (recalibrated
-        # under its old id); a manifest from before calibration_sha256 records no file.
-        files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
-        if other or files:
-            what = (f"calibration {other}" if other else
-                    f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
-                    f"{' and '.join(files)} (recalibrated under the same id?)")
-            msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
-                   f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
-                   "re-render the stimuli with this calibration")
-            if not req.accept_calibration_mismatch:
-                raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
-                                     "in the session log)")
-            notes.append(msg)
+        _check_corrected_for(stim, cal, inputs, req, notes)
         observer = _make_observer(req) if req.simulate is not None else None
         shot = check_screenshot(req.screenshot)
         if shot is not None and shot.exists():  # never replaced; the same command still resumes
@@ -260,6 +247,28 @@ def prepare_session(req: SessionRequest) -> Prepared:
                     stimuli=stim, calibration=cal, screen_px=screen, monitor_profile=profile,
                     warnings=notes, inputs=inputs, observer=observer,
                     torn=[w for w in notes if w in torn])
+
+
+def _check_corrected_for(stim: SessionStimuli, cal, inputs: dict, req: SessionRequest,
+                         notes: list) -> None:
+    """The stimuli must be gamma-corrected for this session's calibration (its id and file);
+    refused, or noted with --accept-calibration-mismatch."""
+    other = [c for c in stim.calibration_ids if c != cal.calibration_id]
+    # The same id in a file of other content is another calibration too (recalibrated
+    # under its old id); a manifest from before calibration_sha256 records no file.
+    files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
+    if not (other or files):
+        return
+    what = (f"calibration {other}" if other else
+            f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
+            f"{' and '.join(files)} (recalibrated under the same id?)")
+    msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
+           f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
+           "re-render the stimuli with this calibration")
+    if not req.accept_calibration_mismatch:
+        raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
+                             "in the session log)")
+    notes.append(msg)
 
 
 def _make_observer(req: SessionRequest):
@@ -422,7 +431,7 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
         if req.simulate is None:
             check_refresh(win, cal, log, out)
         else:
-            hand = _start_hand(req, prep, disp, log)
+            hand = start_hand(req, prep, disp, log)
         try:
             status = _answer_trials(prep, disp, hand, writer, frames, trials_log, events, run)
         except KeyboardInterrupt as exc:
@@ -483,18 +492,3 @@ def _answer_trials(prep: Prepared, disp, hand, writer, frames, trials_log: list,
                                "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})
             frames.append(win.frameIntervals, int(row["trial"]))
     return "complete"
-
-
-def _start_hand(req: SessionRequest, prep: Prepared, disp, log: dict):
-    from experiment.simulate import SimulatedHand
-
-    base = req.seed if req.seed is not None else participant_seed(req.participant)
-    run = log["run"]
-    hand = SimulatedHand(prep.observer, np.random.default_rng([base, prep.session, run]),
-                         lambda: disp.frame_count, fast=req.fast,
-                         early_space_probability=req.early_space_probability,
-                         quit_at_trial=req.quit_at_trial)
-    hand.start()
-    log["simulated"] = {"observer": prep.observer.to_dict(), "seed": [base, prep.session, run],
-                        "input": "XTEST events into the X display"}
-    return hand
