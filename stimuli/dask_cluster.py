@@ -12,7 +12,9 @@ Three ways to get workers, one per command-line option:
   ``[cluster]``); jobs that end (walltime, pre-emption, ``scancel``) are replaced once Dask counts
   their worker as lost; when the run ends, SLURM jobs end by themselves (their workers retire:
   COMPLETED, exit 0), other jobs are cancelled. ``--dry-run`` prints the job script and submits
-  nothing. Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
+  nothing. A SLURM job is first tried with ``sbatch --test-only``; a refused job, one that can
+  never start, and Ctrl-C (which cancels the jobs) end the run in one line
+  (:mod:`stimuli.job_submission`). Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
   through their job scripts.
 
 :func:`finished` drives the tasks: a worker that dies (killed, pre-empted) costs only its tasks in

@@ -77,8 +77,9 @@ def import_jobqueue():
     return dask_jobqueue
 
 
-def refusal_line(stderr: str, *, what: str = "sbatch") -> str:
-    """sbatch's refusal (``stderr``) as one line: its reasons, then the fix."""
+def refusal_line(stderr: str, *, what: str = "sbatch", system: str = "SLURM") -> str:
+    """A submission command's refusal (``stderr``; ``what`` ran it) as one line: its reasons,
+    then the fix."""
     lines = [line.strip() for line in stderr.splitlines() if line.strip()]
     reasons = []
     for line in lines:
@@ -91,7 +92,7 @@ def refusal_line(stderr: str, *, what: str = "sbatch") -> str:
     low = said.lower()
     fix = next((f for words, f in _FIXES.items() if words in low),
                "`--dry-run` shows the job script it was asked to take")
-    return f"SLURM refused the worker job ({what}: {said}); {fix}. Nothing was submitted"
+    return f"{system} refused the worker job ({what}: {said}); {fix}. Nothing was submitted"
 
 
 def check_slurm_job(script: str) -> None:
@@ -186,7 +187,9 @@ class JobWatch:
         from stimuli.dask_cluster import ClusterError
 
         if self.refused:
-            line = refusal_line(self.refused[0]).replace(". Nothing was submitted", "")
+            line = refusal_line(self.refused[0], system=self.system.upper(),
+                                what="sbatch" if self.system == "slurm" else "qsub")
+            line = line.replace(". Nothing was submitted", "")
             raise ClusterError(f"{line}; finished work is kept: fix the options and run the "
                                "same command again")
         now = time.monotonic()
