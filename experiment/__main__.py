@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import errno
 import os
-import signal
 import sys
 from pathlib import Path
 
+from experiment.run_command import main_run
 from studydesign import DesignError, load_design
 
 #: Environment variable naming the lab's data root (read here, at the command line only).
@@ -167,164 +166,10 @@ def _cmd_run(args) -> int:
     return main_run(req)
 
 
-def main_run(req) -> int:
-    """Run a session for the command line: messages on stderr, exit status.
-
-    Returns 0 (complete or already complete), 1 (a write failed: a full disk, a read-only
-    folder; everything recorded before is kept), 2 (a pre-flight or display problem: nothing
-    was shown), 3 (quit by the operator), 130 (Ctrl-C); after 1, 3 and 130 the same command
-    continues the session.
-    """
-    from experiment.checks import PreflightError
-    from experiment.display import DisplayError
-    from experiment.session import run_session
-    from experiment.signals import SessionSignal
-    from labfiles import LabFileError
-
-    again = "run the same command to continue"
-    try:
-        res = run_session(req)
-    except (PreflightError, DisplayError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt as exc:
-        how, rc = (f"ended by {exc.name}", 128 + exc.signum) if isinstance(exc, SessionSignal) \
-            else ("interrupted (Ctrl-C)", 130)
-        print(f"{how}; every answered trial is kept in {req.data_dir}; {again}", file=sys.stderr)
-        return rc
-    except LabFileError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 1
-    except OSError as exc:
-        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
-            what = (str(exc.strerror).split("; free space")[0]  # said once, below
-                    if "disk is full" in str(exc.strerror)
-                    else f"the disk is full: could not write {exc.filename or req.data_dir}")
-            print(f"error: {what}. The trials answered so far are kept in {req.data_dir}; "
-                  f"free space, then {again}", file=sys.stderr)
-        elif exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
-            print(f"error: cannot write {exc.filename or req.data_dir} ({exc.strerror}); the "
-                  f"trials answered so far are kept; make the data folder writable, then "
-                  f"{again}", file=sys.stderr)
-        else:
-            print(f"error: {exc}; the trials answered so far are kept in {req.data_dir}",
-                  file=sys.stderr)
-        return 1
-    kept = (f"{res.trials_done} of {res.trials_total} trials are saved in {res.data_file}; "
-            f"{again} (--data {req.data_dir})")
-    if res.status == "quit":
-        print(f"session {res.session} of {res.participant} paused: {kept}", file=sys.stderr)
-        return 3
-    if res.status == "interrupted" and res.signal:
-        print(f"ended by {res.signal} (a shutdown, a closed terminal or kill): {kept}; the run's "
-              f"log: {res.log_file}", file=sys.stderr)
-        return 128 + int(getattr(signal, res.signal))
-    if res.status == "interrupted":
-        print(f"interrupted (Ctrl-C): {kept}", file=sys.stderr)
-        return 130
-    if res.status == "complete":
-        log = (f"log {res.log_file}" if res.log_file is not None else
-               "its run log could not be written (see the warning above; the trials are all "
-               "kept, the log's timing and dropped-frame figures are not)")
-        print(f"session {res.session} of {res.participant} complete: {res.trials_total} trials "
-              f"in {res.data_file}; {log}")
-    return 0
-
-
 def _cmd_status(args) -> int:
-    import warnings
+    from experiment.status import print_status
 
-    from experiment.datafile import (
-        DataFileError,
-        read_run_events,
-        read_session,
-        read_slider_histories,
-        runs_path,
-        session_path,
-        simulated_rows,
-        sliders_path,
-    )
-    from experiment.history import frame_records
-    from experiment.participants import (
-        case_twins,
-        check_new_participant,
-        check_participant_id,
-    )
-    from experiment.plan import plan_path
-    from labfiles import TornTailWarning
-
-    design = load_design(args.design)
-    data = data_folder(args.data)
-    try:
-        check_participant_id(args.participant)
-        if not plan_path(data, args.participant).exists():
-            check_new_participant(args.participant, data)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    plan = plan_path(data, args.participant)
-    print(f"{args.participant}: data {data}; plan {plan if plan.exists() else '(none yet)'}")
-    for other, where in case_twins(args.participant, data).items():
-        print(f"  NOTE: {other!r} ({where}) differs only in case: one person recorded twice? "
-              "Ask the study lead")
-    n = design.sessions.trials_per_session
-    damaged = 0
-    for session in range(1, design.sessions.n_sessions + 1):
-        path = session_path(data, args.participant, session)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", TornTailWarning)
-            try:
-                rows = read_session(path)
-                runs = read_run_events(runs_path(data, args.participant, session))
-                sliders = read_slider_histories(sliders_path(data, args.participant, session))
-                history = runs_path(data, args.participant, session)
-                slider_file = sliders_path(data, args.participant, session)
-                problem = _session_gaps(rows, path, {
-                    history: runs, slider_file: sliders,
-                    **frame_records(data / "logs", path.stem)},
-                    runs=history, restore=(slider_file,))
-            except DataFileError as exc:
-                problem = str(exc)
-            if problem:
-                print(f"  session {session}: DAMAGED: {problem}")
-                damaged += 1
-                continue
-        done = len(rows)
-        starts = sum(1 for e in runs if e.get("event") == "start")
-        last = runs[-1].get("event") if runs else "-"
-        state = "complete" if done == n else ("not started" if done == 0 else "to resume")
-        print(f"  session {session}: {done}/{n} trials, {state}; {starts} run(s), last event "
-              f"{last!r}")
-        simulated = int(simulated_rows(rows).sum()) if done else 0
-        if simulated:
-            print(f"    NOTE: {simulated} of these trials were answered by a simulated observer "
-                  "(not the participant); the analysis lists them")
-        for w in caught:
-            if issubclass(w.category, TornTailWarning):
-                print(f"    WARNING: {w.message}")
-    return 1 if damaged else 0
-
-
-def _session_gaps(rows, path, records: dict, **named) -> str | None:
-    """What is missing from a session CSV: rows cut from the middle (trials not 1..n in
-    order), or fewer rows than its slider histories, run history and frames files record;
-    else None. ``named``: the run history and files to restore, as
-    :func:`experiment.history.check_no_lost_trials` takes them."""
-    from experiment.checks import PreflightError
-    from experiment.history import check_no_lost_trials
-
-    trials = [int(t) for t in rows["trial"]] if len(rows) else []
-    if trials != list(range(1, len(trials) + 1)):
-        gaps = sorted(set(range(1, max(trials) + 1)) - set(trials))
-        what = (f"trials {gaps[:10]} are missing between the recorded ones (rows cut from the "
-                "middle?)" if gaps else "the recorded trials are not 1..n in order")
-        return (f"{path}: {what}; put the original file back (keep this copy) before the "
-                "session continues")
-    try:
-        check_no_lost_trials(len(trials), path, records, **named)
-    except PreflightError as exc:
-        return str(exc)
-    return None
+    return print_status(load_design(args.design), data_folder(args.data), args.participant)
 
 
 def _cmd_simulate(args) -> int:

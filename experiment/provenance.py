@@ -18,10 +18,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from experiment.checks import PreflightError
+from experiment.checks import PreflightError, SessionStimuli
 from experiment.datafile import DataFileError, read_run_events, runs_path, session_path
 
-__all__ = ["calibration_words", "check_earlier_sessions", "stimuli_digest"]
+__all__ = ["calibration_words", "check_earlier_sessions", "check_same_inputs", "session_inputs",
+           "stimuli_digest"]
 
 
 def stimuli_digest(stimulus_ids, png_sha256) -> str:
@@ -109,3 +110,70 @@ def check_earlier_sessions(manifest: pd.DataFrame, plan: pd.DataFrame, session: 
                 "they were replaced)")
         notes.append(f"{what} for the new calibration {inputs['calibration_id']!r} ({said}): "
                      "the participant's sessions show two renders of the set")
+
+
+def _sha256(path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
+    """What a session's data depend on, as checksums: recorded at its first run.
+
+    Returns
+    -------
+    dict
+        ``calibration`` (absolute path), ``calibration_id``, ``calibration_sha256`` (of the
+        file), ``calibration_fit`` (its :attr:`calibration.Calibration.display_model`: a later
+        session names what changed), ``manifest`` (absolute path) and ``stimuli_sha256``:
+        SHA-256 of this session's
+        ``stimulus_id:png_sha256`` lines, sorted (so rows the manifest gains later for other
+        stimuli do not count, but any change to one of this session's images does).
+    """
+    cal_file = Path(calibration_path)
+    cal_file = cal_file / "calibration.json" if cal_file.is_dir() else cal_file
+    lines = sorted(f"{i}:{h}" for i, h in zip(stim.frame["stimulus_id"], stim.frame["png_sha256"]))
+    return {"calibration": str(cal_file.resolve()), "calibration_id": cal.calibration_id,
+            "calibration_sha256": _sha256(cal_file), "calibration_fit": cal.display_model,
+            "manifest": str(Path(stim.manifest_path).resolve()),
+            "stimuli_sha256": hashlib.sha256("\n".join(lines).encode()).hexdigest()}
+
+
+def check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], path: Path) -> None:
+    """A resumed session must use the calibration and stimuli it started with.
+
+    Raises
+    ------
+    PreflightError
+        Another calibration (by id in the recorded rows, or by checksum in the run log) or other
+        stimulus images than the first run's; the message names the files to use.
+    """
+    if done.empty:
+        return
+    ids = sorted(set(done["calibration_id"].astype(str)) - {inputs["calibration_id"]})
+    first = next((e for e in events if e.get("event") == "start" and "calibration_sha256" in e),
+                 None)
+    if ids:
+        used = f" ({first['calibration']})" if first else ""
+        raise PreflightError(
+            f"{path}: the {len(done)} trials recorded so far used calibration {ids}{used}, this "
+            f"run calibration {inputs['calibration_id']!r} ({inputs['calibration']}); a session "
+            "is finished with the calibration it started with. Pass that calibration with "
+            "--calibration (or start the participant's data anew in another data folder)")
+    if first is None:
+        return
+    if first["calibration_sha256"] != inputs["calibration_sha256"]:
+        raise PreflightError(
+            f"{path}: this session started with calibration file {first['calibration']} "
+            f"(SHA-256 {first['calibration_sha256'][:12]}...), this run has {inputs['calibration']} "
+            f"(SHA-256 {inputs['calibration_sha256'][:12]}...), which differs although its id is "
+            "the same; pass the first file with --calibration")
+    if first["stimuli_sha256"] != inputs["stimuli_sha256"]:
+        raise PreflightError(
+            f"{path}: this session started with the stimuli of {first['manifest']}; the images "
+            f"this run would show ({inputs['manifest']}) are not the same (other checksums, e.g. "
+            "re-rendered or another size). Pass the first manifest with --stimuli (restore its "
+            "images if they were replaced)")

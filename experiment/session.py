@@ -23,14 +23,10 @@ even on ``kill -9``), so two runs never write one file. Ctrl-C ends the run like
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import json
 import os
-import platform
-import re
+import signal
 import warnings
 from dataclasses import dataclass, field
-from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -62,24 +58,38 @@ from experiment.datafile import (
     session_path,
     simulated_app_version,
     sliders_path,
-    write_run_log,
 )
-from experiment.history import check_no_lost_trials, frame_records, future_record_notes
-from experiment.participants import case_twins
+from experiment.history import check_history, no_record_of_inputs, read_recorded
 from experiment.plan import PLAN_COLUMNS, PlanError, load_or_create_plan, participant_seed
-from experiment.provenance import calibration_words, check_earlier_sessions
-from experiment.signals import SessionSignal, ending_signals, held_signals
+from experiment.provenance import (
+    calibration_words,
+    check_earlier_sessions,
+    check_same_inputs,
+    session_inputs,
+)
+from experiment.runlog import (
+    DROP_FACTOR,
+    FRAMES_HEADER,
+    FrameLog,
+    check_refresh,
+    finish_log,
+    frames_path,
+    now_utc,
+    recover_run_logs,
+    run_logs,
+    run_numbers_on_disk,
+    start_log,
+    unended_last_run,
+    versions,
+)
+from experiment.signals import SessionSignal, ending_signals, held_signals, run_ending
+from experiment.simulate import start_hand
 from experiment.trial import TrialResult, run_trial
-from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning, atomic_path
+from labfiles import FolderLock, FolderLocked, RecordFile, TornTailWarning
 from stimuli import load_manifest
 from studydesign import StudyDesign
 
 __all__ = ["SessionOutcome", "SessionRequest", "prepare_session", "run_session"]
-
-#: A frame interval longer than this many nominal frames counts as dropped.
-DROP_FACTOR = 1.5
-#: Header of a run's frame-interval CSV.
-_FRAMES_HEADER = "trial,interval_s"
 
 
 @dataclass(frozen=True)
@@ -141,6 +151,9 @@ class SessionOutcome:
     log_file: str | None = None
     #: The signal that ended an ``interrupted`` run other than Ctrl-C (``"SIGTERM"``, ``"SIGHUP"``).
     signal: str | None = None
+    #: A signal (``"SIGINT"`` for Ctrl-C) that came after the last answer of a ``complete`` run,
+    #: while its log was written: the run finished its records first.
+    signal_after_last_answer: str | None = None
 
 
 def _check_done(done: pd.DataFrame, plan: pd.DataFrame, path: Path) -> None:
@@ -165,153 +178,6 @@ def _check_done(done: pd.DataFrame, plan: pd.DataFrame, path: Path) -> None:
         )
 
 
-def _sha256(path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def session_inputs(stim: SessionStimuli, calibration_path, cal) -> dict:
-    """What a session's data depend on, as checksums: recorded at its first run.
-
-    Returns
-    -------
-    dict
-        ``calibration`` (absolute path), ``calibration_id``, ``calibration_sha256`` (of the
-        file), ``calibration_fit`` (its :attr:`calibration.Calibration.display_model`: a later
-        session names what changed), ``manifest`` (absolute path) and ``stimuli_sha256``:
-        SHA-256 of this session's
-        ``stimulus_id:png_sha256`` lines, sorted (so rows the manifest gains later for other
-        stimuli do not count, but any change to one of this session's images does).
-    """
-    cal_file = Path(calibration_path)
-    cal_file = cal_file / "calibration.json" if cal_file.is_dir() else cal_file
-    lines = sorted(f"{i}:{h}" for i, h in zip(stim.frame["stimulus_id"], stim.frame["png_sha256"]))
-    return {"calibration": str(cal_file.resolve()), "calibration_id": cal.calibration_id,
-            "calibration_sha256": _sha256(cal_file), "calibration_fit": cal.display_model,
-            "manifest": str(Path(stim.manifest_path).resolve()),
-            "stimuli_sha256": hashlib.sha256("\n".join(lines).encode()).hexdigest()}
-
-
-def _check_same_inputs(inputs: dict, done: pd.DataFrame, events: list[dict], path: Path) -> None:
-    """A resumed session must use the calibration and stimuli it started with.
-
-    Raises
-    ------
-    PreflightError
-        Another calibration (by id in the recorded rows, or by checksum in the run log) or other
-        stimulus images than the first run's; the message names the files to use.
-    """
-    if done.empty:
-        return
-    ids = sorted(set(done["calibration_id"].astype(str)) - {inputs["calibration_id"]})
-    first = next((e for e in events if e.get("event") == "start" and "calibration_sha256" in e),
-                 None)
-    if ids:
-        used = f" ({first['calibration']})" if first else ""
-        raise PreflightError(
-            f"{path}: the {len(done)} trials recorded so far used calibration {ids}{used}, this "
-            f"run calibration {inputs['calibration_id']!r} ({inputs['calibration']}); a session "
-            "is finished with the calibration it started with. Pass that calibration with "
-            "--calibration (or start the participant's data anew in another data folder)")
-    if first is None:
-        return
-    if first["calibration_sha256"] != inputs["calibration_sha256"]:
-        raise PreflightError(
-            f"{path}: this session started with calibration file {first['calibration']} "
-            f"(SHA-256 {first['calibration_sha256'][:12]}...), this run has {inputs['calibration']} "
-            f"(SHA-256 {inputs['calibration_sha256'][:12]}...), which differs although its id is "
-            "the same; pass the first file with --calibration")
-    if first["stimuli_sha256"] != inputs["stimuli_sha256"]:
-        raise PreflightError(
-            f"{path}: this session started with the stimuli of {first['manifest']}; the images "
-            f"this run would show ({inputs['manifest']}) are not the same (other checksums, e.g. "
-            "re-rendered or another size). Pass the first manifest with --stimuli (restore its "
-            "images if they were replaced)")
-
-
-def _run_logs(data_dir, stem: str) -> list[tuple[int, dict]]:
-    """The run logs ``logs/<stem>_run<k>.json`` of a session as ``(k, log)``, by ``k``; a log
-    that does not read as JSON is ``{}``."""
-    found = []
-    for path in (Path(data_dir) / "logs").glob(f"{stem}_run*.json"):
-        number = path.stem[len(stem) + 4:]
-        if not number.isdigit():
-            continue
-        try:
-            log = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):
-            log = {}
-        found.append((int(number), log if isinstance(log, dict) else {}))
-    return sorted(found, key=lambda item: item[0])
-
-
-def _run_numbers_on_disk(logs: Path, stem: str) -> set[int]:
-    """The run numbers ``k`` of every file ``logs/<stem>_run<k>...`` (a log, a frames file or
-    plot, a torn tail moved aside): a run killed before its log leaves its frames file."""
-    found = set()
-    for path in logs.glob(f"{stem}_run*"):
-        match = re.match(rf"{re.escape(stem)}_run(\d+)(?!\d)", path.name)
-        if match:
-            found.add(int(match.group(1)))
-    return found
-
-
-def _read_recorded(read, path: Path, warned: list, torn: list | None = None):
-    """``read(path)`` (a session CSV or run log reader) with a torn tail turned into a
-    pre-flight warning (nothing is moved yet: the run does that, holding the lock)."""
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always", TornTailWarning)
-        try:
-            records = read(path)
-        except DataFileError as exc:
-            raise PreflightError(str(exc)) from exc
-    found = [str(w.message) for w in caught if issubclass(w.category, TornTailWarning)]
-    warned += found
-    if torn is not None:
-        torn += found
-    return records
-
-
-def _check_history(req: SessionRequest, session: int, done: pd.DataFrame,
-                   records: dict) -> list[str]:
-    """A session CSV holding fewer trials than the session's other records (slider histories
-    in ``records``, the run history, the run logs, the runs' frame files) is refused (:func:`check_no_lost_trials`);
-    returns warnings: participants differing only in case, times after this PC's clock."""
-    path = session_path(req.data_dir, req.participant, session)
-    events_path = runs_path(req.data_dir, req.participant, session)
-    events = _read_recorded(read_run_events, events_path, [], [])
-    logs = {Path(req.data_dir) / "logs" / f"{path.stem}_run{k}.json":  # each run's own log
-            [{"event": "start", "run": k, "first_trial": log.get("first_trial")},
-             {"run": k, "trials_this_run": log.get("trials_this_run")}]
-            for k, log in _run_logs(req.data_dir, path.stem)}
-    frames = frame_records(Path(req.data_dir) / "logs", path.stem)
-    check_no_lost_trials(len(done), path, {**records, events_path: events, **logs, **frames},
-                         runs=events_path, restore=tuple(records))
-    twins = [f"participant {req.participant!r} and {other!r} ({where}) differ only in case: if "
-             "they are one person, session 2 shows stimuli seen before; ask the study lead "
-             "before going on" for other, where in case_twins(req.participant,
-                                                               req.data_dir).items()]
-    return twins + future_record_notes(done, events, path, events_path)
-
-
-def _no_record(req: SessionRequest, path: Path, session: int, notes: list) -> None:
-    """A resumed session whose start record is gone (``_runs.jsonl`` deleted or its start line
-    torn, the run logs missing): refused, since every image could have been swapped, unless
-    the operator vouches for the inputs with --accept-unverified-resume (logged)."""
-    msg = (f"{path}: no record of the stimuli and calibration file this session started with "
-           f"({runs_path(req.data_dir, req.participant, session)} and the run logs are missing "
-           "or torn), so this resume cannot check that the images are the ones its first trials "
-           "showed")
-    if not req.accept_unverified_resume:
-        raise PreflightError(msg + "; restore the missing file from a backup, or, once you have "
-                             "checked that --stimuli and --calibration are the ones the session "
-                             "started with, add --accept-unverified-resume (recorded in the log)")
-    notes.append(msg + " (--accept-unverified-resume given)")
-
-
 def prepare_session(req: SessionRequest) -> Prepared:
     """Every check that needs no window; raises :class:`PreflightError` naming the fix."""
     design = req.design
@@ -326,14 +192,14 @@ def prepare_session(req: SessionRequest) -> Prepared:
     path = session_path(req.data_dir, req.participant, session)
     notes: list = []
     torn: list = []
-    done = _read_recorded(read_session, path, notes, torn)
+    done = read_recorded(read_session, path, notes, torn)
     slider_file = sliders_path(req.data_dir, req.participant, session)
-    sliders = _read_recorded(read_slider_histories, slider_file, notes, torn)
+    sliders = read_recorded(read_slider_histories, slider_file, notes, torn)
     _check_done(done, rows, path)
-    notes += _check_history(req, session, done, {slider_file: sliders})
+    notes += check_history(req, session, done, {slider_file: sliders})
     todo = rows.iloc[len(done):].reset_index(drop=True)
     for earlier in range(1, session):
-        n = len(_read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
+        n = len(read_recorded(read_session, session_path(req.data_dir, req.participant, earlier),
                                notes))
         if n < design.sessions.trials_per_session:
             notes.append(f"session {earlier} of {req.participant} has {n} of "
@@ -345,37 +211,23 @@ def prepare_session(req: SessionRequest) -> Prepared:
         cal = check_calibration(req.calibration, design,
                                 max_age_days=req.max_calibration_age_days)
         inputs = session_inputs(stim, req.calibration, cal)
-        events = _read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
+        events = read_recorded(read_run_events, runs_path(req.data_dir, req.participant,
                                                            session), notes, torn)
         if len(done) and not any("stimuli_sha256" in e for e in events):
             # The start events are gone (the file was moved or deleted): each run's own log
             # holds the same inputs.
             events = events + [{"event": "start", **log["inputs"]}
-                               for _, log in _run_logs(req.data_dir, path.stem)
+                               for _, log in run_logs(req.data_dir, path.stem)
                                if "inputs" in log]
             if not any("stimuli_sha256" in e for e in events):
-                _no_record(req, path, session, notes)
-        _check_same_inputs(inputs, done, events, path)
+                no_record_of_inputs(req, path, session, notes)
+        check_same_inputs(inputs, done, events, path)
         check_earlier_sessions(
             load_manifest(stim.manifest_path), plan, session, inputs, data_dir=req.data_dir,
             participant=req.participant, notes=notes,
-            run_logs=lambda k: [log for _, log in _run_logs(
+            run_logs=lambda k: [log for _, log in run_logs(
                 req.data_dir, session_path(req.data_dir, req.participant, k).stem)])
-        other = [c for c in stim.calibration_ids if c != cal.calibration_id]
-        # The same id in a file of other content is another calibration too (recalibrated
-        # under its old id); a manifest from before calibration_sha256 records no file.
-        files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
-        if other or files:
-            what = (f"calibration {other}" if other else
-                    f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
-                    f"{' and '.join(files)} (recalibrated under the same id?)")
-            msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
-                   f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
-                   "re-render the stimuli with this calibration")
-            if not req.accept_calibration_mismatch:
-                raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
-                                     "in the session log)")
-            notes.append(msg)
+        _check_corrected_for(stim, cal, inputs, req, notes)
         observer = _make_observer(req) if req.simulate is not None else None
         shot = check_screenshot(req.screenshot)
         if shot is not None and shot.exists():  # never replaced; the same command still resumes
@@ -397,6 +249,28 @@ def prepare_session(req: SessionRequest) -> Prepared:
                     torn=[w for w in notes if w in torn])
 
 
+def _check_corrected_for(stim: SessionStimuli, cal, inputs: dict, req: SessionRequest,
+                         notes: list) -> None:
+    """The stimuli must be gamma-corrected for this session's calibration (its id and file);
+    refused, or noted with --accept-calibration-mismatch."""
+    other = [c for c in stim.calibration_ids if c != cal.calibration_id]
+    # The same id in a file of other content is another calibration too (recalibrated
+    # under its old id); a manifest from before calibration_sha256 records no file.
+    files = sorted(set(stim.frame["calibration_sha256"]) - {"", inputs["calibration_sha256"]})
+    if not (other or files):
+        return
+    what = (f"calibration {other}" if other else
+            f"calibration {cal.calibration_id!r} as in the file of SHA-256 "
+            f"{' and '.join(files)} (recalibrated under the same id?)")
+    msg = (f"the stimuli were gamma-corrected for {what}, but this session uses "
+           f"calibration {cal.calibration_id!r} ({calibration_words(inputs)}); "
+           "re-render the stimuli with this calibration")
+    if not req.accept_calibration_mismatch:
+        raise PreflightError(msg + " (or pass --accept-calibration-mismatch, recorded "
+                             "in the session log)")
+    notes.append(msg)
+
+
 def _make_observer(req: SessionRequest):
     """The simulated observer, the same in every session and run of a participant (its own
     intercepts and slopes); the trial noise differs per session and run (:func:`_start_hand`)."""
@@ -413,61 +287,6 @@ def _make_observer(req: SessionRequest):
             f"--observer-params {req.observer_params}: {exc}; fix the file (TOML, see "
             "experiment/observers.toml) or leave the option out for the shipped parameters"
         ) from exc
-
-
-def _now() -> str:
-    return datetime.now(UTC).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
-
-
-def _stats_ms(values) -> dict:
-    v = np.asarray(values, dtype=float) * 1000.0
-    if v.size == 0:
-        return {"n": 0}
-    return {"n": int(v.size), "mean_ms": float(v.mean()), "sd_ms": float(v.std(ddof=0)),
-            "median_ms": float(np.median(v)), "p95_ms": float(np.percentile(v, 95)),
-            "max_ms": float(v.max()), "min_ms": float(v.min())}
-
-
-def _versions() -> dict:
-    import psychopy
-    import pyglet
-
-    out = {"python": platform.python_version(), "psychopy": psychopy.__version__,
-           "pyglet": pyglet.version, "numpy": np.__version__, "pandas": pd.__version__,
-           "app_version": app_version(), "platform": platform.platform()}
-    try:
-        import psychtoolbox
-
-        out["psychtoolbox"] = psychtoolbox.__version__
-    except ImportError:
-        out["psychtoolbox"] = None
-    return out
-
-
-def _plot_frames(intervals_s, frame_s: float, threshold_s: float, path: Path, title: str):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 3.5))
-    v = np.asarray(intervals_s) * 1000
-    ax.plot(v, ".", ms=2, color="k")
-    ax.axhline(frame_s * 1000, color="tab:blue", lw=1, label=f"frame {frame_s * 1000:.2f} ms")
-    ax.axhline(threshold_s * 1000, color="tab:red", lw=1, ls="--",
-               label=f"dropped above {threshold_s * 1000:.2f} ms")
-    ax.set_xlabel("frame")
-    ax.set_ylabel("interval (ms)")
-    ax.set_title(title)
-    ax.legend(loc="upper right", fontsize=8)
-    fig.tight_layout()
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=100, format="png")
-    finally:
-        plt.close(fig)
-
-
 
 
 def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
@@ -491,33 +310,24 @@ def run_session(req: SessionRequest, *, out=print) -> SessionOutcome:
 def _run_prepared(prep: Prepared, out) -> SessionOutcome:
     req = prep.request
     data = session_path(req.data_dir, req.participant, prep.session)
-    total = len(prep.plan)
     for w in prep.warnings:
         if prep.todo.empty or w not in prep.torn:  # a run reports the torn tails it moves
             out(f"warning: {w}")
-    if prep.todo.empty:
-        out(f"session {prep.session} of {req.participant} is already complete "
-            f"({total} trials in {data}); nothing to do")
-        return SessionOutcome("already complete", req.participant, prep.session, total, total,
-                              str(data))
     logs = Path(req.data_dir) / "logs"
-    try:
-        lock = FolderLock(logs, f"{data.stem}.lock",
-                          what=f"session {prep.session} of {req.participant} (data folder)")
-        lock.__enter__()
-    except FolderLocked as exc:
-        raise PreflightError(str(exc)) from None
+    events = runs_path(req.data_dir, req.participant, prep.session)
+    if prep.todo.empty:
+        return _already_complete(prep, data, events, out)
+    lock = _lock(logs, data, prep)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", TornTailWarning)
-            events = runs_path(req.data_dir, req.participant, prep.session)
             history = read_run_events(events, repair=True)
             starts = [e for e in history if e.get("event") == "start"]
             # The next free run number: no earlier run's log or frames file is ever written
             # to, even when the run history (``*_runs.jsonl``) was lost.
             run = 1 + max([len(starts), *(e["run"] for e in starts
                                           if isinstance(e.get("run"), int)),
-                           *_run_numbers_on_disk(logs, data.stem)])
+                           *run_numbers_on_disk(logs, data.stem)])
             read_slider_histories(sliders_path(req.data_dir, req.participant, prep.session),
                                   repair=True)
             try:
@@ -529,43 +339,16 @@ def _run_prepared(prep: Prepared, out) -> SessionOutcome:
                                      "of the session?); start the session again")
         for w in caught:
             out(f"warning: {w.message}")
-        append_run_event(events, {"event": "start", "run": run, "utc": _now(),
+        # The frames file before the start event: a run in the history always has one, so
+        # that one missing says the run's files were moved aside (experiment.history).
+        with RecordFile(frames_path(logs, data.stem, run), header=FRAMES_HEADER):
+            pass
+        append_run_event(events, {"event": "start", "run": run, "utc": now_utc(),
                                   "first_trial": int(prep.todo["trial"].iloc[0]),
                                   "pid": os.getpid(), **prep.inputs})
         return _run_trials(prep, data, logs, run, events, out)
     finally:
         lock.__exit__(None, None, None)
-
-
-def _start_log(prep: Prepared, data: Path, run: int) -> dict:
-    req, cal = prep.request, prep.calibration
-    frame_s = 1.0 / cal.refresh_hz
-    return {
-        "participant": req.participant, "session": prep.session, "run": run,
-        "started_utc": _now(), "data_file": str(data), "design": req.design.source,
-        "manifest": str(prep.stimuli.manifest_path), "calibration": str(req.calibration),
-        "calibration_id": cal.calibration_id, "calibration_age_days": cal.age_days(),
-        "calibration_warnings": list(cal.warnings), "screen_px": list(prep.screen_px),
-        "fullscr": req.fullscr, "fast": req.fast, "warnings": list(prep.warnings),
-        "inputs": dict(prep.inputs),
-        "first_trial": int(prep.todo["trial"].iloc[0]), "trials_total": len(prep.plan),
-        "frame_s_calibrated": frame_s, "dropped_frame_threshold_s": DROP_FACTOR * frame_s,
-    }
-
-
-def _check_refresh(win, cal, log: dict, out) -> None:
-    """Measure the refresh rate; warn (and log) when it is not the calibration's."""
-    frame_s = 1.0 / cal.refresh_hz
-    measured = win.getActualFrameRate(nIdentical=20, nMaxFrames=240, nWarmUpFrames=20,
-                                      threshold=1)
-    log["refresh_hz_measured"] = measured
-    if measured is None or abs(measured * frame_s - 1) > 0.02:
-        got = ("could not be measured (unstable frame intervals: no vsync?)"
-               if measured is None else f"measured {measured:.2f} Hz")
-        w = (f"refresh rate {got}, the calibration's is {cal.refresh_hz:.2f} Hz; check "
-             "the display mode and sync-to-vblank before going on")
-        out(f"warning: {w}")
-        log["warnings"].append(w)
 
 
 def _session_row(row: dict, result: TrialResult, calibration_id: str,
@@ -578,32 +361,45 @@ def _session_row(row: dict, result: TrialResult, calibration_id: str,
     record = {c: row[c] for c in PLAN_COLUMNS if c in SESSION_COLUMNS}
     record.update(gloss_match=result.gloss_match, depth_match=result.depth_match,
                   rt_s=result.rt_s, onset_s=result.onset_s,
-                  dropped_frames=result.dropped_frames, timestamp_utc=_now(),
+                  dropped_frames=result.dropped_frames, timestamp_utc=now_utc(),
                   app_version=version, calibration_id=calibration_id)
     return {c: record[c] for c in SESSION_COLUMNS}
 
 
-class _FrameLog:
-    """The run's frame intervals, appended after every trial (``*_run<k>_frames.csv``)."""
+def _lock(logs: Path, data: Path, prep: Prepared) -> FolderLock:
+    """The session's lock, held (the caller releases it)."""
+    try:
+        lock = FolderLock(logs, f"{data.stem}.lock",
+                          what=f"session {prep.session} of {prep.request.participant} (data "
+                          "folder)")
+        lock.__enter__()
+    except FolderLocked as exc:
+        raise PreflightError(str(exc)) from None
+    return lock
 
-    def __init__(self, path: Path):
-        self.file = RecordFile(path, header=_FRAMES_HEADER, sync=False)
-        self.written = 0
 
-    def __enter__(self):
-        self.file.__enter__()
-        return self
-
-    def __exit__(self, *exc):
-        self.file.close()
-
-    def append(self, intervals, trial: int) -> None:
-        new = intervals[self.written:]
-        for v in new:
-            self.file.append(f"{trial},{v:.6f}")
-        if new:
-            self.file.sync()
-        self.written += len(new)
+def _already_complete(prep: Prepared, data: Path, events: Path, out) -> SessionOutcome:
+    """A complete session: nothing to run; the log and end event its last run never wrote
+    (killed after its last answer) are written from its records
+    (:func:`experiment.runlog.recover_run_logs`)."""
+    req, total = prep.request, len(prep.plan)
+    recovered = None
+    if unended_last_run(read_recorded(read_run_events, events, []), total) is not None:
+        lock = _lock(events.parent, data, prep)
+        try:
+            recovered = recover_run_logs(events, prep.done, data_file=data, total=total)
+        finally:
+            lock.__exit__(None, None, None)
+    if recovered is not None:
+        log, written = recovered
+        what = (f"its log {log} (marked 'recovered': versions and screen were not recorded) "
+                "and its end event" if written else f"its end event (its log {log} exists)")
+        out(f"warning: the run that answered the last trial ended without recording its end "
+            f"(killed, or the PC lost power); {what} written now in {events.parent}")
+    out(f"session {prep.session} of {req.participant} is already complete "
+        f"({total} trials in {data}); nothing to do")
+    return SessionOutcome("already complete", req.participant, prep.session, total, total,
+                          str(data), None if recovered is None else str(recovered[0]))
 
 
 def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
@@ -614,121 +410,85 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
     stem = data.stem
     stim_frame = prep.stimuli.frame
     stim_frame = stim_frame[stim_frame["stimulus_id"].isin(set(prep.todo["stimulus_id"]))]
-    log = _start_log(prep, data, run)
+    log = start_log(prep, data, run)
     trials_log: list[dict] = []
     hand = None
     status = "error"
-    log_path = None
-    ended_by = None
+    log_path = ended_by = after_last = None
     with SessionDisplay(req.design, cal, stim_frame.reset_index(drop=True), fullscr=req.fullscr,
                         fast=req.fast, monitor_profile=prep.monitor_profile) as disp, \
             SessionWriter(req.data_dir, req.participant, prep.session,
                           background_fsync=True) as writer, \
-            _FrameLog(logs / f"{stem}_run{run}_frames.csv") as frames:
-        from psychopy import core
-
+            FrameLog(frames_path(logs, stem, run)) as frames:
         win = disp.win
         log.update(disp.info)
         out(f"{req.participant} session {prep.session} run {run}: trials "
             f"{log['first_trial']}-{len(prep.plan)}, {disp.info['n_textures']} textures loaded, "
             f"calibration {cal.calibration_id} ({cal.age_days():.1f} days old), gamma: no hardware "
             f"table (stimuli pre-corrected), keyboard {disp.info['keyboard_backend']}")
-        log["versions"] = _versions()
+        log["versions"] = versions()
         win.refreshThreshold = DROP_FACTOR / cal.refresh_hz
         if req.simulate is None:
-            _check_refresh(win, cal, log, out)
+            check_refresh(win, cal, log, out)
         else:
-            hand = _start_hand(req, prep, disp, log)
-        clock = core.Clock()
-        win.recordFrameIntervals = True
-        shot = req.screenshot
-        last_response_s = None
+            hand = start_hand(req, prep, disp, log)
         try:
-            for row in prep.todo.to_dict("records"):
-                result = run_trial(disp, row, clock, hand, shot)
-                if result is None:
-                    status = "quit"
-                    append_run_event(events, {"event": "operator_quit", "run": run,
-                                              "utc": _now(), "at_trial": int(row["trial"])})
-                    break
-                shot = None if result.screenshot_taken else shot
-                if last_response_s is not None:
-                    trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
-                last_response_s = result.onset_s + result.rt_s
-                with held_signals():  # the row, the run's count and its frames, or none
-                    writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
-                                  sliders=result.slider_record())
-                    trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
-                                       "rt_s": result.rt_s,
-                                       "dropped_frames": result.dropped_frames})
-                    frames.append(win.frameIntervals, int(row["trial"]))
-            else:
-                status = "complete"
+            status = _answer_trials(prep, disp, hand, writer, frames, trials_log, events, run)
         except KeyboardInterrupt as exc:
-            status = "interrupted"
-            ended_by = exc.name if isinstance(exc, SessionSignal) else "SIGINT"
-            log["ended_by"] = ended_by
+            name = exc.name if isinstance(exc, SessionSignal) else "SIGINT"
+            if len(trials_log) == len(prep.todo):  # after the last answer: complete all the same
+                status, after_last = "complete", name
+                log["signal_after_last_answer"] = name
+            else:
+                status, ended_by = "interrupted", name
+                log["ended_by"] = ended_by
         finally:
+            late = run_ending()  # the log, the end event and the window's closing are finished
             if hand is not None:
                 hand.stop()
-            log_path = _finish_log(log, status, win, trials_log, hand, logs, stem, run, out)
+            log_path = finish_log(log, status, win, trials_log, hand, logs, stem, run, out)
             try:
-                append_run_event(events, {"event": status, "run": run, "utc": _now(),
+                append_run_event(events, {"event": status, "run": run, "utc": now_utc(),
                                           "trials_this_run": len(trials_log),
-                                          **({"signal": ended_by} if ended_by else {})})
+                                          **({"signal": ended_by} if ended_by else {}),
+                                          **({"signal_after_last_answer": after_last}
+                                             if after_last else {})})
             except OSError as exc:
                 # Never hides the error that ended the run (a full disk fails here too).
                 out(f"warning: the run's end was not recorded in {events} ({exc})")
+    if status == "complete" and after_last is None and late:
+        after_last = signal.Signals(late[0]).name
     done = len(prep.done) + len(trials_log)
     return SessionOutcome(status, req.participant, prep.session, done, len(prep.plan), str(data),
                           None if log_path is None else str(log_path),
-                          ended_by if ended_by != "SIGINT" else None)
+                          ended_by if ended_by != "SIGINT" else None, after_last)
 
 
-def _finish_log(log: dict, status: str, win, trials_log: list, hand, logs: Path, stem: str,
-                run: int, out) -> Path | None:
-    """Complete and write the run's log and frame plot; returns the log's path.
+def _answer_trials(prep: Prepared, disp, hand, writer, frames, trials_log: list, events: Path,
+                   run: int) -> str:
+    """Show the session's remaining trials, committing each answer (its row, slider histories,
+    the run's count and frame intervals) whole; returns ``"complete"`` or ``"quit"``."""
+    from psychopy import core
 
-    A failure to write (a full disk) is reported through ``out`` and returns None, so that the
-    error that ended the run is the one raised.
-    """
-    frame_s = log["frame_s_calibrated"]
-    log["finished_utc"] = _now()
-    log["status"] = status
-    intervals = list(win.frameIntervals)
-    log["frame_intervals"] = _stats_ms(intervals)
-    log["dropped_frames"] = int(win.nDroppedFrames)
-    latencies = [t["response_to_next_onset_s"] for t in trials_log
-                 if "response_to_next_onset_s" in t]
-    log["response_to_next_onset"] = _stats_ms(latencies)
-    log["trials_this_run"] = len(trials_log)
-    log["trials"] = trials_log
-    if hand is not None:
-        log["simulated"]["intended"] = {str(k): v for k, v in hand.intended.items()}
-        if hand.error is not None:
-            log["simulated"]["error"] = repr(hand.error)
-    try:
-        if intervals:
-            _plot_frames(intervals, frame_s, DROP_FACTOR * frame_s,
-                         logs / f"{stem}_run{run}_frames.png",
-                         f"{stem} run {run}: {len(intervals)} frames, "
-                         f"{win.nDroppedFrames} dropped")
-        return write_run_log(logs / f"{stem}_run{run}.json", log)
-    except OSError as exc:
-        out(f"warning: the run's log {logs / f'{stem}_run{run}.json'} was not written ({exc})")
-        return None
-
-
-def _start_hand(req: SessionRequest, prep: Prepared, disp, log: dict):
-    from experiment.simulate import SimulatedHand
-
-    base = req.seed if req.seed is not None else participant_seed(req.participant)
-    run = log["run"]
-    hand = SimulatedHand(prep.observer, np.random.default_rng([base, prep.session, run]),
-                         lambda: disp.frame_count, fast=req.fast,
-                         early_space_probability=req.early_space_probability,
-                         quit_at_trial=req.quit_at_trial)
-    hand.start()
-    log["simulated"] = {"observer": prep.observer.to_dict(), "seed": [base, prep.session, run],
-                        "input": "XTEST events into the X display"}
-    return hand
+    req, cal, win = prep.request, prep.calibration, disp.win
+    clock = core.Clock()
+    win.recordFrameIntervals = True
+    shot = req.screenshot
+    last_response_s = None
+    for row in prep.todo.to_dict("records"):
+        result = run_trial(disp, row, clock, hand, shot)
+        if result is None:
+            append_run_event(events, {"event": "operator_quit", "run": run, "utc": now_utc(),
+                                      "at_trial": int(row["trial"])})
+            return "quit"
+        shot = None if result.screenshot_taken else shot
+        if last_response_s is not None:
+            trials_log[-1]["response_to_next_onset_s"] = result.onset_s - last_response_s
+        last_response_s = result.onset_s + result.rt_s
+        with held_signals():  # the row, the run's count and its frames, or none
+            writer.append(_session_row(row, result, cal.calibration_id, req.simulate),
+                          sliders=result.slider_record())
+            trials_log.append({"trial": int(row["trial"]), "onset_s": result.onset_s,
+                               "rt_s": result.rt_s, "dropped_frames": result.dropped_frames})
+            frames.append(win.frameIntervals, int(row["trial"]))
+    return "complete"

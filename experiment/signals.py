@@ -14,6 +14,11 @@ A trial is committed in several writes (its CSV row, the run's own count, its fr
 whole, so the line printed at the end ("N of M trials are saved"), the run history and the run
 log all count the same trials as the session file (a SIGTERM landing just after a row's write
 once printed "0 of 6 saved" beside a file holding 1).
+
+Once the run's end has begun (:func:`run_ending`: its last answer is in, or it was quit or
+interrupted), a signal is recorded and no longer raised, so the run's log, its end event and the
+window's closing are finished: an operator closing the window with Ctrl-C right after the last
+answer once left a complete session with no log and a run history that never ended.
 """
 
 from __future__ import annotations
@@ -23,13 +28,16 @@ import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals", "held_signals"]
+__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals", "held_signals", "run_ending"]
 
 #: Signals that end a session cleanly (SIGINT is Python's own KeyboardInterrupt).
 ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
 
 #: Signals held by the innermost :func:`held_signals` block (a stack: one list per block).
 _HELD: list[list[int]] = []
+#: One record per :func:`ending_signals` block: the signals that arrived after
+#: :func:`run_ending` (``None`` before it was called).
+_BLOCKS: list[dict] = []
 
 
 class SessionSignal(KeyboardInterrupt):
@@ -51,8 +59,12 @@ def ending_signals() -> Iterator[None]:
         yield
         return
     raised = []
+    block = {"late": None}
 
     def handler(signum, _frame):
+        if block["late"] is not None:  # the run's end has begun: recorded, not raised
+            block["late"].append(signum)
+            return
         if raised:  # the run is already ending: let its log be written
             return
         if _HELD:  # a trial is being committed: raised when its last write is done
@@ -62,11 +74,31 @@ def ending_signals() -> Iterator[None]:
         raise SessionSignal(signum)
 
     old = {sig: signal.signal(sig, handler) for sig in ENDING_SIGNALS}
+    old[signal.SIGINT] = signal.getsignal(signal.SIGINT)
+    _BLOCKS.append(block)
     try:
         yield
     finally:
+        _BLOCKS.pop()
         for sig, previous in old.items():
             signal.signal(sig, previous)
+
+
+def run_ending() -> list[int]:
+    """From now until the innermost :func:`ending_signals` block exits, SIGTERM, SIGHUP and
+    Ctrl-C are recorded in the list returned, not raised: the run is ending, and its log, its
+    end event and the window's closing are finished first.
+
+    Outside such a block (or the main thread) nothing changes and the list stays empty.
+    """
+    if threading.current_thread() is not threading.main_thread() or not _BLOCKS:
+        return []
+    block = _BLOCKS[-1]
+    if block["late"] is None:
+        late: list[int] = []
+        block["late"] = late
+        signal.signal(signal.SIGINT, lambda signum, _frame: late.append(signum))
+    return block["late"]
 
 
 @contextmanager

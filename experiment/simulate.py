@@ -17,7 +17,7 @@ from typing import Self
 
 import numpy as np
 
-__all__ = ["SimulatedHand", "XTestInput"]
+__all__ = ["SimulatedHand", "XTestInput", "start_hand"]
 
 #: X11 keysyms of the keys the hand presses.
 _KEYSYMS = {"space": 0x0020, "escape": 0xFF1B}
@@ -174,3 +174,21 @@ class SimulatedHand(threading.Thread):
             time.sleep(float(self.observer.response_time_s(self.rng)) * 0.5)
         self._drag(x, geometry, order[1], values[order[1]])
         self._press(x, "space")
+
+
+def start_hand(req, prep, disp, log: dict) -> SimulatedHand:
+    """Start the simulated observer's hand for a session's run (``req``: its request, ``prep``:
+    what the pre-flight prepared, ``log``: the run's log, which records the observer and the
+    seed ``[participant seed or --seed, session, run]``)."""
+    from experiment.plan import participant_seed
+
+    base = req.seed if req.seed is not None else participant_seed(req.participant)
+    run = log["run"]
+    hand = SimulatedHand(prep.observer, np.random.default_rng([base, prep.session, run]),
+                         lambda: disp.frame_count, fast=req.fast,
+                         early_space_probability=req.early_space_probability,
+                         quit_at_trial=req.quit_at_trial)
+    hand.start()
+    log["simulated"] = {"observer": prep.observer.to_dict(), "seed": [base, prep.session, run],
+                        "input": "XTEST events into the X display"}
+    return hand

@@ -12,7 +12,9 @@ Three ways to get workers, one per command-line option:
   ``[cluster]``); jobs that end (walltime, pre-emption, ``scancel``) are replaced once Dask counts
   their worker as lost; when the run ends, SLURM jobs end by themselves (their workers retire:
   COMPLETED, exit 0), other jobs are cancelled. ``--dry-run`` prints the job script and submits
-  nothing. Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
+  nothing. A SLURM job is first tried with ``sbatch --test-only``; a refused job, one that can
+  never start, and Ctrl-C (which cancels the jobs) end the run in one line
+  (:mod:`stimuli.job_submission`). Tested on a real SLURM 22.05 (``tests/stimuli/test_slurm.py``); PBS and SGE only
   through their job scripts.
 
 :func:`finished` drives the tasks: a worker that dies (killed, pre-empted) costs only its tasks in
@@ -30,6 +32,7 @@ import re
 import shlex
 import sys
 import time
+import weakref
 from collections import deque
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
@@ -63,6 +66,8 @@ MAX_RESUBMITS = 3
 #: 80 % of its limit.
 MIN_JOB_MEMORY_BYTES = 10**9
 _REPO = Path(__file__).resolve().parents[1]
+#: Client -> the JobWatch of its batch jobs, asked by :func:`finished` while no worker runs.
+_JOB_WATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 class ClusterError(ValueError):
@@ -203,8 +208,10 @@ def _prologue() -> list[str]:
 
 
 def _jobqueue_cluster(spec: JobSpec):
+    from stimuli.job_submission import import_jobqueue
+
     try:
-        import dask_jobqueue
+        dask_jobqueue = import_jobqueue()
     except ImportError as exc:
         raise ClusterError(f"--cluster needs dask-jobqueue ({exc}); install the project "
                            "(`make venv`) or `.venv/bin/pip install dask-jobqueue`") from exc
@@ -261,63 +268,55 @@ def open_client(*, scheduler: str | None = None, spec: JobSpec | None = None,
             yield client, advice
         return
     if spec is not None:
-        cluster = _jobqueue_cluster(spec)
-        adaptive = cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
-        queue = {"slurm": "squeue -u $USER", "pbs": "qstat -u $USER",
-                 "sge": "qstat -u $USER"}[spec.system]
-        advice = (f"{spec.jobs} worker job(s) were submitted to {spec.system.upper()} and none "
-                  f"runs yet: check the queue (`{queue}`); a job that cannot start (wrong "
-                  "--queue, too much --memory) never will: stop with Ctrl-C (finished work is "
-                  f"kept) and fix its options; `--dry-run` shows the job script")
-        with _quiet_client(), cluster, Client(cluster) as client:
-            try:
-                yield client, advice
-            finally:
-                _end_jobs(cluster, client, adaptive, spec.system)
+        with _batch_client(spec) as (client, advice):
+            yield client, advice
         return
     cluster = local()
     with _quiet_client(), cluster, Client(cluster) as client:
         yield client, "the local cluster lost its workers: stop with Ctrl-C and run again"
 
 
-def _end_jobs(cluster, client, adaptive, system: str, wait_s: float = 15.0) -> None:
-    """Let SLURM worker jobs end by themselves, so that they end COMPLETED (exit 0) in its
-    records rather than CANCELLED: no job is replaced any more, each worker is retired and its
-    process exits, and the run waits (up to ``wait_s``) until those jobs have left the queue;
-    any still there then is cancelled (``scancel``), as closing the cluster cancels the jobs that
-    never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
-    commands are untested here)."""
-    from concurrent.futures import CancelledError
+@contextlib.contextmanager
+def _batch_client(spec: JobSpec):
+    """A client on worker jobs of ``spec`` (see :func:`open_client`): a SLURM job is first
+    tried with ``sbatch --test-only``; the run's :class:`~stimuli.job_submission.JobWatch`
+    ends it when a job is refused or can never start; Ctrl-C cancels the jobs at once."""
+    from distributed import Client
 
-    adaptive.stop()
-    if system != "slurm":
-        return
-    try:
-        retired = client.retire_workers(close_workers=True)
-    except (OSError, TimeoutError, CancelledError):
-        return
-    names = {str(info.get("name")) for info in retired.values()}
-    ending = []
-    for key, job in list(cluster.workers.items()):  # a job's workers are named KEY or KEY-i
-        if getattr(job, "job_id", None) and any(n == str(key) or n.startswith(f"{key}-")
-                                                for n in names):
-            del cluster.workers[key]  # neither Dask's lost-worker timer nor closing cancels it
-            ending.append(str(job.job_id))
-    if not ending:
-        return
-    import subprocess
+    from stimuli.job_submission import (
+        JobWatch,
+        cancel_jobs,
+        check_slurm_job,
+        end_jobs,
+        forget_refused,
+    )
 
-    deadline = time.monotonic() + wait_s
-    queued = ending
-    with contextlib.suppress(OSError, subprocess.TimeoutExpired):
-        while queued and time.monotonic() < deadline:
-            time.sleep(0.2)
-            listed = subprocess.run(["squeue", "-h", "-o", "%i", "-j", ",".join(queued)],
-                                    capture_output=True, text=True, timeout=10, check=False)
-            # squeue refuses ids it no longer knows (exit 1): all of them ended
-            queued = listed.stdout.split() if listed.returncode == 0 else []
-        if queued:
-            subprocess.run(["scancel", *queued], capture_output=True, timeout=10, check=False)
+    cluster = _jobqueue_cluster(spec)
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(_quiet_client())
+        stack.enter_context(cluster)
+        if spec.system == "slurm":
+            check_slurm_job(cluster.job_script())
+        watch = stack.enter_context(JobWatch(cluster, spec.system).refusals())
+        adaptive = cluster.adapt(minimum_jobs=spec.jobs, maximum_jobs=spec.jobs)
+        queue = {"slurm": "squeue -u $USER", "pbs": "qstat -u $USER",
+                 "sge": "qstat -u $USER"}[spec.system]
+        advice = (f"{spec.jobs} worker job(s) were submitted to {spec.system.upper()} and none "
+                  f"runs yet: check the queue (`{queue}`); stop with Ctrl-C (finished work is "
+                  "kept) to change its options; `--dry-run` shows the job script")
+        client = stack.enter_context(Client(cluster))
+        _JOB_WATCHES[client] = watch
+        try:
+            yield client, advice
+        except KeyboardInterrupt:
+            cancel_jobs(cluster, adaptive, spec.system)
+            raise
+        except BaseException:
+            forget_refused(cluster)
+            end_jobs(cluster, client, adaptive, spec.system)
+            raise
+        else:
+            end_jobs(cluster, client, adaptive, spec.system)
 
 
 class _Watch:
@@ -351,6 +350,9 @@ class _Watch:
         if workers:
             self.alone_since = self.last_said = None
             return
+        jobs = _JOB_WATCHES.get(self.client)
+        if jobs is not None:
+            jobs.check()  # a refused job, or one that can never start, ends the run
         self.alone_since = self.alone_since or now
         if now - self.alone_since >= self.no_worker_s and (
                 self.last_said is None or now - self.last_said >= self.no_worker_s):

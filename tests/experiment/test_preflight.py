@@ -325,7 +325,7 @@ def test_resume_without_its_run_history_checks_the_run_logs_and_numbers_the_next
     """An operator moved ``*_runs.jsonl`` away: the resume still refuses other images (the
     first run's log holds its inputs; the check used to be skipped, mixing image sizes in one
     session), and the next run takes a free number (run 1's log used to be 'not written')."""
-    from experiment.session import _run_logs
+    from experiment.runlog import run_logs as _run_logs
 
     f = session_files
     first = _record_first_run(design, f)

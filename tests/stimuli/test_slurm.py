@@ -52,6 +52,7 @@ def test_a_render_on_slurm_survives_a_job_cancelled_mid_render(tmp_path, slurm):
     jobs_dir = tmp_path / "jobs"  # sbatch writes each job's slurm-<id>.out here
     jobs_dir.mkdir()
     err_path = tmp_path / "render.err"
+    before = set(slurm.submitted())  # the cluster is the session's: other tests' jobs
     t0 = time.monotonic()
     proc = _run_in_background(
         ["stimuli", "render", "--set", "imagestats", "--limit", str(N_IMAGES), "--out", str(out),
@@ -89,7 +90,7 @@ def test_a_render_on_slurm_survives_a_job_cancelled_mid_render(tmp_path, slurm):
     assert all((out / p).is_file() for p in m["png_path"])
     assert pd.read_csv(log)["stimulus_id"].is_unique  # no EXR logged twice
     assert f'"rendered": {N_IMAGES}' in stdout
-    submitted = slurm.submitted()
+    submitted = [j for j in slurm.submitted() if j not in before]
     assert len(submitted) == 2 and submitted[0] == cancelled, history  # and one in its place
     replacement = submitted[1]
     assert f"REQUEST_KILL_JOB JobId={cancelled} " in history

@@ -189,6 +189,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text,
         loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},
-        warnings=(note,) if note else (), not_identifiable=display_identifiability(data),
+        warnings=(*readings.attrs.get("display_source", {}).get("zero_evidence", ()),
+                  *((note,) if note else ())), not_identifiable=display_identifiability(data),
         sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
                                                   for st in diag.steps]))

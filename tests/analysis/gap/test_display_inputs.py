@@ -100,3 +100,34 @@ def test_negative_readings_dropped_are_said_with_their_lines(tmp_path):
     assert "3 negative luminance(s)" in said[0]
     assert any("rows dropped" in str(w.message) for w in caught)
     assert len(readings) == len(frame) - 3
+
+
+@pytest.mark.parametrize("black", ["0", "0.035"])
+def test_a_black_that_reads_zero_where_the_calibration_saw_light_is_named(tmp_path, black):
+    """Issue 44, item 2: a check whose 18 black readings are all 0 (a meter at its floor or on
+    a wrong range, the black knob turned down) against a calibration that measured 0.35
+    cd/m^2 there read "no significant gap" without a word. The zeros are named with the
+    verdict (the layer's warnings, kept in diagnosis.json); a black at a tenth, read as light,
+    is the diagnosis's to size (no such warning)."""
+    from analysis.gap.display import plan
+
+    rng = np.random.default_rng(4)
+    bench_display.write_calibration_folder(tmp_path / "cal", GOGDisplay(), rng,
+                                           n_validation=0)
+    check = bench_display.write_check_folder(tmp_path / "check", GOGDisplay(), rng,
+                                             calibration=tmp_path / "cal")
+    frame = pd.read_csv(check / "readings.csv", dtype=str, keep_default_na=False)
+    at_black = frame["level"].astype(float) == 0
+    assert at_black.sum() == 18
+    frame.loc[at_black, "luminance_cd_m2"] = black
+    frame.to_csv(check / "readings.csv", index=False)
+    layer = plan(check, tmp_path / "cal", None, np.random.default_rng(0), n_boot=10)
+    named = [w for w in layer.warnings if "read 0 cd/m^2" in w]
+    if black == "0":
+        assert len(named) == 1, layer.warnings
+        assert "18 of 18 readings at drive level 0 read 0 cd/m^2 where calibration " \
+               "'lab-cal' saw 0.351 cd/m^2" in named[0]
+        assert "'no significant gap' there is no pass" in named[0]
+        assert "check the meter's range and zero" in named[0]
+    else:
+        assert named == []
