@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiment import signals
 from experiment.checks import (
     PreflightError,
     SessionStimuli,
@@ -433,7 +434,8 @@ def _run_trials(prep: Prepared, data: Path, logs: Path, run: int, events: Path,
         else:
             hand = start_hand(req, prep, disp, log)
         try:
-            status = _answer_trials(prep, disp, hand, writer, frames, trials_log, events, run)
+            with signals.unwrapped_signals():  # a signal inside a ctypes call comes wrapped
+                status = _answer_trials(prep, disp, hand, writer, frames, trials_log, events, run)
         except KeyboardInterrupt as exc:
             name = exc.name if isinstance(exc, SessionSignal) else "SIGINT"
             if len(trials_log) == len(prep.todo):  # after the last answer: complete all the same

@@ -23,12 +23,14 @@ answer once left a complete session with no log and a run history that never end
 
 from __future__ import annotations
 
+import ctypes
 import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
 
-__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals", "held_signals", "run_ending"]
+__all__ = ["ENDING_SIGNALS", "SessionSignal", "ending_signals", "held_signals", "run_ending",
+           "unwrapped_signals"]
 
 #: Signals that end a session cleanly (SIGINT is Python's own KeyboardInterrupt).
 ENDING_SIGNALS = (signal.SIGTERM, signal.SIGHUP)
@@ -59,7 +61,7 @@ def ending_signals() -> Iterator[None]:
         yield
         return
     raised = []
-    block = {"late": None}
+    block = {"late": None, "raised": raised}
 
     def handler(signum, _frame):
         if block["late"] is not None:  # the run's end has begun: recorded, not raised
@@ -133,3 +135,35 @@ def held_signals() -> Iterator[None]:
         handler = signal.getsignal(signum)
         if callable(handler):
             handler(signum, None)
+
+
+@contextmanager
+def unwrapped_signals() -> Iterator[None]:
+    """Raise a signal that a C library's ctypes call wrapped as what it is.
+
+    A Python signal handler runs between bytecodes, also inside the Python code that converts a
+    ctypes call's arguments (pyglet's, under PsychoPy's window); ctypes then reports the
+    handler's exception as ``ctypes.ArgumentError("argument 1: <class
+    '...SessionSignal'>: SIGTERM")``, and the run ended with exit 1 and no word on what was
+    kept. Inside this block such an error is raised again as the :class:`SessionSignal` (or
+    ``KeyboardInterrupt``) it stands for; any other ``ArgumentError`` is left as it is.
+    """
+    try:
+        yield
+    except ctypes.ArgumentError as exc:
+        text = str(exc)
+        if "SessionSignal" in text:
+            raise SessionSignal(_wrapped_signal(text)) from exc
+        if "KeyboardInterrupt" in text:
+            raise KeyboardInterrupt from exc
+        raise
+
+
+def _wrapped_signal(text: str) -> int:
+    """The signal a wrapped :class:`SessionSignal`'s text names (its last word, e.g. SIGTERM),
+    else the one the innermost :func:`ending_signals` block raised, else SIGTERM."""
+    name = text.rsplit(":", 1)[-1].strip()
+    if name in signal.Signals.__members__:
+        return int(signal.Signals[name])
+    raised = _BLOCKS[-1]["raised"] if _BLOCKS else []
+    return int(raised[0]) if raised else int(signal.SIGTERM)

@@ -102,6 +102,33 @@ def test_a_signal_during_a_trials_commit_is_raised_after_its_last_write():
     assert writes[-1] == "held Ctrl-C"
 
 
+def test_a_signal_inside_a_ctypes_call_ends_the_run_as_that_signal():
+    """CI once saw exit 1 and ``ctypes.ArgumentError`` where SIGTERM should end the session: the
+    handler raised while pyglet's Python code converted a ctypes call's argument. A real SIGTERM
+    to this process lands inside a real libc call's argument conversion here."""
+    import ctypes
+
+    from experiment.signals import SessionSignal, ending_signals, unwrapped_signals
+
+    class Landing:
+        @classmethod
+        def from_param(cls, value):
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(0.2)  # the handler runs here, inside the conversion
+            return ctypes.c_int(value)
+
+    labs = ctypes.CDLL(None).abs
+    labs.argtypes = [Landing]
+    with pytest.raises(ctypes.ArgumentError, match="SessionSignal"), ending_signals():
+        labs(-3)  # without the unwrapping: what CI saw
+    with pytest.raises(SessionSignal) as caught, ending_signals(), unwrapped_signals():
+        labs(-3)
+    assert caught.value.name == "SIGTERM"
+    labs.argtypes = [ctypes.c_int]
+    with pytest.raises(ctypes.ArgumentError, match="argument 1"), unwrapped_signals():
+        labs("not a number")  # any other ArgumentError stays what it is
+
+
 def test_sighup_raises_the_session_signal_in_the_block():
     """The handler the app installs (the same for SIGTERM), with a real SIGHUP to this
     process; outside the block the shell's own handling is back."""
