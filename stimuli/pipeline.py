@@ -91,6 +91,9 @@ class RenderJob:
     llvm_path : str
         The client's libLLVM: a worker whose own ``DRJIT_LIBLLVM_PATH`` is unset uses it where it
         is a file (:func:`stimuli.mitsuba_env.use_llvm_hint`), else finds its own.
+    spp_by_light_field : tuple of (str, tuple of int)
+        Per light field (name), its own spp per gloss level (multijitter counts, planned from
+        that light field's noise); a light field not listed takes ``spp_by_gloss_level``.
     """
 
     camera: CameraGeometry
@@ -101,12 +104,14 @@ class RenderJob:
     threads: int = 0
     spp_by_gloss_level: tuple[int, ...] = ()
     llvm_path: str = ""
+    spp_by_light_field: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
-    def spp_for(self, gloss_level: int) -> int:
-        """Samples per pixel of a stimulus of this gloss level label."""
-        if not self.spp_by_gloss_level:
+    def spp_for(self, gloss_level: int, light_field: str = "") -> int:
+        """Samples per pixel of a stimulus of this gloss level label under ``light_field``."""
+        by_level = dict(self.spp_by_light_field).get(light_field) or self.spp_by_gloss_level
+        if not by_level:
             return self.spp
-        return int(self.spp_by_gloss_level[int(gloss_level) - 1])
+        return int(by_level[int(gloss_level) - 1])
 
 
 # --- worker side ---------------------------------------------------------------------------------
@@ -169,7 +174,7 @@ def _render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
     records = []
     for row in rows:
         t0 = time.perf_counter()
-        spp = renderer.spp_for(job.spp_for(row["gloss_level"]))
+        spp = renderer.spp_for(job.spp_for(row["gloss_level"], row.get("light_field", "")))
         img = renderer.render(row["rho_d"], row["rho_s"], row["alpha"], spp=spp,
                               seed=zlib.crc32(row["stimulus_id"].encode()))
         path = Path(out_dir) / row["exr_path"]
@@ -201,7 +206,7 @@ def _remove_stale_temporaries(out: Path) -> int:
 
 def _plan_rows(table: pd.DataFrame, gloss_table: pd.DataFrame, job: RenderJob) -> pd.DataFrame:
     t = table.copy()
-    t["spp"] = [job.spp_for(g) for g in t["gloss_level"]]
+    t["spp"] = [job.spp_for(g, lf) for g, lf in zip(t["gloss_level"], t["light_field"])]
     rho_d, rho_s, alpha = ward_params_for_gloss(gloss_table, t["true_gloss_pct"].to_numpy())
     t["rho_d"], t["rho_s"], t["alpha"] = rho_d, rho_s, alpha
     t["exr_path"] = [f"exr/{lf}/{sid}.exr" for lf, sid in zip(t["light_field"], t["stimulus_id"])]

@@ -515,12 +515,17 @@ class RenderSpec:
         that reaches ``displayed_error_pct`` (measured by ``python -m stimuli plan-spp``).
     spp_planned_at_px : int
         Image width (px) the spp were measured at.
+    spp_by_light_field : tuple of (str, tuple of int)
+        ``[render.spp_by_light_field]``: per light field (its name), the spp of each gloss level
+        measured under that light field alone (``plan-spp --light-fields all``); a light field
+        not listed takes ``spp_by_gloss_level``.
     """
 
     variant: str
     displayed_error_pct: float
     spp_by_gloss_level: tuple[int, ...]
     spp_planned_at_px: int
+    spp_by_light_field: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         _require(self.variant in RENDER_VARIANTS,
@@ -533,10 +538,19 @@ class RenderSpec:
                  f"{list(self.spp_by_gloss_level)}")
         _require(isinstance(self.spp_planned_at_px, int) and self.spp_planned_at_px >= 8,
                  f"render.spp_planned_at_px must be an integer >= 8, got {self.spp_planned_at_px}")
+        for name, spp in self.spp_by_light_field:
+            _require(len(spp) == len(self.spp_by_gloss_level)
+                     and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
+                             for v in spp),
+                     f"render.spp_by_light_field.{name} = {list(spp)}: give one whole number "
+                     f">= 1 per gloss level ({len(self.spp_by_gloss_level)}), as "
+                     "`python -m stimuli plan-spp --light-fields all` prints them")
 
-    def spp(self, gloss_level: int) -> int:
-        """Samples per pixel of a gloss level label (1..n)."""
-        return self.spp_by_gloss_level[int(gloss_level) - 1]
+    def spp(self, gloss_level: int, light_field: str | None = None) -> int:
+        """Samples per pixel of a gloss level label (1..n), under ``light_field`` where its own
+        counts are listed (``spp_by_light_field``), else the design-wide ones."""
+        own = dict(self.spp_by_light_field).get(light_field) if light_field else None
+        return (own or self.spp_by_gloss_level)[int(gloss_level) - 1]
 
 
 @dataclass(frozen=True)
@@ -646,6 +660,19 @@ class StudyDesign:
     source: str = ""
     cluster: ClusterSpec = ClusterSpec()
 
+    def spp(self, gloss_level: int, light_field: str) -> int:
+        """Samples per pixel of a gloss level label under a light field (an image-statistics
+        light field's name, or an illumination's, which takes the counts of the light field
+        with its file and scale where it has none of its own)."""
+        own = dict(self.render.spp_by_light_field)
+        if light_field not in own:
+            il = next((il for il in self.illuminations if il.name == light_field), None)
+            twin = next((lf.name for lf in self.imagestats.light_fields if il is not None
+                         and Path(lf.envmap).name == Path(il.envmap).name
+                         and lf.scale == il.scale), None)
+            light_field = twin or light_field
+        return self.render.spp(gloss_level, light_field)
+
     def __post_init__(self) -> None:
         _require(
             len(self.render.spp_by_gloss_level) == self.gloss.n_levels,
@@ -655,6 +682,10 @@ class StudyDesign:
         names = [il.name for il in self.illuminations]
         _require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
         _require(len(set(names)) == len(names), f"illumination names repeat: {names}")
+        known = {lf.name for lf in self.imagestats.light_fields} | set(names)
+        unknown = sorted({n for n, _ in self.render.spp_by_light_field} - known)
+        _require(not unknown, f"render.spp_by_light_field names {unknown}, which are no light "
+                              f"field of [imagestats] nor illumination: use one of {sorted(known)}")
         n = self.n_stimuli
         _require(
             self.sessions.n_sessions * self.sessions.trials_per_session == n,
@@ -853,6 +884,14 @@ def _build(cls, raw: dict, name: str, path: Path, **override):
         raise DesignError(f"{path}: [{name}]: {exc}") from exc
 
 
+def _spp_by_light_field(raw: Any, path: Path) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    if not isinstance(raw, dict) or not all(isinstance(v, list) for v in raw.values()):
+        raise DesignError(f"{path}: [render.spp_by_light_field] must hold one list of spp per "
+                          "light field (name = [30, 30, ...]), as `python -m stimuli plan-spp "
+                          "--light-fields all` prints it")
+    return tuple((str(k), tuple(v)) for k, v in raw.items())
+
+
 def _models(raw: Any, path: Path) -> tuple[AnalysisModel, ...]:
     if not isinstance(raw, dict):
         raise DesignError(f"{path}: [analysis.models] must hold one table per model")
@@ -965,7 +1004,8 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
     imagestats = _imagestats(_section(raw, "imagestats", path), path)
     rd = _section(raw, "render", path, RenderSpec)
     render = _build(RenderSpec, rd, "render", path,
-                    spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
+                    spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())),
+                    spp_by_light_field=_spp_by_light_field(rd.get("spp_by_light_field", {}), path))
     gap = _build(GapSpec, {**asdict(GapSpec()), **raw.get("gap", {})}, "gap", path)
     cluster = _build(ClusterSpec, {**asdict(ClusterSpec()), **raw.get("cluster", {})},
                      "cluster", path)

@@ -80,3 +80,45 @@ def test_render_takes_each_gloss_levels_spp(tmp_path, capsys, mitsuba_variant):
     m = load_manifest(out).set_index("gloss_level")
     assert json.loads(captured.out)["rendered"] == 2
     assert m.loc[2, "spp"] == 2 and m.loc[10, "spp"] == 4
+
+
+def test_render_takes_each_light_fields_own_spp(tmp_path, capsys, mitsuba_variant):
+    """A light field listed in [render.spp_by_light_field] renders at its own counts (recorded
+    per image in the manifest); the experiment's illumination takes the counts of the light
+    field with its file and scale; one not listed keeps the design-wide counts."""
+    from studydesign import load_design
+
+    text = Path(load_design().source).read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("spp_by_gloss_level"))
+    design_path = tmp_path / "design.toml"
+    design_path.write_text(text.replace(line, "spp_by_gloss_level = [4, 4, 4, 4, 4, 4, 4, 4, 4, "
+                                              "4, 4]").replace(
+        "\n[gap]", "\n[render.spp_by_light_field]\naerodynamics_workshop = "
+        "[1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 9]\n\n[gap]", 1))
+    design = load_design(design_path)
+    assert design.spp(11, "aerodynamics_workshop") == 9 and design.spp(11, "indoor") == 9
+    assert design.spp(11, "outdoor") == 4 and design.spp(10, "noon_grass") == 4
+    out = tmp_path / "r"
+    rc = main(["--design", str(design_path), "render", "--set", "preview", "--filter",
+               "depth_level=2", "--out", str(out), "--workers", "0", "--size", "16",
+               "--no-progress"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    m = load_manifest(out).set_index(["illumination", "gloss_level"])
+    assert m.loc[("indoor", 2), "spp"] == 1 and m.loc[("indoor", 10), "spp"] == 2
+    assert m.loc[("outdoor", 2), "spp"] == 4 and m.loc[("outdoor", 10), "spp"] == 4
+
+
+def test_spp_by_light_field_names_a_known_light_field(tmp_path):
+    from studydesign import DesignError, load_design
+
+    text = Path(load_design().source).read_text()
+    path = tmp_path / "design.toml"
+    path.write_text(text.replace("\n[gap]", "\n[render.spp_by_light_field]\nnowhere = "
+                                 "[1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 9]\n\n[gap]", 1))
+    with pytest.raises(DesignError, match="nowhere.*no light field"):
+        load_design(path)
+    path.write_text(text.replace("\n[gap]", "\n[render.spp_by_light_field]\nlebombo = "
+                                 "[1, 2]\n\n[gap]", 1))
+    with pytest.raises(DesignError, match="one whole number >= 1 per gloss level"):
+        load_design(path)
