@@ -187,6 +187,9 @@ class StimulusRenderer:
     integrator : dict, optional
         Another Mitsuba integrator dict (tests compare ``direct`` sampling strategies); default
         ``{"type": "path", "max_depth": max_depth}``.
+    split_sun : bool
+        Light the scene with the probe's brightest small region as a light of its own and the
+        rest as the environment map (:mod:`stimuli.sunsplit`; the same expected image).
     freeze : bool, optional
         Replay each (scene, sample count)'s recorded kernels (``dr.freeze``) instead of tracing
         every render; default (None): on the ``cuda_ad_*`` variants, where it pays.
@@ -199,8 +202,9 @@ class StimulusRenderer:
 
     def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5,
                  bsdf: dict | None = None, integrator: dict | None = None,
-                 freeze: bool | None = None):
+                 freeze: bool | None = None, split_sun: bool = False):
         self.bsdf = bsdf
+        self.split_sun = bool(split_sun)
         self.freeze = freeze
         self._frozen = {}
         self.integrator = integrator
@@ -262,7 +266,7 @@ class StimulusRenderer:
                          "pixel_format": film_format, "rfilter": {"type": "gaussian"}},
                 "sampler": {"type": "multijitter", "sample_count": self.spp},
             },
-            "emitter": probe.emitter(),
+            **self._emitters(probe),
             "array": mesh,
         })
         self.params = mi.traverse(self.scene)
@@ -272,6 +276,13 @@ class StimulusRenderer:
         self.variant = variant
         self._frozen = {}  # recordings of the previous scene
         self.n_loads += 1
+
+    def _emitters(self, probe: LightProbe) -> dict:
+        if not self.split_sun:
+            return {"emitter": probe.emitter()}
+        from stimuli.sunsplit import split_emitters
+
+        return split_emitters(probe)
 
     def render(self, rho_d: float, rho_s: float, alpha: float, *, seed: int = 0,
                spp: int | None = None) -> np.ndarray:
