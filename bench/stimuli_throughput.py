@@ -32,7 +32,7 @@ All figures are ratios measured side by side on a machine that other jobs share 
 is printed); absolute seconds are only indicative.
 
 Usage: ``.venv/bin/python bench/stimuli_throughput.py [--size PX] [--baseline-spp 144]
-[--repeats 3] [--rounds 2] [--no-workers] [--light-fields NAME ...]``
+[--repeats 3] [--rounds 2] [--no-workers] [--light-fields NAME ...] [--design TOML]``
 """
 
 from __future__ import annotations
@@ -139,8 +139,10 @@ def _print_light_field(r, target, before_spp) -> bool:
 
 
 def main() -> None:
-    design = load_design()
-    ap = argparse.ArgumentParser()
+    pre = argparse.ArgumentParser(add_help=False)
+    pre.add_argument("--design", help="design.toml (default: the shipped one)")
+    design = load_design(pre.parse_known_args()[0].design)
+    ap = argparse.ArgumentParser(parents=[pre])
     ap.add_argument("--size", type=int, default=design.render.spp_planned_at_px,
                     help="image width = height, px (default: the size the design's spp were "
                          "planned at)")
