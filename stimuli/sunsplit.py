@@ -15,10 +15,16 @@ outdoor capture.
 
 Variance. Emitter sampling picks the sun or the map with probabilities set by the emitters'
 ``sampling_weight`` (here the sun's share of the probe's power, at least ``min_sun_share``), and
-the map's MIS compensation is then computed without the sun (whose luminance otherwise sets the
-mean that it subtracts, leaving the sky to BSDF sampling alone). Whether that lowers the
-displayed error depends on the probe and the gloss: ``bench/stimuli_sun_split.py`` measures it
-side by side.
+the map's MIS compensation is then computed without the sun. It does NOT lower the displayed error
+of these captures, so the renderer leaves it off (``split_sun=False``) and ``plan-spp`` plans
+without it: ``bench/stimuli_sun_split.py --size 32`` (16 spp, 6 seeds, deepest array, load
+average 18 on 2 cores) measured split / unsplit displayed error 1.11 and 1.08 on the outdoor
+immenstadter_horn (sun share of the power 0.21) at gloss levels 6 and 11, 1.21 and 1.11 on the
+indoor aerodynamics_workshop (brightest lamp 0.10); with the sun chosen by its power share alone
+(``min_sun_share=0``) 1.01 and 1.09 at level 11. The envmap's own sampling (by luminance, MIS
+compensation, combined with BSDF sampling by MIS) already draws the sun's texels; taking the sun
+out of MIS (BSDF samples can no longer reach it) and choosing between two lights costs more than
+the sky gains. Kept because it is exact and tested, for probes where a bench shows a gain.
 """
 
 from __future__ import annotations
