@@ -57,6 +57,11 @@ def test_plan_spp_meets_the_target_by_measurement(design, mitsuba_variant, sun_p
     for plan in (loose, strict):
         assert all(e <= plan.target for e in plan.error_at_spp)
         assert plan.gloss_levels == (1, 11) and plan.variant == "llvm_ad_mono"
+        # one light field: its own counts are the design-wide ones, each measured at its count
+        assert plan.spp_by_light_field == (plan.spp,) and len(plan.light_fields) == 1
+        assert all(e <= plan.target for e in plan.measured_by_light_field[0])
+        assert f"{plan.light_fields[0]} = [{plan.spp[0]}, {plan.spp[1]}]" in plan.toml()
+        assert "<= target" in plan.report() and "ABOVE" not in plan.report()
     assert all(s >= lo for s, lo in zip(strict.spp, loose.spp, strict=True))
     assert sum(strict.spp) > sum(loose.spp)
     assert strict.spp[1] > strict.spp[0]
