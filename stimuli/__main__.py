@@ -290,21 +290,7 @@ def _cmd_plan_spp(args) -> int:
                     repeats=args.repeats, target=target / 100.0, gloss_table=gloss,
                     max_spp=args.max_spp, progress=lambda m: print(m, file=sys.stderr),
                     probes=probes, light_fields=names)
-    pct = 100.0
-
-    def per_lf(rows):
-        return dict(zip(plan.light_fields, ([round(pct * e, 3) for e in r] for r in rows),
-                        strict=True))
-
-    print(json.dumps({"variant": plan.variant, "size_px": plan.size_px, "target_pct": target,
-                      "gloss_levels": plan.gloss_levels, "spp": plan.spp,
-                      "error_at_spp_pct": [round(pct * e, 3) for e in plan.error_at_spp],
-                      "pilot_spp": plan.pilot_spp,
-                      "error_at_pilot_pct": [round(pct * e, 3) for e in plan.error_at_pilot],
-                      "spp_by_light_field": dict(zip(plan.light_fields, plan.spp_by_light_field,
-                                                     strict=True)),
-                      "predicted_error_pct": per_lf(plan.predicted_by_light_field),
-                      "measured_error_pct": per_lf(plan.measured_by_light_field)}))
+    print(json.dumps(plan.summary()))
     print(f"displayed error per light field (target {target:g} %):\n{plan.report()}",
           file=sys.stderr)
     print(f"# paste into [render] of {design.source}:\n{plan.toml()}", file=sys.stderr)

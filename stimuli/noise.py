@@ -222,6 +222,24 @@ class SppPlan:
                 f"spp_planned_at_px = {self.size_px}"
                 + (f"\n\n[render.spp_by_light_field]{own}" if own else ""))
 
+    def summary(self) -> dict:
+        """The plan as JSON-ready numbers (errors in % of the display range)."""
+
+        def pct(values):
+            return [round(100 * e, 3) for e in values]
+
+        def per_lf(rows):
+            return dict(zip(self.light_fields, (pct(r) for r in rows), strict=True))
+
+        return {"variant": self.variant, "size_px": self.size_px, "target_pct": round(100 * self.target, 6),
+                "gloss_levels": self.gloss_levels, "spp": self.spp,
+                "error_at_spp_pct": pct(self.error_at_spp), "pilot_spp": self.pilot_spp,
+                "error_at_pilot_pct": pct(self.error_at_pilot),
+                "spp_by_light_field": dict(zip(self.light_fields, self.spp_by_light_field,
+                                               strict=True)),
+                "predicted_error_pct": per_lf(self.predicted_by_light_field),
+                "measured_error_pct": per_lf(self.measured_by_light_field)}
+
     def report(self) -> str:
         """One line per light field: spp, predicted and measured displayed error per level, %."""
         lines = []

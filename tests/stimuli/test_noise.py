@@ -127,3 +127,22 @@ def test_spp_by_light_field_names_a_known_light_field(tmp_path):
                                  "[1, 2]\n\n[gap]", 1))
     with pytest.raises(DesignError, match="one whole number >= 1 per gloss level"):
         load_design(path)
+
+
+def test_plan_spp_plans_each_light_field_apart(capsys, mitsuba_variant):
+    """plan-spp --light-fields: one set of counts per named light field with the predicted and
+    measured displayed error of each, per light field in the report, and the TOML table; the
+    design-wide count of a level is the largest over them (16 px, a loose target)."""
+    rc = main(["plan-spp", "--size", "16", "--repeats", "2", "--pilot-spp", "4", "--max-spp",
+               "64", "--target-pct", "3", "--light-fields", "noon_grass", "lebombo"])
+    captured = capsys.readouterr()
+    assert rc == 0, captured.err
+    out = json.loads(captured.out)
+    own = out["spp_by_light_field"]
+    assert set(own) == {"noon_grass", "lebombo"}
+    assert out["spp"] == [max(a, b) for a, b in zip(own["noon_grass"], own["lebombo"],
+                                                    strict=True)]
+    assert set(out["measured_error_pct"]) == set(out["predicted_error_pct"]) == set(own)
+    assert "[render.spp_by_light_field]" in captured.err
+    assert "\nnoon_grass " in captured.err and "\nlebombo " in captured.err
+    assert captured.err.count(" largest ") == 2
