@@ -539,12 +539,10 @@ class RenderSpec:
         _require(isinstance(self.spp_planned_at_px, int) and self.spp_planned_at_px >= 8,
                  f"render.spp_planned_at_px must be an integer >= 8, got {self.spp_planned_at_px}")
         for name, spp in self.spp_by_light_field:
-            _require(len(spp) == len(self.spp_by_gloss_level)
-                     and all(isinstance(v, int) and not isinstance(v, bool) and v >= 1
-                             for v in spp),
+            _require(all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in spp),
                      f"render.spp_by_light_field.{name} = {list(spp)}: give one whole number "
-                     f">= 1 per gloss level ({len(self.spp_by_gloss_level)}), as "
-                     "`python -m stimuli plan-spp --light-fields all` prints them")
+                     ">= 1 per gloss level, as `python -m stimuli plan-spp --light-fields all` "
+                     "prints them")
 
     def spp(self, gloss_level: int, light_field: str | None = None) -> int:
         """Samples per pixel of a gloss level label (1..n), under ``light_field`` where its own
@@ -682,6 +680,11 @@ class StudyDesign:
         names = [il.name for il in self.illuminations]
         _require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
         _require(len(set(names)) == len(names), f"illumination names repeat: {names}")
+        for lf, spp in self.render.spp_by_light_field:
+            _require(len(spp) == self.gloss.n_levels,
+                     f"render.spp_by_light_field.{lf} = {list(spp)}: give one whole number >= 1 "
+                     f"per gloss level ({self.gloss.n_levels}), as `python -m stimuli plan-spp "
+                     "--light-fields all` prints them")
         known = {lf.name for lf in self.imagestats.light_fields} | set(names)
         unknown = sorted({n for n, _ in self.render.spp_by_light_field} - known)
         _require(not unknown, f"render.spp_by_light_field names {unknown}, which are no light "
@@ -1002,6 +1005,8 @@ def load_design(path: str | Path | None = None) -> StudyDesign:
         models=_models(an.get("models", {}), path),
     )
     imagestats = _imagestats(_section(raw, "imagestats", path), path)
+    if set(raw.get("render", {"variant": ""})) <= {"spp_by_light_field"}:
+        raw = {k: v for k, v in raw.items() if k != "render"}  # only [render.spp_by_light_field]
     rd = _section(raw, "render", path, RenderSpec)
     render = _build(RenderSpec, rd, "render", path,
                     spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())),

@@ -67,11 +67,20 @@ def test_plan_spp_meets_the_target_by_measurement(design, mitsuba_variant, sun_p
     assert strict.spp[1] > strict.spp[0]
 
 
-def test_render_takes_each_gloss_levels_spp(tmp_path, capsys, mitsuba_variant):
-    """Without --spp the design's spp per gloss level are used and recorded per image."""
+def _design_text_without_light_field_spp() -> str:
+    """The shipped design.toml with its [render.spp_by_light_field] table left out."""
     from studydesign import load_design
 
     text = Path(load_design().source).read_text()
+    if "[render.spp_by_light_field]" in text:
+        head, tail = text.split("[render.spp_by_light_field]", 1)
+        text = head + tail[tail.index("\n[gap]"):]
+    return text
+
+
+def test_render_takes_each_gloss_levels_spp(tmp_path, capsys, mitsuba_variant):
+    """Without --spp the design's spp per gloss level are used and recorded per image."""
+    text = _design_text_without_light_field_spp()
     line = next(ln for ln in text.splitlines() if ln.startswith("spp_by_gloss_level"))
     design_path = tmp_path / "design.toml"
     design_path.write_text(text.replace(line, "spp_by_gloss_level = [1, 2, 4, 4, 4, 4, 4, 4, 4, 4, 9]"))
@@ -93,7 +102,7 @@ def test_render_takes_each_light_fields_own_spp(tmp_path, capsys, mitsuba_varian
     field with its file and scale; one not listed keeps the design-wide counts."""
     from studydesign import load_design
 
-    text = Path(load_design().source).read_text()
+    text = _design_text_without_light_field_spp()
     line = next(ln for ln in text.splitlines() if ln.startswith("spp_by_gloss_level"))
     design_path = tmp_path / "design.toml"
     design_path.write_text(text.replace(line, "spp_by_gloss_level = [4, 4, 4, 4, 4, 4, 4, 4, 4, "
@@ -117,7 +126,7 @@ def test_render_takes_each_light_fields_own_spp(tmp_path, capsys, mitsuba_varian
 def test_spp_by_light_field_names_a_known_light_field(tmp_path):
     from studydesign import DesignError, load_design
 
-    text = Path(load_design().source).read_text()
+    text = _design_text_without_light_field_spp()
     path = tmp_path / "design.toml"
     path.write_text(text.replace("\n[gap]", "\n[render.spp_by_light_field]\nnowhere = "
                                  "[1, 1, 1, 1, 1, 1, 1, 1, 1, 2, 9]\n\n[gap]", 1))
