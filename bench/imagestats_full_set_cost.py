@@ -2,9 +2,10 @@
 
 Renders the ``imagestats_slice`` set (stimuli/sets.py: 2 images per light field, 44 in all,
 covering all 22 light fields and, within each kind, every physical gloss and depth level twice;
-the slice's mean spp equals the full set's, since both hold every gloss level equally often) at
-the image-statistics size (the design's ``spp_planned_at_px``, 256 px) with the design's spp per
-gloss level, in this process (one Dr.Jit worker on every core), and reports:
+the slice's mean spp equals the full set's where the spp depend on the gloss level only, since both
+hold every gloss level equally often; with spp per light field, the slice's 2 images per light field
+sample each light field's counts) at the image-statistics size (the design's ``spp_planned_at_px``,
+256 px) with the design's spp per (light field, gloss level), in this process (one Dr.Jit worker on every core), and reports:
 
 - images per core-hour, from the CPU time this process used (user + system, all its threads:
   what the images cost, whatever else the machine runs) and, beside it, from wall time x cores
@@ -29,6 +30,8 @@ import resource
 import time
 from pathlib import Path
 
+import numpy as np
+
 
 def _cpu_s() -> float:
     r = resource.getrusage(resource.RUSAGE_SELF)
@@ -49,8 +52,8 @@ def main() -> None:
     from calibration import default_calibration
     from stimuli import camera_geometry, setup_mitsuba, stimulus_set
     from stimuli.glosstable import default_gloss_table
+    from stimuli.noise import spp_table
     from stimuli.pipeline import RenderJob, render_set
-    from stimuli.render import multijitter_spp
     from studydesign import load_design
 
     design = load_design()
@@ -58,11 +61,12 @@ def main() -> None:
     variant = setup_mitsuba(design.render.variant)
     cal = default_calibration(design)
     table = stimulus_set(design, "imagestats_slice")
-    by_level = tuple(multijitter_spp(v) for v in design.render.spp_by_gloss_level)
+    by_level, by_light_field = spp_table(design, table["light_field"])
     cores = len(os.sched_getaffinity(0))
-    job = RenderJob(camera=camera_geometry(design, cal), size_px=size, spp=max(by_level),
+    job = RenderJob(camera=camera_geometry(design, cal), size_px=size,
+                    spp=max(max(v) for _, v in by_light_field),
                     variant=variant, design_path=str(design.source), threads=cores,
-                    spp_by_gloss_level=by_level,
+                    spp_by_gloss_level=by_level, spp_by_light_field=by_light_field,
                     llvm_path=os.environ.get("DRJIT_LIBLLVM_PATH", ""))
     cpu0, t0 = _cpu_s(), time.perf_counter()
     summary = render_set(table, args.out, job=job, gloss_table=default_gloss_table(),
@@ -73,12 +77,19 @@ def main() -> None:
     load = os.getloadavg()
     result = {"variant": variant, "size_px": size, "images": n,
               "light_fields": int(table["light_field"].nunique()),
-              "mean_spp": round(sum(job.spp_for(g) for g in table["gloss_level"]) / len(table), 1),
+              "mean_spp": round(sum(job.spp_for(g, lf) for g, lf in zip(
+                  table["gloss_level"], table["light_field"], strict=True)) / len(table), 1),
               "wall_s": round(wall, 1), "cpu_s": round(cpu, 1), "cores": cores,
               "loadavg_1_5_15_after": [round(v, 1) for v in load]}
+    whole = stimulus_set(design, "imagestats")
+    full_spp = float(np.mean([job.spp_for(g, lf) for g, lf in zip(
+        whole["gloss_level"], whole["light_field"], strict=True)]))
+    result["full_set_mean_spp"] = round(full_spp, 1)
     if n:
-        per_core_h_cpu = 3600 * n / cpu
-        per_core_h_wall = 3600 * n / (wall * cores)
+        # the full set's images hold full_spp samples on average, the slice's mean_spp: scaled
+        # by samples (the render's cost is nearly proportional to them)
+        per_core_h_cpu = 3600 * n / cpu * result["mean_spp"] / full_spp
+        per_core_h_wall = 3600 * n / (wall * cores) * result["mean_spp"] / full_spp
         result.update({"images_per_core_hour_cpu": round(per_core_h_cpu, 1),
                        "images_per_core_hour_wall": round(per_core_h_wall, 1),
                        "core_s_per_image_cpu": round(cpu / n, 2)})
@@ -86,8 +97,9 @@ def main() -> None:
         print(f"measured: {n} images ({result['light_fields']} light fields, mean "
               f"{result['mean_spp']} spp, {size} px, {variant}) in {wall:.0f} s wall, {cpu:.0f} "
               f"s CPU on {cores} cores (load average {load[0]:.1f} after)")
-        print(f"images per core-hour: {per_core_h_cpu:.0f} from CPU time "
-              f"({cpu / n:.2f} core-s per image); {per_core_h_wall:.0f} from wall x cores here")
+        print(f"full-set images (mean {full_spp:.1f} spp) per core-hour: {per_core_h_cpu:.0f} "
+              f"from CPU time ({cpu / n:.2f} core-s per slice image); {per_core_h_wall:.0f} from "
+              f"wall x cores here; all {full:,}: {full / per_core_h_cpu:.0f} core-hours")
         for c in (2, 64):
             print(f"all {full:,} images on {c} cores: {_hours(full / (per_core_h_cpu * c) * 3600)}"
                   f" at the CPU-time pace; {_hours(full / (per_core_h_wall * c) * 3600)} at "

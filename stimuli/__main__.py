@@ -104,6 +104,7 @@ def _cmd_render(args) -> int:
 
     camera = camera_geometry(design, cal)
     size = args.size or camera.native_px
+    by_light_field = ()
     if args.spp is not None:
         spp, by_level = multijitter_spp(args.spp), ()
         if spp != args.spp:
@@ -111,9 +112,14 @@ def _cmd_render(args) -> int:
                   f"{args.spp} (an a x b grid); recording and using that", file=sys.stderr)
         spp_text = f"{spp} spp"
     else:
-        by_level = tuple(multijitter_spp(v) for v in design.render.spp_by_gloss_level)
-        spp = max(by_level)
-        spp_text = (f"spp per gloss level {list(by_level)} (displayed error "
+        from stimuli.noise import spp_table
+
+        by_level, by_light_field = spp_table(design, table["light_field"])
+        spp = max([*by_level, *(max(v) for _, v in by_light_field)])
+        own = sum(lf in dict(design.render.spp_by_light_field) or tuple(v) != by_level
+                  for lf, v in by_light_field)
+        spp_text = (f"spp per gloss level {list(by_level)}, {own} of {len(by_light_field)} light "
+                    f"field(s) with their own (displayed error "
                     f"{design.render.displayed_error_pct:g} %)")
         if size != design.render.spp_planned_at_px:
             print(f"note: the design's spp per gloss level were planned at "
@@ -130,7 +136,7 @@ def _cmd_render(args) -> int:
         threads = max(1, cores // max(workers, 1))
     job = RenderJob(camera=camera, size_px=size, spp=spp, variant=variant,
                     design_path=str(design.source), threads=threads,
-                    spp_by_gloss_level=by_level,
+                    spp_by_gloss_level=by_level, spp_by_light_field=by_light_field,
                     llvm_path=os.environ.get("DRJIT_LIBLLVM_PATH", ""))
     print(f"stimuli render: set {args.set}, {len(table)} stimuli, {size} px, {spp_text}, "
           f"variant {variant}, image width {camera.image_width_cm:.3f} cm at "
@@ -271,14 +277,22 @@ def _cmd_plan_spp(args) -> int:
     print(f"stimuli plan-spp: {variant}, {args.size} px, target {target:g} % of the display "
           f"range, pilot {args.pilot_spp} spp x {args.repeats} seeds, gloss table {gloss_name}",
           file=sys.stderr)
+    probes = names = None
+    if args.light_fields:
+        from stimuli.illumination import load_light_probe
+
+        wanted = ([lf.name for lf in design.imagestats.light_fields]
+                  if args.light_fields == ["all"] else args.light_fields)
+        fields = [design.imagestats.light_field(n) for n in wanted]
+        probes = [load_light_probe(lf.envmap, scale=lf.scale) for lf in fields]
+        names = [lf.name for lf in fields]
     plan = plan_spp(design, camera, size_px=args.size, pilot_spp=args.pilot_spp,
                     repeats=args.repeats, target=target / 100.0, gloss_table=gloss,
-                    max_spp=args.max_spp, progress=lambda m: print(m, file=sys.stderr))
-    print(json.dumps({"variant": plan.variant, "size_px": plan.size_px, "target_pct": target,
-                      "gloss_levels": plan.gloss_levels, "spp": plan.spp,
-                      "error_at_spp_pct": [round(100 * e, 3) for e in plan.error_at_spp],
-                      "pilot_spp": plan.pilot_spp,
-                      "error_at_pilot_pct": [round(100 * e, 3) for e in plan.error_at_pilot]}))
+                    max_spp=args.max_spp, progress=lambda m: print(m, file=sys.stderr),
+                    probes=probes, light_fields=names)
+    print(json.dumps(plan.summary()))
+    print(f"displayed error per light field (target {target:g} %):\n{plan.report()}",
+          file=sys.stderr)
     print(f"# paste into [render] of {design.source}:\n{plan.toml()}", file=sys.stderr)
     return 0
 
@@ -436,6 +450,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Mitsuba variant (default: the design's render.variant)")
     p.add_argument("--gloss-table", help="gloss table CSV (default: the shipped placeholder)")
     p.add_argument("--calibration", help="calibration.json (default: the documented default curve)")
+    p.add_argument("--light-fields", nargs="+", metavar="NAME",
+                   help="plan under these [imagestats] light fields, each apart ('all': the 22); "
+                        "default: the design's illuminations")
     p.set_defaults(func=_cmd_plan_spp)
 
     p = sub.add_parser("probe-scale", help="the design's scale of a light probe (a matte white "

@@ -200,6 +200,39 @@ def use_llvm_hint(path: str | None) -> None:
         os.environ["DRJIT_LIBLLVM_PATH"] = str(path)
 
 
+def _activate(chosen: str) -> None:
+    from stimuli.ward import register_ward
+
+    register_ward()
+    _state.clear()
+    _state["variant"] = chosen
+
+
+def _try_cuda(mi, smoke_test: bool) -> str | None:
+    """With no variant named on a machine with a CUDA GPU: ``cuda_ad_mono`` (libLLVM is not
+    needed), smoke-tested; None, with a message naming why, where it fails (then the caller
+    falls back to the LLVM variants, which need libLLVM)."""
+    import sys
+
+    chosen = CUDA_VARIANTS[0]
+    try:
+        if chosen not in mi.variants():
+            raise MitsubaSetupError(f"this Mitsuba build has no {chosen} (it has {mi.variants()})")
+        mi.set_variant(chosen)
+        _activate(chosen)
+        if smoke_test:
+            _smoke_test()
+            _state["smoke_tested"] = True
+        return chosen
+    except (MitsubaSetupError, ImportError, RuntimeError, ValueError, AttributeError) as exc:  # a
+        # driver that loads and then fails at the first kernel falls back as well
+        _state.clear()
+        print(f"stimuli: a CUDA GPU is visible but {chosen} failed ({exc}); falling back to the "
+              f"CPU variants {list(LLVM_VARIANTS)} (they need libLLVM >= {MIN_LLVM_MAJOR}); "
+              f"{_fix_for(chosen)}", file=sys.stderr)
+        return None
+
+
 def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str:
     """Select a Mitsuba LLVM variant, register the Ward BSDF, and smoke-test a tiny render.
 
@@ -210,7 +243,9 @@ def setup_mitsuba(variant: str | None = None, *, smoke_test: bool = True) -> str
     ----------
     variant : str, optional
         One of :data:`SUPPORTED_VARIANTS` (``"auto"``: :func:`default_variant` for achromatic
-        stimuli); default: the first of :data:`LLVM_VARIANTS` that this Mitsuba build has.
+        stimuli); default: ``cuda_ad_mono`` where a CUDA GPU works (libLLVM is then not
+        needed), else, with a message saying why, the first of :data:`LLVM_VARIANTS` that this
+        Mitsuba build has.
     smoke_test : bool
         Render an 8 x 8 test image the first time (about a second).
 
@@ -255,6 +290,10 @@ def _setup_locked(variant: str | None, smoke_test: bool) -> str:
     except ImportError as exc:
         raise MitsubaSetupError(
             f"cannot import mitsuba ({exc}); install the project (`make venv`)") from exc
+    if variant is None and cuda_available():
+        chosen = _try_cuda(mi, smoke_test)
+        if chosen is not None:
+            return chosen
     wanted = [variant] if variant else list(LLVM_VARIANTS)
     if any(v.startswith("llvm") for v in wanted):
         _check_llvm_path()
@@ -270,11 +309,7 @@ def _setup_locked(variant: str | None, smoke_test: bool) -> str:
     except Exception as exc:  # Dr.Jit raises a plain RuntimeError when libLLVM will not load
         raise MitsubaSetupError(
             f"Mitsuba variant {chosen} failed to load: {exc}; {_fix_for(chosen)}") from exc
-    from stimuli.ward import register_ward
-
-    register_ward()
-    _state.clear()
-    _state["variant"] = chosen
+    _activate(chosen)
     if smoke_test:
         try:
             _smoke_test()

@@ -38,6 +38,7 @@ __all__ = [
     "displayed_error",
     "plan_spp",
     "spp_for_displayed_error",
+    "spp_table",
 ]
 
 
@@ -167,25 +168,34 @@ def spp_for_displayed_error(error: float, spp: int, target: float) -> int:
 
 @dataclass(frozen=True)
 class SppPlan:
-    """Samples per pixel per gloss level for a displayed-error target (:func:`plan_spp`).
+    """Samples per pixel per (light field, gloss level) for a displayed-error target
+    (:func:`plan_spp`).
 
     Attributes
     ----------
     gloss_levels : tuple of int
         Physical gloss level labels (1..n).
     spp : tuple of int
-        Samples per pixel per level (max over the probes), multijitter counts.
+        Samples per pixel per level, the largest over the light fields (multijitter counts).
     error_at_pilot : tuple of float
-        Displayed error per level at the pilot spp (max over the probes, fraction of range).
+        Displayed error per level at the pilot spp (max over the light fields, fraction of range).
     error_at_spp : tuple of float
-        Displayed error measured at the chosen spp (max over the probes); each <= ``target``
-        unless ``max_spp`` stopped the search (then the level's spp is ``max_spp``).
+        Displayed error measured at the chosen spp (of the light field that set it); each <=
+        ``target`` unless ``max_spp`` stopped the search (then the level's spp is ``max_spp``).
     pilot_spp, repeats, size_px : int
         The measurement: renders of ``size_px`` px at ``pilot_spp``, ``repeats`` seeds each.
     target : float
         The displayed-error target (fraction of range).
     variant : str
         Mitsuba variant measured.
+    light_fields : tuple of str
+        Names of the light fields measured (one per probe).
+    spp_by_light_field : tuple of tuple of int
+        Per light field, its own spp per level (planned from its own noise).
+    predicted_by_light_field : tuple of tuple of float
+        Per light field and level, the displayed error the last fit predicted at the chosen spp.
+    measured_by_light_field : tuple of tuple of float
+        Per light field and level, the displayed error measured at the chosen spp.
     """
 
     gloss_levels: tuple[int, ...]
@@ -197,32 +207,124 @@ class SppPlan:
     size_px: int
     target: float
     variant: str
+    light_fields: tuple[str, ...] = ()
+    spp_by_light_field: tuple[tuple[int, ...], ...] = ()
+    predicted_by_light_field: tuple[tuple[float, ...], ...] = ()
+    measured_by_light_field: tuple[tuple[float, ...], ...] = ()
 
     def toml(self) -> str:
-        """The ``[render]`` lines to paste into ``design.toml``."""
+        """The ``[render]`` lines to paste into ``design.toml`` (the per-light-field table last,
+        after the other keys of ``[render]``)."""
+        own = "".join(f"\n{name} = [{', '.join(str(v) for v in spp)}]"
+                      for name, spp in zip(self.light_fields, self.spp_by_light_field,
+                                           strict=True))
         return (f"spp_by_gloss_level = [{', '.join(str(v) for v in self.spp)}]\n"
-                f"spp_planned_at_px = {self.size_px}")
+                f"spp_planned_at_px = {self.size_px}"
+                + (f"\n\n[render.spp_by_light_field]{own}" if own else ""))
+
+    def summary(self) -> dict:
+        """The plan as JSON-ready numbers (errors in % of the display range)."""
+
+        def pct(values):
+            return [round(100 * e, 3) for e in values]
+
+        def per_lf(rows):
+            return dict(zip(self.light_fields, (pct(r) for r in rows), strict=True))
+
+        return {"variant": self.variant, "size_px": self.size_px, "target_pct": round(100 * self.target, 6),
+                "gloss_levels": self.gloss_levels, "spp": self.spp,
+                "error_at_spp_pct": pct(self.error_at_spp), "pilot_spp": self.pilot_spp,
+                "error_at_pilot_pct": pct(self.error_at_pilot),
+                "spp_by_light_field": dict(zip(self.light_fields, self.spp_by_light_field,
+                                               strict=True)),
+                "predicted_error_pct": per_lf(self.predicted_by_light_field),
+                "measured_error_pct": per_lf(self.measured_by_light_field)}
+
+    def report(self) -> str:
+        """One line per light field: spp, predicted and measured displayed error per level, %."""
+        lines = []
+        for name, spp, pred, meas in zip(self.light_fields, self.spp_by_light_field,
+                                         self.predicted_by_light_field,
+                                         self.measured_by_light_field, strict=True):
+            worst = max(meas)
+            lines.append(f"{name:26s} largest {100 * worst:.2f} % "
+                         f"{'<=' if worst <= self.target else 'ABOVE'} target "
+                         f"{100 * self.target:g} %; g: spp (predicted / measured %) "
+                         + ", ".join(f"{g}: {n} ({100 * p:.2f}/{100 * m:.2f})" for g, n, p, m
+                                     in zip(self.gloss_levels, spp, pred, meas, strict=True)))
+        return "\n".join(lines)
+
+
+def spp_table(design, light_fields) -> tuple[tuple[int, ...],
+                                            tuple[tuple[str, tuple[int, ...]], ...]]:
+    """The multijitter spp a render of ``light_fields`` takes: design-wide per gloss level, and
+    per light field (its own counts, ``[render.spp_by_light_field]``, else the design-wide ones).
+
+    Returns
+    -------
+    (tuple of int, tuple of (str, tuple of int))
+        For :class:`stimuli.pipeline.RenderJob` (``spp_by_gloss_level``, ``spp_by_light_field``).
+    """
+    from stimuli.render import multijitter_spp
+
+    levels = range(1, len(design.render.spp_by_gloss_level) + 1)
+    by_level = tuple(multijitter_spp(design.render.spp(g)) for g in levels)
+    return by_level, tuple((str(lf), tuple(multijitter_spp(design.spp(g, lf)) for g in levels))
+                           for lf in dict.fromkeys(light_fields))
+
+
+def _search_spp(measure, n0: int, e0: float, target: float, *, max_spp: int, max_rounds: int,
+                spp_for) -> tuple[int, float, float]:
+    """The smallest count found whose measured error meets ``target`` (module docstring):
+    fit e(n) = c n^-b through the last two measurements, predict, render there, repeat.
+    Returns (spp, error measured there, error the fit predicted there)."""
+    best = (n0, e0, e0) if e0 <= target else None
+    points = [(n0, e0)]
+    predicted = {}
+    n = spp_for_displayed_error(e0, n0, target)
+    predicted[n] = e0 * np.sqrt(n0 / n)
+    for _ in range(max_rounds):
+        n = int(min(max(n, 1), max_spp))
+        if any(n == q for q, _ in points):
+            break
+        e = measure(n)
+        points.append((n, e))
+        if e <= target and (best is None or n < best[0]):
+            best = (n, e, predicted.get(n, e))
+        (na, ea), (nb, eb) = sorted(points[-2:])
+        slope = np.log(ea / eb) / np.log(nb / na) if ea > 0 and eb > 0 else 0.5
+        slope = float(np.clip(slope, 0.25, 1.5))  # guard a noisy fit
+        pred = spp_for(int(np.ceil(n * (e / target) ** (1.0 / slope))))
+        if best is not None and pred >= best[0]:
+            break
+        predicted[pred] = e * (n / pred) ** slope
+        n = pred
+    if best is None:
+        best = (max_spp, points[-1][1], predicted.get(max_spp, points[-1][1]))
+    return best
 
 
 def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int = 4,
              target: float | None = None, gloss_table=None, probes=None, max_spp: int = 1024,
-             max_rounds: int = 5, gloss_levels=None, progress=None) -> SppPlan:
-    """Measure the displayed error of every physical gloss level and the spp each one needs.
+             max_rounds: int = 5, gloss_levels=None, progress=None,
+             light_fields=None) -> SppPlan:
+    """Measure the displayed error of every physical gloss level and the spp each one needs,
+    under each light field apart.
 
-    For each probe of the design, the deepest rendered array at every physical gloss level is
-    rendered ``repeats`` times at ``pilot_spp`` (independent seeds). The tone curve is the
-    probe's, from the mean images of the pilot renders of all levels (as the per-condition L_max
-    of a real run). Then, per level and probe, the spp is searched as the module docstring says
-    (fit, predict, render, until a measured error meets ``target``); a level takes the larger spp
-    over the probes. Needs :func:`stimuli.setup_mitsuba` (the variant measured is the active one).
+    For each probe, the deepest rendered array at every physical gloss level is rendered
+    ``repeats`` times at ``pilot_spp`` (independent seeds). The tone curve is the probe's, from
+    the mean images of the pilot renders of all levels (as the per-condition L_max of a real
+    run). Then, per level and probe, the spp is searched as the module docstring says (fit,
+    predict, render, until a measured error meets ``target``). Each light field keeps its own
+    counts (``SppPlan.spp_by_light_field``); the design-wide count of a level is the largest
+    over them. Needs :func:`stimuli.setup_mitsuba` (the variant measured is the active one).
 
     Parameters
     ----------
     design : StudyDesign
     camera : CameraGeometry
     size_px : int
-        Image width = height of the renders, px (the spp depend on it little: per-pixel noise
-        at a given spp is set by what a pixel sees).
+        Image width = height of the renders, px.
     pilot_spp : int
         Samples per pixel of the measuring renders.
     repeats : int
@@ -242,6 +344,8 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
         Physical gloss level labels to plan (default all).
     progress : callable, optional
         Called with a message after each probe.
+    light_fields : sequence of str, optional
+        A name per probe (default: the illuminations' names, or the probes' file names).
 
     Returns
     -------
@@ -267,56 +371,44 @@ def plan_spp(design, camera, *, size_px: int, pilot_spp: int = 16, repeats: int 
     if probes is None:
         from stimuli.sets import design_envmap
 
-        probes = [load_light_probe(design_envmap(design, il.envmap))
+        probes = [load_light_probe(design_envmap(design, il.envmap), scale=il.scale)
                   for il in design.illuminations]
+        light_fields = light_fields or [il.name for il in design.illuminations]
+    names = tuple(light_fields or [p.name for p in probes])
     renderer = StimulusRenderer(camera, size_px=size_px, spp=pilot_spp)
     n0 = renderer.spp
-    pilot = np.zeros((len(probes), len(levels)))
-    chosen = np.zeros((len(probes), len(levels)), dtype=int)
-    chosen_err = np.zeros((len(probes), len(levels)))
+    pilot, chosen, measured, predicted = (np.zeros((len(probes), len(levels))) for _ in range(4))
     seed = iter(range(1, 1 << 30))
     for p, probe in enumerate(probes):
         renderer.load(geometry, probe)
-
-        def measure(material, n, curve):
-            return displayed_error([renderer.render(*material, seed=next(seed), spp=n)
-                                    for _ in range(repeats)], curve)
-
         stacks = [np.stack([renderer.render(*m, seed=next(seed)) for _ in range(repeats)])
                   for m in materials]
         curve = tone_curve(design.tonemap, luminance_range([s.mean(axis=0) for s in stacks]))
         for g, m in enumerate(materials):
-            e0 = displayed_error(stacks[g], curve)
-            pilot[p, g] = e0
-            best = (n0, e0) if e0 <= target else None
-            points = [(n0, e0)]
-            n = spp_for_displayed_error(e0, n0, target)
-            for _ in range(max_rounds):
-                n = int(min(max(n, 1), max_spp))
-                if any(n == q for q, _ in points):
-                    break
-                e = measure(m, n, curve)
-                points.append((n, e))
-                if e <= target and (best is None or n < best[0]):
-                    best = (n, e)
-                (na, ea), (nb, eb) = sorted(points[-2:])
-                slope = np.log(ea / eb) / np.log(nb / na) if ea > 0 and eb > 0 else 0.5
-                slope = float(np.clip(slope, 0.25, 1.5))  # guard a noisy fit
-                pred = renderer.spp_for(int(np.ceil(n * (e / target) ** (1.0 / slope))))
-                if best is not None and pred >= best[0]:
-                    break
-                n = pred
-            if best is None:
-                best = (max_spp, points[-1][1])
-            chosen[p, g], chosen_err[p, g] = best
+
+            def measure(n, m=m, curve=curve):
+                return displayed_error([renderer.render(*m, seed=next(seed), spp=n)
+                                        for _ in range(repeats)], curve)
+
+            pilot[p, g] = displayed_error(stacks[g], curve)
+            chosen[p, g], measured[p, g], predicted[p, g] = _search_spp(
+                measure, n0, pilot[p, g], target, max_spp=max_spp, max_rounds=max_rounds,
+                spp_for=renderer.spp_for)
         if progress is not None:
-            progress(f"{probe.name}: " + ", ".join(
-                f"g{lv} {100 * e0:.2f} % at {n0} -> {n} spp ({100 * e:.2f} %)"
-                for lv, e0, n, e in zip(levels, pilot[p], chosen[p], chosen_err[p], strict=True)))
+            progress(f"{names[p]}: " + ", ".join(
+                f"g{lv} {100 * e0:.2f} % at {n0} -> {int(n)} spp ({100 * e:.2f} %)"
+                for lv, e0, n, e in zip(levels, pilot[p], chosen[p], measured[p], strict=True)))
     worst = chosen.argmax(axis=0)
     cols = np.arange(len(levels))
+
+    def rows(a, kind):
+        return tuple(tuple(kind(v) for v in r) for r in a)
+
     return SppPlan(gloss_levels=levels, spp=tuple(int(v) for v in chosen[worst, cols]),
                    error_at_pilot=tuple(float(e) for e in pilot.max(axis=0)),
-                   error_at_spp=tuple(float(e) for e in chosen_err[worst, cols]),
+                   error_at_spp=tuple(float(e) for e in measured[worst, cols]),
                    pilot_spp=n0, repeats=int(repeats), size_px=int(size_px), target=target,
-                   variant=mi.variant())
+                   variant=mi.variant(), light_fields=names,
+                   spp_by_light_field=rows(chosen, int),
+                   predicted_by_light_field=rows(predicted, float),
+                   measured_by_light_field=rows(measured, float))

@@ -44,33 +44,24 @@ from stimuli.dask_cluster import ClusterError
 from stimuli.errors import StimuliError
 from stimuli.geometry import draw_array
 from stimuli.glosstable import ward_params_for_gloss
-from stimuli.illumination import load_light_probe, probe_path, read_exr, write_exr
-from stimuli.manifest import (
+from stimuli.illumination import load_light_probe, probe_path, write_exr
+from stimuli.manifest import check_one_calibration, sha256_file
+from stimuli.pngpass import (
+    LOG_TEXT,
     TONEMAP_COLUMNS,
-    append_manifest_row,
-    check_one_calibration,
-    load_manifest,
-    record_tone_curves,
-    sha256_file,
+    TonemapWriter,
+    progress_bar,
+    tonemap_light_fields,
 )
 from stimuli.probecheck import refuse_bad_light_fields
 from stimuli.render import CameraGeometry, StimulusRenderer
 from stimuli.sets import refuse_mixed_sets
-from stimuli.tonemap import (
-    display_fraction,
-    gamma_encode,
-    luminance_range,
-    tone_curve,
-    tone_curve_record,
-    write_png,
-)
 
 __all__ = ["RENDER_LOG_COLUMNS", "TONEMAP_COLUMNS", "RenderJob", "render_group", "render_set"]
 
 RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px", "rho_d", "rho_s",
                       "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
-#: Render-log columns read as text (a checksum of digits and one "e" would read as a number).
-_LOG_TEXT = {"stimulus_id": str, "exr_sha256": str, "envmap_sha256": str}
+
 @dataclass(frozen=True)
 class RenderJob:
     """Settings shared by every image of a run (shipped to the workers).
@@ -93,6 +84,9 @@ class RenderJob:
     llvm_path : str
         The client's libLLVM: a worker whose own ``DRJIT_LIBLLVM_PATH`` is unset uses it where it
         is a file (:func:`stimuli.mitsuba_env.use_llvm_hint`), else finds its own.
+    spp_by_light_field : tuple of (str, tuple of int)
+        Per light field (name), its own spp per gloss level (multijitter counts, planned from
+        that light field's noise); a light field not listed takes ``spp_by_gloss_level``.
     """
 
     camera: CameraGeometry
@@ -103,12 +97,14 @@ class RenderJob:
     threads: int = 0
     spp_by_gloss_level: tuple[int, ...] = ()
     llvm_path: str = ""
+    spp_by_light_field: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
-    def spp_for(self, gloss_level: int) -> int:
-        """Samples per pixel of a stimulus of this gloss level label."""
-        if not self.spp_by_gloss_level:
+    def spp_for(self, gloss_level: int, light_field: str = "") -> int:
+        """Samples per pixel of a stimulus of this gloss level label under ``light_field``."""
+        by_level = dict(self.spp_by_light_field).get(light_field) or self.spp_by_gloss_level
+        if not by_level:
             return self.spp
-        return int(self.spp_by_gloss_level[int(gloss_level) - 1])
+        return int(by_level[int(gloss_level) - 1])
 
 
 # --- worker side ---------------------------------------------------------------------------------
@@ -171,7 +167,7 @@ def _render_group(job: RenderJob, rows: list[dict], out_dir: str) -> list[dict]:
     records = []
     for row in rows:
         t0 = time.perf_counter()
-        spp = renderer.spp_for(job.spp_for(row["gloss_level"]))
+        spp = renderer.spp_for(job.spp_for(row["gloss_level"], row.get("light_field", "")))
         img = renderer.render(row["rho_d"], row["rho_s"], row["alpha"], spp=spp,
                               seed=zlib.crc32(row["stimulus_id"].encode()))
         path = Path(out_dir) / row["exr_path"]
@@ -203,7 +199,7 @@ def _remove_stale_temporaries(out: Path) -> int:
 
 def _plan_rows(table: pd.DataFrame, gloss_table: pd.DataFrame, job: RenderJob) -> pd.DataFrame:
     t = table.copy()
-    t["spp"] = [job.spp_for(g) for g in t["gloss_level"]]
+    t["spp"] = [job.spp_for(g, lf) for g, lf in zip(t["gloss_level"], t["light_field"])]
     rho_d, rho_s, alpha = ward_params_for_gloss(gloss_table, t["true_gloss_pct"].to_numpy())
     t["rho_d"], t["rho_s"], t["alpha"] = rho_d, rho_s, alpha
     t["exr_path"] = [f"exr/{lf}/{sid}.exr" for lf, sid in zip(t["light_field"], t["stimulus_id"])]
@@ -217,7 +213,7 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
     if not log.is_file():
         return set()
     try:
-        done = read_csv_records(log, dtype=_LOG_TEXT)
+        done = read_csv_records(log, dtype=LOG_TEXT)
     except (pd.errors.ParserError, pd.errors.EmptyDataError) as exc:
         raise StimuliError(f"render log {log} is unreadable ({exc}); move it away and re-run "
                            "(finished EXRs will be rendered again)") from exc
@@ -245,18 +241,49 @@ def _done_exrs(out: Path, plan: pd.DataFrame, job: RenderJob) -> set[str]:
     return ok
 
 
-def _progress(total: int, desc: str, enabled: bool):
-    from tqdm import tqdm
+class _Progress:
+    """Pass 1's bookkeeping: each record logged, the pace measured on this machine's images
+    (printed once, :func:`stimuli.runplan.measured_pace_text`), and each light field handed to
+    ``on_light_field_done`` the moment its last EXR is logged."""
 
-    return tqdm(total=total, desc=desc, unit="img", disable=not enabled or total == 0,
-                file=sys.stderr, dynamic_ncols=True, smoothing=0.1)
+    def __init__(self, todo: pd.DataFrame, job: RenderJob, log: Path, bar, on_done, n_workers,
+                 show_pace: bool):
+        self.left = todo.groupby("light_field", sort=False).size().to_dict()
+        self.light_field = dict(zip(todo["stimulus_id"], todo["light_field"], strict=True))
+        self.spp_left = dict(zip(todo["stimulus_id"], todo["spp"], strict=True))
+        self.job, self.log, self.bar, self.on_done = job, log, bar, on_done
+        self.n_workers, self.show_pace = n_workers, show_pace
+        self.groups_seen, self.n_rendered, self.timed = 0, 0, []
+
+    def group(self, records: list[dict]) -> None:
+        from stimuli.runplan import measured_pace_text
+
+        self.groups_seen += 1
+        if self.groups_seen > 1:  # the first group compiles the kernels of its sample counts
+            self.timed += [(float(r["render_s"]), int(r["spp"])) for r in records]
+        for rec in records:
+            _append_csv(self.log, RENDER_LOG_COLUMNS, rec)
+            self.n_rendered += 1
+            self.bar.update(1)
+            self.spp_left.pop(rec["stimulus_id"], None)
+            lf = self.light_field.get(rec["stimulus_id"])
+            if lf is not None:
+                self.left[lf] -= 1
+                if self.left[lf] == 0 and self.on_done is not None:
+                    self.on_done(lf)
+        if self.show_pace and self.groups_seen == 2 and self.spp_left:
+            self.show_pace = False
+            self.bar.write(measured_pace_text(self.timed, self.job.size_px,
+                                              list(self.spp_left.values()), self.n_workers),
+                           file=sys.stderr)
 
 
 def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress: bool,
-                 workers: dict) -> tuple[int, int]:
+                 workers: dict, on_light_field_done=None) -> tuple[int, int]:
     """Pass 1: render every EXR of ``plan`` not already logged in ``renders.csv`` with these
     settings (and matching its checksum); log each as it is written. Returns (rendered, skipped).
     ``workers``: :func:`stimuli.dask_cluster.finished`'s options (what to start, no_worker_s).
+    ``on_light_field_done(name)``: called as each light field's last EXR is logged.
     """
     from stimuli.runplan import machines_seen, plan_text
 
@@ -264,21 +291,20 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
     todo = plan[~plan["stimulus_id"].isin(done)]
     groups = [g.to_dict("records") for _, g in todo.groupby(["light_field", "seed"], sort=False)]
     log = out / "renders.csv"
+    machines = {}
     if len(todo) and workers.get("plan", True):
         machines = machines_seen(client)
         seen = bool(machines) or not workers.get("expected")
         print(plan_text(len(todo), len(done), job.size_px, list(todo["spp"]),
                         machines if seen else workers["expected"], seen=seen),
               file=sys.stderr, flush=True)
-    bar = _progress(len(todo), "render EXR", progress)
-    n_rendered = 0
+    bar = progress_bar(len(todo), "render EXR", progress)
+    track = _Progress(todo, job, log, bar, on_light_field_done, max(len(machines), 1),
+                      show_pace=workers.get("plan", True))
     try:
         if client is None:
             for rows in groups:
-                for rec in render_group(job, rows, str(out)):
-                    _append_csv(log, RENDER_LOG_COLUMNS, rec)
-                    n_rendered += 1
-                    bar.update(1)
+                track.group(render_group(job, rows, str(out)))
         else:
             from stimuli.dask_cluster import finished, per_worker
 
@@ -290,94 +316,12 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
                                     no_worker_s=workers.get("no_worker_s", 120.0),
                                     say=lambda m: bar.write(m, file=sys.stderr),
                                     in_flight=per_worker):
-                for rec in records:
-                    _append_csv(log, RENDER_LOG_COLUMNS, rec)
-                    n_rendered += 1
-                    bar.update(1)
+                track.group(records)
     finally:
         bar.close()
     if client is not None:
         _remove_stale_temporaries(out)  # a worker killed mid-write left its temporary file
-    return n_rendered, len(done)
-
-
-def _tonemap_pass(out: Path, plan: pd.DataFrame, job: RenderJob, calibration, tonemap_spec,
-                  progress: bool, calibration_sha256: str) -> tuple[int, int, Path]:
-    """Pass 2: tone map each light field's EXRs with one curve (its largest luminance), write
-    the PNGs and append their manifest rows. Returns (PNGs written, skipped, manifest path).
-
-    Raises
-    ------
-    StimuliError
-        If the manifest already lists a stimulus rendered or tone-mapped differently, or a listed
-        PNG is missing or changed (recorded data are never overwritten).
-    """
-    records = read_csv_records(out / "renders.csv", dtype=_LOG_TEXT)
-    records = records.drop_duplicates("stimulus_id", keep="last").set_index("stimulus_id")
-    manifest_path = out / "manifest.csv"
-    existing = load_manifest(manifest_path) if manifest_path.exists() else None
-    have = {} if existing is None else existing.set_index("stimulus_id").to_dict("index")
-    bar = _progress(len(plan), "tone map PNG", progress)
-    n_png = n_png_skipped = 0
-    curves = []
-    try:
-        for lf, group in plan.groupby("light_field", sort=False):
-            # streamed (one image in memory at a time): a light field of the imagestats set
-            # holds thousands of EXRs
-            lmax = max(luminance_range([read_exr(out / p)]) for p in group["exr_path"])
-            curve = tone_curve(tonemap_spec, lmax)
-            first = group.iloc[0]
-            curves.append({"light_field": lf, "illumination": first["illumination"],
-                           "envmap": first["envmap"],
-                           "envmap_sha256": records.loc[first["stimulus_id"], "envmap_sha256"],
-                           "envmap_scale": first.get("envmap_scale", float("nan")),
-                           "n_images": len(group), **tone_curve_record(curve)})
-            for row in group.itertuples(index=False):
-                rec = records.loc[row.stimulus_id]
-                prior = have.get(row.stimulus_id)
-                if prior is not None:
-                    if (not np.isclose(prior["tonemap_lmax"], lmax, rtol=1e-6)
-                            or prior["exr_sha256"] != rec["exr_sha256"]):
-                        raise StimuliError(
-                            f"{manifest_path} already lists {row.stimulus_id} rendered or "
-                            f"tone-mapped differently (L_max {prior['tonemap_lmax']:.6g} vs "
-                            f"{lmax:.6g}); recorded data are never overwritten: render into a new "
-                            "--out folder")
-                    png = out / row.png_path
-                    if png.is_file() and sha256_file(png) == prior["png_sha256"]:
-                        n_png_skipped += 1
-                        bar.update(1)
-                        continue
-                    raise StimuliError(
-                        f"{png} is missing or changed but {manifest_path} lists it; recorded data "
-                        "are never overwritten: render into a new --out folder")
-                lum = read_exr(out / row.exr_path)
-                u8 = gamma_encode(display_fraction(lum, curve), calibration)
-                png = out / row.png_path
-                png.parent.mkdir(parents=True, exist_ok=True)
-                write_png(png, u8)
-                append_manifest_row(manifest_path, {
-                    "stimulus_id": row.stimulus_id, "illumination": row.illumination,
-                    "gloss_level": int(row.gloss_level), "depth_level": int(row.depth_level),
-                    "true_gloss_pct": row.true_gloss_pct, "true_depth_cm": row.true_depth_cm,
-                    "light_field": row.light_field, "array_index": int(row.array_index),
-                    "seed": int(row.seed), "rho_d": row.rho_d, "rho_s": row.rho_s,
-                    "alpha": row.alpha, "spp": int(rec["spp"]), "width_px": job.size_px,
-                    "height_px": job.size_px, "image_width_cm": job.camera.image_width_cm,
-                    "variant": rec["variant"], "envmap": row.envmap,
-                    "calibration_id": calibration.calibration_id, "exr_path": row.exr_path,
-                    "png_path": row.png_path, "exr_sha256": rec["exr_sha256"],
-                    "png_sha256": sha256_file(png), "envmap_sha256": rec["envmap_sha256"],
-                    "rotation_deg": row.rotation_deg, "tonemap_lmax": lmax,
-                    "distance_cm": job.camera.distance_cm,
-                    "calibration_sha256": calibration_sha256,
-                })
-                n_png += 1
-                bar.update(1)
-    finally:
-        bar.close()
-    record_tone_curves(out / "tonemaps.csv", curves)
-    return n_png, n_png_skipped, manifest_path
+    return track.n_rendered, len(done)
 
 
 def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibration,
@@ -389,7 +333,7 @@ def _manifest_of_finished(out: Path, plan: pd.DataFrame, job: RenderJob, calibra
                 if group["stimulus_id"].isin(done).all()]
     n_listed = 0
     if complete:
-        n_png, n_skipped, _ = _tonemap_pass(out, plan[plan["light_field"].isin(complete)], job,
+        n_png, n_skipped, _ = tonemap_light_fields(out, plan[plan["light_field"].isin(complete)], job,
                                             calibration, tonemap_spec, progress=False,
                                             calibration_sha256=calibration_sha256)
         n_listed = n_png + n_skipped
@@ -469,17 +413,28 @@ def render_set(
     plan = _plan_rows(table, gloss_table, job)
     refuse_bad_light_fields(plan, say=lambda m: print(m, file=sys.stderr))  # before any worker
     t0 = time.perf_counter()
-
+    tonemap = {"calibration": calibration, "tonemap_spec": tonemap_spec,
+               "calibration_sha256": calibration_sha256}
+    writer = TonemapWriter(out, plan, job, tonemap)
     try:
-        n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {})
+        try:
+            n_rendered, n_done = _render_pass(out, plan, job, client, progress, workers or {},
+                                              on_light_field_done=writer.submit)
+        finally:
+            t_render = time.perf_counter() - t0
+            t_end = time.monotonic()
+            writer.close()  # the light fields in flight are finished before anything else
     except ClusterError as exc:  # the scheduler lost, a task that kills every worker
         kept = _manifest_of_finished(out, plan, job, calibration, tonemap_spec,
                                     calibration_sha256)
         raise type(exc)(f"{exc}\n{kept}") from None
-    t_render = time.perf_counter() - t0
-    n_png, n_png_skipped, manifest_path = _tonemap_pass(out, plan, job, calibration,
-                                                       tonemap_spec, progress,
-                                                       calibration_sha256)
+    n_png, n_png_skipped = writer.counts()
+    rest = plan[~plan["light_field"].isin(writer.started)]
+    manifest_path = out / "manifest.csv"
+    if len(rest):
+        n, skipped, manifest_path = tonemap_light_fields(out, rest, job, calibration, tonemap_spec,
+                                                  progress, calibration_sha256)
+        n_png, n_png_skipped = n_png + n, n_png_skipped + skipped
     wall = time.perf_counter() - t0
     return {
         "n_stimuli": len(plan), "rendered": n_rendered, "render_skipped": n_done,
@@ -489,4 +444,5 @@ def render_set(
         "gloss_table": gloss_table_name, "job": {k: v for k, v in asdict(job).items()
                                                  if k != "camera"},
         "camera": asdict(job.camera), "manifest": str(manifest_path),
+        "tonemapped_while_rendering": [lf for lf, t in writer.started.items() if t < t_end],
     }

@@ -19,11 +19,14 @@ the kernel) and caches it.
 
 What is left per image is Dr.Jit tracing the render again, the Python Ward BSDF included, to find
 the cached kernel. Freezing the render (``dr.freeze``, which replays the recorded kernel launches
-without tracing) is not used because it buys nothing worth its constraints (a recording per scene
-and per sample count): ``bench/stimuli_scene_reuse.py``, interleaved image by image at 128 px and
+without tracing; one recording per scene and sample count) pays where the render itself is fast,
+on a GPU: ``bench/stimuli_scene_reuse.py`` with cuda_ad_mono (issue 47) measured 1.18x at 256 px
+and 2.8x at 128 px / 16 spp. On the CPU it buys little: interleaved image by image at 128 px and
 16 spp (the cheapest render, where tracing weighs most), llvm_ad_mono, load average 7 on 2 cores,
 measured re-use 1.152 s/image, frozen 1.121 s/image (identical images): 1.03x, i.e. tracing costs
-about 30 ms per image, < 1 % of a 256 px render at the planned spp. Re-loading the scene per image
+about 30 ms per image, < 1 % of a 256 px render at the planned spp. So ``freeze=None`` (the
+default) freezes under the ``cuda_ad_*`` variants only; the CPU tests render frozen and unfrozen
+alike and compare the images. Re-loading the scene per image
 instead took 1.67x as long as re-use; the first render at a new sample count took 3.2 s, the next
 1.4 s (compile, then cache). Sampler: ``multijitter``. The film stores CIE Y
 (``pixel_format = "luminance"``): in a monochrome variant (the default for the grey stimuli) the
@@ -184,6 +187,12 @@ class StimulusRenderer:
     integrator : dict, optional
         Another Mitsuba integrator dict (tests compare ``direct`` sampling strategies); default
         ``{"type": "path", "max_depth": max_depth}``.
+    split_sun : bool
+        Light the scene with the probe's brightest small region as a light of its own and the
+        rest as the environment map (:mod:`stimuli.sunsplit`; the same expected image).
+    freeze : bool, optional
+        Replay each (scene, sample count)'s recorded kernels (``dr.freeze``) instead of tracing
+        every render; default (None): on the ``cuda_ad_*`` variants, where it pays.
 
     Attributes
     ----------
@@ -192,8 +201,12 @@ class StimulusRenderer:
     """
 
     def __init__(self, camera: CameraGeometry, *, size_px: int, spp: int, max_depth: int = 5,
-                 bsdf: dict | None = None, integrator: dict | None = None):
+                 bsdf: dict | None = None, integrator: dict | None = None,
+                 freeze: bool | None = None, split_sun: bool = False):
         self.bsdf = bsdf
+        self.split_sun = bool(split_sun)
+        self.freeze = freeze
+        self._frozen = {}
         self.integrator = integrator
         if size_px < 8 or spp < 1:
             raise ValueError(f"size_px must be >= 8 and spp >= 1, got {size_px}, {spp}")
@@ -253,7 +266,7 @@ class StimulusRenderer:
                          "pixel_format": film_format, "rfilter": {"type": "gaussian"}},
                 "sampler": {"type": "multijitter", "sample_count": self.spp},
             },
-            "emitter": probe.emitter(),
+            **self._emitters(probe),
             "array": mesh,
         })
         self.params = mi.traverse(self.scene)
@@ -261,7 +274,15 @@ class StimulusRenderer:
                                  None) for name in ("rho_d", "rho_s", "alpha")}
         self._key = key
         self.variant = variant
+        self._frozen = {}  # recordings of the previous scene
         self.n_loads += 1
+
+    def _emitters(self, probe: LightProbe) -> dict:
+        if not self.split_sun:
+            return {"emitter": probe.emitter()}
+        from stimuli.sunsplit import split_emitters
+
+        return split_emitters(probe)
 
     def render(self, rho_d: float, rho_s: float, alpha: float, *, seed: int = 0,
                spp: int | None = None) -> np.ndarray:
@@ -301,8 +322,25 @@ class StimulusRenderer:
             self.params[self._keys["alpha"]] = mi.Float(float(alpha))
             self.params.update()
         n = self.spp_for(spp)
-        img = np.asarray(mi.render(self.scene, spp=n, seed=int(seed) & 0x7FFFFFFF))
+        seed = int(seed) & 0x7FFFFFFF
+        freeze = self.variant.startswith("cuda") if self.freeze is None else self.freeze
+        if freeze:
+            img = np.asarray(self._frozen_render(n)(self.scene, mi.UInt32(seed)))
+        else:
+            img = np.asarray(mi.render(self.scene, spp=n, seed=seed))
         img = img[..., 0] if img.ndim == 3 else img
         if not np.all(np.isfinite(img)):
             raise ValueError("the render holds NaN/Inf luminance; check the light probe and mesh")
         return np.ascontiguousarray(img, dtype=np.float32)
+
+    def _frozen_render(self, spp: int):
+        """The render at ``spp`` samples, frozen (``dr.freeze``) once per loaded scene."""
+        if spp not in self._frozen:
+            import drjit as dr
+            import mitsuba as mi
+
+            def render(scene, seed):
+                return mi.render(scene, spp=spp, seed=seed)
+
+            self._frozen[spp] = dr.freeze(render)
+        return self._frozen[spp]

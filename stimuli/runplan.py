@@ -7,7 +7,8 @@ threads on every core). The constants come from the full image-statistics set: 5
 256 px with the design's spp per gloss level (39.1 on average) took about 44 h on one 2-core
 machine, i.e. 5.4 core-seconds per image (of which about 0.3 s is per-image overhead: reading the
 EXR back, hashing, logging). Machines differ: the progress bar's ETA, from this run's own pace,
-replaces the estimate once images finish.
+replaces the estimate once images finish. :func:`measured_pace_text` then prints the plan again in
+the pace of the machine the run is on (a GPU's, a cluster node's), fitted on its own images.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import socket
 from collections.abc import Sequence
 
 __all__ = ["CORE_S_PER_IMAGE", "CORE_S_PER_SAMPLE", "core_seconds", "machines_seen",
-           "plan_text"]
+           "measured_pace_text", "plan_text"]
 
 #: Core-seconds per image independent of its size (scene update, EXR write, checksum).
 CORE_S_PER_IMAGE = 0.3
@@ -85,3 +86,44 @@ def plan_text(n_todo: int, n_done: int, size_px: int, spp: Sequence[int],
                       for k in (1, 2, 4, 8))
     lines.append(f"  with added machines like these ({per_machine:g} cores each): {added}")
     return "\n".join(lines)
+
+
+def measured_pace_text(timed: Sequence[tuple[float, int]], size_px: int, spp_left: Sequence[int],
+                       n_workers: int) -> str:
+    """The plan in the pace measured here: seconds per image = a + b x (pixel samples).
+
+    Parameters
+    ----------
+    timed : sequence of (seconds, spp)
+        Images rendered here (a worker's ``render_s``: render, EXR write, checksum), not the first
+        group's (those include compiling each sample count's kernel).
+    size_px : int
+        Image width = height, px.
+    spp_left : sequence of int
+        The spp of every image still to render.
+    n_workers : int
+        Workers rendering side by side (one per machine).
+
+    Returns
+    -------
+    str
+        One line: the measured pace (s per image at the mean spp, ms per megasample) and the
+        remaining wall time; a + b is fitted by least squares where the spp differ, else
+        b = seconds / samples (a = 0).
+    """
+    import numpy as np
+
+    s = np.array([t for t, _ in timed], dtype=float)
+    samples = np.array([size_px * size_px * n for _, n in timed], dtype=float)
+    if len(s) == 0:
+        return "pace: no timed image yet"
+    a, b = 0.0, float(s.sum() / samples.sum())
+    if len(np.unique(samples)) > 1:
+        b_fit, a_fit = np.polyfit(samples, s, 1)
+        if b_fit > 0 and a_fit >= 0:
+            a, b = float(a_fit), float(b_fit)
+    left = a * len(spp_left) + b * size_px * size_px * float(np.sum(spp_left))
+    return (f"pace measured here on {len(s)} images: {s.mean():.2f} s per image at "
+            f"{np.mean([n for _, n in timed]):.1f} spp ({1e9 * b:.1f} ms per megasample + "
+            f"{a:.2f} s per image); the {len(spp_left)} images left: about "
+            f"{_duration(left / max(n_workers, 1))} on {n_workers} worker(s) at this pace")

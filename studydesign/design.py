@@ -130,6 +130,19 @@ class StudyDesign:
     source: str = ""
     cluster: ClusterSpec = field(default_factory=ClusterSpec)
 
+    def spp(self, gloss_level: int, light_field: str) -> int:
+        """Samples per pixel of a gloss level label under a light field (an image-statistics
+        light field's name, or an illumination's, which takes the counts of the light field
+        with its file and scale where it has none of its own)."""
+        own = dict(self.render.spp_by_light_field)
+        if light_field not in own:
+            il = next((il for il in self.illuminations if il.name == light_field), None)
+            twin = next((lf.name for lf in self.imagestats.light_fields if il is not None
+                         and Path(lf.envmap).name == Path(il.envmap).name
+                         and lf.scale == il.scale), None)
+            light_field = twin or light_field
+        return self.render.spp(gloss_level, light_field)
+
     def __post_init__(self) -> None:
         require(
             len(self.render.spp_by_gloss_level) == self.gloss.n_levels,
@@ -140,6 +153,7 @@ class StudyDesign:
         names = [il.name for il in self.illuminations]
         require(len(names) >= 1, "the design needs at least one [[illuminations]] entry")
         require(len(set(names)) == len(names), f"illumination names repeat: {names}")
+        self._check_spp_by_light_field(names)
         n = self.n_stimuli
         require(
             self.sessions.n_sessions * self.sessions.trials_per_session == n,
@@ -167,6 +181,17 @@ class StudyDesign:
                 set(np.round(values, 9)) <= rendered_gloss,
                 f"analysis.gloss_bins_pct.{name} {list(values)} are not rendered gloss values",
             )
+
+    def _check_spp_by_light_field(self, names: list[str]) -> None:
+        for lf, spp in self.render.spp_by_light_field:
+            require(len(spp) == self.gloss.n_levels,
+                    f"render.spp_by_light_field.{lf} = {list(spp)}: give one whole number >= 1 "
+                    f"per gloss level ({self.gloss.n_levels}), as `python -m stimuli plan-spp "
+                    "--light-fields all` prints them")
+        known = {lf.name for lf in self.imagestats.light_fields} | set(names)
+        unknown = sorted({n for n, _ in self.render.spp_by_light_field} - known)
+        require(not unknown, f"render.spp_by_light_field names {unknown}, which are no light "
+                             f"field of [imagestats] nor illumination: use one of {sorted(known)}")
 
     @property
     def n_stimuli(self) -> int:

@@ -7,7 +7,7 @@ import re
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from studydesign.errors import require
+from studydesign.errors import DesignError, require
 from studydesign.tables import build, section
 
 __all__ = ["RENDER_VARIANTS", "ClusterSpec", "RenderSpec", "ToneMapSpec", "read_cluster",
@@ -55,12 +55,17 @@ class RenderSpec:
         that reaches ``displayed_error_pct`` (measured by ``python -m stimuli plan-spp``).
     spp_planned_at_px : int
         Image width (px) the spp were measured at.
+    spp_by_light_field : tuple of (str, tuple of int)
+        ``[render.spp_by_light_field]``: per light field (its name), the spp of each gloss level
+        measured under that light field alone (``plan-spp --light-fields all``); a light field
+        not listed takes ``spp_by_gloss_level``.
     """
 
     variant: str
     displayed_error_pct: float
     spp_by_gloss_level: tuple[int, ...]
     spp_planned_at_px: int
+    spp_by_light_field: tuple[tuple[str, tuple[int, ...]], ...] = ()
 
     def __post_init__(self) -> None:
         require(self.variant in RENDER_VARIANTS,
@@ -73,10 +78,17 @@ class RenderSpec:
                 f"{list(self.spp_by_gloss_level)}")
         require(isinstance(self.spp_planned_at_px, int) and self.spp_planned_at_px >= 8,
                 f"render.spp_planned_at_px must be an integer >= 8, got {self.spp_planned_at_px}")
+        for name, spp in self.spp_by_light_field:
+            require(all(isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in spp),
+                    f"render.spp_by_light_field.{name} = {list(spp)}: give one whole number "
+                    ">= 1 per gloss level, as `python -m stimuli plan-spp --light-fields all` "
+                    "prints them")
 
-    def spp(self, gloss_level: int) -> int:
-        """Samples per pixel of a gloss level label (1..n)."""
-        return self.spp_by_gloss_level[int(gloss_level) - 1]
+    def spp(self, gloss_level: int, light_field: str | None = None) -> int:
+        """Samples per pixel of a gloss level label (1..n), under ``light_field`` where its own
+        counts are listed (``spp_by_light_field``), else the design-wide ones."""
+        own = dict(self.spp_by_light_field).get(light_field) if light_field else None
+        return (own or self.spp_by_gloss_level)[int(gloss_level) - 1]
 
 
 @dataclass(frozen=True)
@@ -124,10 +136,22 @@ def read_tonemap(raw: dict, path: Path) -> ToneMapSpec:
 
 
 def read_render(raw: dict, path: Path) -> RenderSpec:
-    """The ``[render]`` table of a design file's ``raw`` tables."""
+    """The ``[render]`` table of a design file's ``raw`` tables (a file whose ``[render]``
+    holds only ``[render.spp_by_light_field]`` takes the shipped design's other keys)."""
+    if set(raw.get("render", {"variant": ""})) <= {"spp_by_light_field"}:
+        raw = {k: v for k, v in raw.items() if k != "render"}
     rd = section(raw, "render", path, RenderSpec)
     return build(RenderSpec, rd, "render", path,
-                 spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())))
+                 spp_by_gloss_level=tuple(rd.get("spp_by_gloss_level", ())),
+                 spp_by_light_field=_spp_by_light_field(rd.get("spp_by_light_field", {}), path))
+
+
+def _spp_by_light_field(raw, path: Path) -> tuple[tuple[str, tuple[int, ...]], ...]:
+    if not isinstance(raw, dict) or not all(isinstance(v, list) for v in raw.values()):
+        raise DesignError(f"{path}: [render.spp_by_light_field] must hold one list of spp per "
+                          "light field (name = [30, 30, ...]), as `python -m stimuli plan-spp "
+                          "--light-fields all` prints it")
+    return tuple((str(k), tuple(v)) for k, v in raw.items())
 
 
 def read_cluster(raw: dict, path: Path) -> ClusterSpec:
