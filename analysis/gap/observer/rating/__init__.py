@@ -62,6 +62,20 @@ def _labels_identifiable(study) -> tuple[bool, str]:
     return True, ""
 
 
+def _spread_unknown(base: RatingBase) -> str:
+    """Why individual differences cannot be told apart (a simulation fitted to fewer than
+    2 participants: its between-observer SDs are no estimate), or ''."""
+    n = len(base.participants)
+    if not base.participants or n >= 2:
+        return ""
+    return (f"the rating observer was fitted to {n} participant ({', '.join(base.participants)})"
+            ": its between-observer SDs (gain {:.3f}, offset {:.3f}) are no estimate of the "
+            "population's, so individual differences cannot be told apart from the "
+            "simulation's and are not tested; fit the observer to a pilot of several "
+            "participants (fit-observer --study ... --participants 01 02 03 ...)"
+            ).format(base.gain_sd, base.offset_sd)
+
+
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
          participants=None, k_folds: int = 5) -> LayerPlan:
     """The study's trials at ``real`` (described by ``study``, a study.toml) against the rating
@@ -86,6 +100,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
     if data["participant"].nunique() < 2:
         raise GapError("the diagnosis needs at least 2 participants (the split-half "
                        "consistency of a stimulus's deviation); pass more with --participants")
+    unknown = _spread_unknown(base)
+    if unknown:
+        notes.append(unknown)
     folds, text = rating_folds(data, k_folds)
     floor = {}
     for tr, te in folds:
@@ -129,6 +146,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         functions, settings, sizes=lambda _diag: dict(sizes),
         localise=localise, folds=folds, split=text, warnings=tuple(notes),
         candidates=tuple(rating_candidates(labels_ok)),
+        not_identifiable={"individual_differences": unknown} if unknown else {},
         loss_info={"base": {"kind": "rating", "source": base.source,
                             "gain": base.gain, "gain_sd": base.gain_sd,
                             "offset": base.offset, "offset_sd": base.offset_sd,
