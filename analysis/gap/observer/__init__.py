@@ -121,6 +121,23 @@ def _same_path(real, sim) -> None:
         raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
 
 
+def _has_spread(base: ObserverBase) -> bool:
+    """Whether the simulation says how far its observers differ from each other."""
+    return bool(base.sd) and any(any(v > 0 for v in sd) for sd in base.sd.values())
+
+
+def _few_participants(data, base: ObserverBase) -> list[str]:
+    """A warning where fewer than 4 participants are held out by trial and the simulation
+    has no between-observer spread: individual differences are then not tested."""
+    n = data["participant"].nunique()
+    if n >= 4 or _has_spread(base):
+        return []
+    return [(f"only {n} participant(s) and a simulation without a between-observer spread: a "
+            "participant's own offset and slopes cannot be told from a gap and are not tested; "
+            "diagnose 4 or more participants, or simulate with an observers TOML or simulated "
+            "sessions of several observers")]
+
+
 def _participant(unit_id: str) -> str:
     """The participant of a held-out trial (``participant|session|order``)."""
     return unit_id.split("|", 1)[0]
@@ -157,9 +174,16 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     notes = check_sim(frame, base)
     data = observer_frame(frame, design, base)
     folds, text = observer_folds(data, k_folds)
+    notes = notes + _few_participants(data, base)
     floor, shared = {}, {}
     for tr, te in folds:
-        shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
+        # Participants' own intercepts and slopes in the ceiling only where the simulation
+        # says how far observers differ (its between-observer SDs): without that spread a
+        # person's own offset, held out by trial, is no more a gap than it is held out by
+        # participant (issue 43).
+        shared[id(te)] = (bool(set(tr["participant"]) & set(te["participant"]))
+                          and _has_spread(base))
+        tr.attrs["by_participant"] = shared[id(te)]
         if not shared[id(te)]:
             adapt_own_offsets(tr, base)
             adapt_own_offsets(te, base)

@@ -126,12 +126,37 @@ def base_from_sessions(frame: pd.DataFrame, design, *, source: str = "sessions")
     kinds = {str(v).rsplit(":", 1)[1] for v in frame.get("app_version", pd.Series(dtype=str))
              .dropna().astype(str) if ":" in str(v)}
     kind = kinds.pop() if len(kinds) == 1 else "unknown"
+    who = frame["participant"].astype(str).to_numpy()
     return ObserverBase(kind=kind, source=source,
                         coef={"gloss": tuple(float(v) for v in cg),
                               "depth": tuple(float(v) for v in cd)},
-                        participants=tuple(sorted(frame["participant"].astype(str).unique())),
+                        participants=tuple(sorted(np.unique(who))),
                         stimuli=_stimuli(frame),
-                        n_illuminations=int(frame["illumination"].nunique()))
+                        n_illuminations=int(frame["illumination"].nunique()),
+                        sd={"gloss": _between_sd(x, yg, who), "depth": _between_sd(
+                            x[:, [0, 2]], yd, who)} if np.unique(who).size >= 2 else None)
+
+
+def _between_sd(x: np.ndarray, y: np.ndarray, who: np.ndarray) -> tuple:
+    """Between-participant SDs of the coefficients of ``y ~ x`` among the simulated
+    participants (slider units): the variance of their own least-squares coefficients less
+    the mean of their sampling variances, floored at 0 (method of moments, as fit-observer's
+    population). The simulated observers differ from each other by this much, so a real
+    observer who does is no gap (issue 43: without it, 3 real participants and nothing added
+    read "unexplained ... differing between participants" against simulated sessions)."""
+    own, err = [], []
+    for pid in np.unique(who):
+        m = who == pid
+        if m.sum() <= x.shape[1] + 2:
+            continue
+        b, *_ = np.linalg.lstsq(x[m], y[m], rcond=None)
+        noise = float(np.sum((y[m] - x[m] @ b) ** 2)) / (m.sum() - x.shape[1])
+        own.append(b)
+        err.append(np.diag(np.linalg.pinv(x[m].T @ x[m])) * noise)
+    if len(own) < 2:
+        return tuple(0.0 for _ in range(x.shape[1]))
+    var = np.var(own, axis=0, ddof=1) - np.mean(err, axis=0)
+    return tuple(float(v) for v in np.sqrt(np.maximum(var, 0.0)))
 
 
 def _stimuli(frame: pd.DataFrame) -> tuple:
