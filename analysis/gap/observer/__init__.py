@@ -78,6 +78,7 @@ from analysis.gap.observer.model import (
     predict,
     to_slider_units,
 )
+from analysis.gap.observer.power import misfit_power, misfit_terms, misfit_upper
 from analysis.gap.observer.where import (
     OBSERVER_SIZE_UNIT,
     localise_observer,
@@ -207,9 +208,23 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         if not sizes:
             sizes.update(measured)
         return measured.get("misfit_after", float("nan"))
+    terms = {}
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = misfit_terms(fits, ceilings)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        return misfit_power(t, u, design.gap.observer_tolerance_slider,
+                            by_participant=not any(shared.values()),
+                            n_sessions=int(data.groupby("participant")["session"].nunique()
+                                           .median()))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
-                               size=size, unit_ids=observer_unit_ids,
+                               size=size, size_upper=size_upper, unit_ids=observer_unit_ids,
                                cluster_of=None if any(shared.values()) else _participant)
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN,
                                  min_size=design.gap.observer_tolerance_slider,
@@ -218,7 +233,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     return LayerPlan(
         functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes),
+        folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes), power=power,
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})
