@@ -5,7 +5,7 @@ Each observer sets the sliders by a compressive Stevens power law of the level,
 ``m(x) = 1 + 10 ((x - 1) / 10) ** kappa`` (kappa U(0.75, 0.95) gloss, U(0.65, 0.9) depth),
 with an own offset N(0, 0.5) slider units, an own slope (N(1.0, 0.1) gloss, N(0.95, 0.1)
 depth), a depth -> gloss crosstalk N(0.15, 0.05) per level and Gaussian noise (SD U(0.6, 1.0)
-gloss, U(0.5, 0.8) depth), clipped to the slider (1-11). The plans (stimuli, orders,
+gloss, U(0.5, 0.8) depth), clipped to the slider (1-11) and set on its pixel grid (600 px). The plans (stimuli, orders,
 sessions) are the experiment's own (:func:`analysis.gapbench.inject.simulate_sessions`);
 only the settings are replaced. A pilot of 8 such observers is fitted with the experiment's
 ``fit-observer`` (:func:`experiment.observer_fit.fit_observer_params`): that is the
@@ -32,6 +32,12 @@ def stevens(x: np.ndarray, kappa: float) -> np.ndarray:
     return 1.0 + 10.0 * (np.clip(x - 1.0, 0.0, None) / 10.0) ** kappa
 
 
+def _on_pixels(v: np.ndarray, width_px: int = 600) -> np.ndarray:
+    """Settings on the slider's pixel grid (a handle ``width_px`` pixels long over 1-11)."""
+    step = 10.0 / (width_px - 1)
+    return 1.0 + np.round((v - 1.0) / step) * step
+
+
 def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
               size: float) -> pd.DataFrame:
     s = DESIGN.slider
@@ -55,8 +61,8 @@ def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
         depth[idx] = (6.0 + a_d + b_d * (stevens(d_lab[idx], kd) - 6.0) + add[idx]
                       + sd * rng.standard_normal(idx.size))
     out = frame.copy()
-    out["gloss_match"] = np.clip(gloss, s.min, s.max)
-    out["depth_match"] = np.clip(depth, s.min, s.max)
+    out["gloss_match"] = _on_pixels(np.clip(gloss, s.min, s.max))
+    out["depth_match"] = _on_pixels(np.clip(depth, s.min, s.max))
     out["app_version"] = "lab"
     return out
 
