@@ -86,7 +86,7 @@ def _decide(s: np.ndarray, n: np.ndarray, tolerance: float) -> int:
 
 
 def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
-                 by_participant: bool, n_sessions: int, n_sim: int = 40) -> PowerModel | None:
+                 by_participant: bool, n_sessions: int, n_sim: int = 100) -> PowerModel | None:
     """The PowerModel of an inconclusive observer diagnosis (see the module docstring):
     misfits tried 0.5-4 x the tolerance, data sizes 1.5-8 x (participants where they are
     held out whole, else sessions per participant). None without held-out trials."""

@@ -47,3 +47,16 @@ def test_the_flexible_model_predicts_the_generators_own_participants_as_well_as_
     assert abs(d.remaining["gap"]) < 0.01 and hi - lo < 0.05
     assert d.verdict == "no_gap_that_matters"
     assert d.misfit_after <= d.misfit_upper < DESIGN.gap.observer_tolerance_slider
+
+
+@pytest.mark.slow
+def test_four_participants_short_of_deciding_are_inconclusive_with_how_many_more():
+    """Depth rising with gloss (0.3 slider units) in 4 participants: the misfit's bound
+    (0.26) reaches the tolerance, nothing is significant: inconclusive, saying the smallest
+    misfit these data detect and how many participants would decide."""
+    d = _diagnose(1, "gloss", 0.3, n=4)
+    assert d.verdict == "inconclusive"
+    assert d.misfit_upper >= DESIGN.gap.observer_tolerance_slider
+    assert d.detectable["unit"] == "slider units" and d.detectable["value"] > 0.25
+    assert d.to_decide["factor"] is None or "participants" in d.to_decide["words"]
+    # Measured: detectable 0.375 slider units; to_decide "16 participants (4x)".
