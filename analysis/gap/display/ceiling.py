@@ -317,7 +317,8 @@ def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tup
 
     Per group g (a screen position, a drive level) the systematic mean square is the mean of
     ``seen^2 - seen_sd^2`` over its readings, with its standard error from their spread; the
-    size is 100 sqrt of the largest (0 if none is positive). Upper bound: 100 sqrt of the
+    size is 100 sqrt of the largest (0 if none is positive); the SE is at least the noise
+    model's (a group of one reading has no spread). Upper bound: 100 sqrt of the
     largest one-sided 95 % bound (mean + 1.645 SE): whichever group's misfit is largest, its
     own bound holds it with 95 %, so the largest bound holds the size. Lower bound: the same
     with the groups' bounds at 95 % jointly (Bonferroni): above 0 where some group's misfit
@@ -346,7 +347,11 @@ def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tup
     n = onehot.sum(axis=0)
     mean = (v @ onehot) / n
     var = np.maximum((v**2 @ onehot) - n * mean**2, 0.0) / np.maximum(n - 1, 1)
-    se = np.sqrt(var / n)
+    # A group of one or a few readings shows no spread to take an SE from: at least what the
+    # noise alone gives, Var(r^2 - sd^2) = 2 sd^4 + 4 m^2 sd^2 for r = m + noise.
+    sd2 = np.asarray(seen_sd, float) ** 2
+    noise_var = (2 * sd2**2) @ onehot + 4 * np.maximum(mean, 0.0) * (sd2 @ onehot)
+    se = np.sqrt(np.maximum(var / n, noise_var / n**2))
 
     def pct(ms):
         out = 100 * np.sqrt(np.maximum(ms.max(axis=-1), 0.0))

@@ -14,9 +14,9 @@ and each simulated data set is decided as the diagnosis decides the real one
 Cheap by construction: a tile's sum of lagged products of ``a m + e`` (misfit ``m`` scaled
 by ``a``, noise ``e``) is ``a^2 C0 + a C1 + C2``, with ``C0`` fixed and ``(C1, C2)`` drawn
 from :data:`POOL` noise images per photo made once; a simulated data set ``f`` times larger
-takes, for each tile of each of its ``f`` copies, one of the pool's draws. Drawing from a
-pool of 32 slightly overstates the spread for the largest factors (copies may repeat a draw),
-so ``to_decide`` errs on the side of more data.
+takes, for each tile of each of its ``f`` copies, one of the pool's draws (different draws up
+to 32 copies; beyond, copies may repeat a draw, which overstates the spread a little, so
+``to_decide`` errs on the side of more data).
 """
 
 from __future__ import annotations
@@ -114,7 +114,10 @@ def render_power(test: RenderData, diag: Diagnosis, *, noun: str = "held-out pho
         many = np.tile(pairs, f)
 
         def run(rng: np.random.Generator, k: int) -> np.ndarray:
-            idx = rng.integers(0, POOL, size=(k, f, n_tiles))
+            if f <= POOL:  # each copy of a tile a different draw of the pool
+                idx = np.argsort(rng.random((k, POOL, n_tiles)), axis=1)[:, :f]
+            else:
+                idx = rng.integers(0, POOL, size=(k, f, n_tiles))
             cols = np.arange(n_tiles)
             cross = (a * a * pool[fixed] + a * pool[drawn][idx, cols]
                      + pool["C2"][idx, cols]).reshape(k, f * n_tiles)
