@@ -69,9 +69,11 @@ def _print_notes(notes: list[str]) -> None:
 def _print(diag, name: str) -> None:
     for w in diag.warnings:
         print(f"warning ({name}): {w}", file=sys.stderr)
+    from analysis.gap.engine import NOT_A_GAP
     from analysis.gap.report import misfit_words, power_words
 
-    verdict = diag.verdict.replace("_", " ")
+    verdict = (diag.verdict.replace("_", " ") if diag.verdict in NOT_A_GAP
+               else f"gap: {diag.verdict}")
     more = power_words(diag)
     verdict += f" ({more})" if more else ""
     remains = " (and a gap remains)" if diag.unexplained_remains and diag.steps else ""

@@ -55,7 +55,7 @@ import numpy as np
 import pandas as pd
 from scipy.signal import fftconvolve
 
-from analysis.gap import NO_GAP, NO_GAP_THAT_MATTERS, catalogue, diagnose, effect, out_of_catalogue
+from analysis.gap import NOT_A_GAP, catalogue, diagnose, effect, out_of_catalogue
 from analysis.gapbench import inject
 from analysis.gapbench.scoring import (
     balanced_draw,
@@ -540,8 +540,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
         single = case == "independent"
         true_shrink = render_true_shrink(diag, folder, truth) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
-    named = ([s["added"] for s in diag.steps] if diag.verdict == NO_GAP_THAT_MATTERS
-             else [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + "))
+    named = ([s["added"] for s in diag.steps] if diag.verdict in NOT_A_GAP
+             else [] if diag.verdict == "unexplained" else diag.verdict.split(" + "))
     return {"layer": "render", "case": case, "generator": plan["generator"],
             "effects": plan["effects"], "inside": inside,
             "outside": [e for e in plan["effects"] if e not in cat],

@@ -157,7 +157,7 @@ def test_nothing_remains_above_the_ceiling_when_the_catalogue_explains_it(tmp_pa
     _check(tmp_path, rng, display, warmup=effect != "warmup_drift",
            start_s=30.0 if effect == "warmup_drift" else 1800.0)
     diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
-    assert diag.verdict.split(" + ")[0] == ("no_significant_gap" if effect == "none"
+    assert diag.verdict.split(" + ")[0] == ("no_gap_that_matters" if effect == "none"
                                             else effect)
     assert diag.remaining["ci"][0] <= 0
 
