@@ -54,12 +54,13 @@ def test_crosstalk_slope_recovered():
     assert diag.steps[0]["params"]["c"] == pytest.approx(0.3, abs=0.05)
 
 
-def test_nothing_injected_is_no_significant_gap():
+def test_nothing_injected_is_no_gap_that_matters():
     diag, _ = _diag("none", 0.0, 11)
-    assert diag.verdict == "no_significant_gap" and not diag.steps
+    assert diag.verdict == "no_gap_that_matters" and not diag.steps
     assert not diag.unexplained_remains
-    assert diag.summary.startswith("No significant gap")
-    assert diag.to_dict()["verdict"] == "no_significant_gap"
+    assert diag.summary.startswith("No gap that matters")
+    assert diag.misfit_upper < diag.tolerance
+    assert diag.to_dict()["verdict"] == "no_gap_that_matters"
 
 
 def test_out_of_catalogue_is_unexplained():

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from analysis.gap import GapError, diagnose
+from analysis.gap.engine import NOT_A_GAP
 from analysis.gap.observer import base_from_params
 from analysis.gapbench import inject
 from experiment import load_observer_params
@@ -39,8 +40,6 @@ def test_a_simulated_frame_holding_nan_is_refused_naming_participant_and_session
         diagnose("observer", real, sim, DESIGN, seed=1, n_boot=50)
 
 
-#: Verdicts that are not a gap (``no_significant_gap`` until the engine's three verdicts).
-NOT_A_GAP = ("no_significant_gap", "no_gap_that_matters", "inconclusive")
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
