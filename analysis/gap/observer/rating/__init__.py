@@ -14,9 +14,12 @@ study is given.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
+from analysis.gap.observer.power import misfit_power, misfit_upper
 from analysis.gap.observer.rating.candidates import BY_NAME, rating_candidates
 from analysis.gap.observer.rating.ceiling import (
     rating_ceiling_fit,
@@ -39,6 +42,7 @@ from analysis.gap.observer.rating.model import (
 from analysis.gap.observer.rating.where import (
     localise_rating,
     rating_misfit,
+    rating_misfit_terms,
     rating_tolerance,
     rating_unit,
     rating_where,
@@ -132,18 +136,31 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
             sizes.update(measured)
         return measured.get("misfit_after", float("nan"))
 
+    terms = {}
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = rating_misfit_terms(fits, ceilings, BY_NAME)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
+        return model if model is None else replace(model, unit=unit)
+
     def localise(diag, rng):
         chosen = ([(s["added"], s["params"]) for s in diag.steps]
                   if diag.verdict != "unexplained" else [])
         return localise_rating(data, chosen, BY_NAME, rng, n_boot=min(n_boot, 500))
     functions = LayerFunctions(
         loss=rating_loss(BY_NAME), floor=lambda te: floor[id(te)], ceiling=ceiling,
-        ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size,
+        ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size, size_upper=size_upper,
         where=lambda fits: rating_where(fits, BY_NAME, st.estimates))
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN, min_size=tolerance,
                                  size_unit=unit, size_source=source)
     return LayerPlan(
-        functions, settings, sizes=lambda _diag: dict(sizes),
+        functions, settings, sizes=lambda _diag: dict(sizes), power=power,
         localise=localise, folds=folds, split=text, warnings=tuple(notes),
         candidates=tuple(rating_candidates(labels_ok)),
         not_identifiable={"individual_differences": unknown} if unknown else {},
