@@ -139,6 +139,35 @@ def _few_participants(data, base: ObserverBase) -> list[str]:
             "sessions of several observers")]
 
 
+def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions: int):
+    """``(size, size_upper, power, sizes)``: the layer's misfit, its upper 95 % bound and its
+    PowerModel, measured against the ceilings fitted per fold (``ceilings``, filled by the
+    ceiling step), and the dict the misfits are kept in for the Diagnosis."""
+    sizes, terms = {}, {}
+
+    def size(fits):
+        # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
+        # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = observer_misfit(fits, ceilings, design.slider)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = misfit_terms(fits, ceilings)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        return misfit_power(t, u, design.gap.observer_tolerance_slider,
+                            by_participant=by_participant, n_sessions=n_sessions)
+    return size, size_upper, power, sizes
+
+
 def _participant(unit_id: str) -> str:
     """The participant of a held-out trial (``participant|session|order``)."""
     return unit_id.split("|", 1)[0]
@@ -193,35 +222,15 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         model = fit_ceiling(tr, by_participant=shared[id(te)])
         floor[id(te)] = ceiling_floor(model, te, rng)
 
-    ceilings, sizes = {}, {}
+    ceilings = {}
 
     def ceiling(tr, te, fitted):
         ceilings[id(te)] = fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted)
         return ceiling_loss(ceilings[id(te)], te)
 
-    def size(fits):
-        # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
-        # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
-        # The first call is remaining_gap's, with the chosen model; a later one (the plain
-        # simulation's size) must not replace the record.
-        measured = observer_misfit(fits, ceilings, design.slider)
-        if not sizes:
-            sizes.update(measured)
-        return measured.get("misfit_after", float("nan"))
-    terms = {}
-
-    def size_upper(fits):
-        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
-        t, u = misfit_terms(fits, ceilings)
-        terms.setdefault("after", (t, u))
-        return misfit_upper(t, u)
-
-    def power(_diag):
-        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
-        return misfit_power(t, u, design.gap.observer_tolerance_slider,
-                            by_participant=not any(shared.values()),
-                            n_sessions=int(data.groupby("participant")["session"].nunique()
-                                           .median()))
+    size, size_upper, power, sizes = _size_functions(
+        design, ceilings, by_participant=not any(shared.values()),
+        n_sessions=int(data.groupby("participant")["session"].nunique().median()))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
                                size=size, size_upper=size_upper, unit_ids=observer_unit_ids,

@@ -80,6 +80,35 @@ def _spread_unknown(base: RatingBase) -> str:
             ).format(base.gain_sd, base.offset_sd)
 
 
+def _size_functions(ceilings: dict, unit: str, tolerance: float):
+    """``(size, size_upper, power, sizes)``: the misfit in the scale's units, its upper 95 %
+    bound and the PowerModel, against the ceilings fitted per fold (``ceilings``, filled by
+    the ceiling step), and the dict the misfits are kept in for the Diagnosis."""
+    sizes, terms = {}, {}
+
+    def size(fits):
+        # The misfits against the ceilings just fitted on each fold's chosen model, kept for
+        # the Diagnosis (sizes); the chosen model's is held to the tolerance.
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = rating_misfit_terms(fits, ceilings, BY_NAME)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
+        return model if model is None else replace(model, unit=unit)
+    return size, size_upper, power, sizes
+
+
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
          participants=None, k_folds: int = 5) -> LayerPlan:
     """The study's trials at ``real`` (described by ``study``, a study.toml) against the rating
@@ -114,7 +143,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         floor[id(te)] = rating_ceiling_floor(tr, te, BY_NAME)
     adapt_rating_base(data, data.iloc[:0].copy(), base)
 
-    ceilings, sizes = {}, {}
+    ceilings = {}
     unit = rating_unit(st)
     if design is None:
         from studydesign import load_design
@@ -126,28 +155,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         ceilings[id(te)] = rating_ceiling_fit(tr, fitted, BY_NAME)
         return rating_ceiling_loss(tr, te, fitted, BY_NAME, ceilings[id(te)])
 
-    def size(fits):
-        # The misfits against the ceilings just fitted on each fold's chosen model, kept for
-        # the Diagnosis (sizes); the chosen model's is held to the tolerance.
-        # The first call is remaining_gap's, with the chosen model; a later one (the plain
-        # simulation's size) must not replace the record.
-        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
-        if not sizes:
-            sizes.update(measured)
-        return measured.get("misfit_after", float("nan"))
-
-    terms = {}
-
-    def size_upper(fits):
-        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
-        t, u = rating_misfit_terms(fits, ceilings, BY_NAME)
-        terms.setdefault("after", (t, u))
-        return misfit_upper(t, u)
-
-    def power(_diag):
-        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
-        model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
-        return model if model is None else replace(model, unit=unit)
+    size, size_upper, power, sizes = _size_functions(ceilings, unit, tolerance)
 
     def localise(diag, rng):
         chosen = ([(s["added"], s["params"]) for s in diag.steps]
