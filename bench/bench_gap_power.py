@@ -58,7 +58,7 @@ def _render_data(folder: Path, seed: int, copies: int):
 
     levels = []
     for c in range(copies):
-        br.write_analytic_fit(folder / f"c{c}", {}, np.random.default_rng([seed, c]))
+        br.write_analytic_fit(folder / f"c{c}", {}, np.random.default_rng(seed * 100 + c))
         for lv in load_render(folder / f"c{c}", folder / f"c{c}").levels:
             lv["name"] = f"{lv['name']}_copy{c}"
             levels.append(lv)
