@@ -11,7 +11,14 @@ check, its ``detectable`` and ``to_decide``; then ``--draws`` checks of the sugg
 repeats, each diagnosed; printed: the share decided beside the simulation's 80 %, and the
 verdicts met. Also the diagnosis's own time with and without the power simulation.
 
-Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S]``
+Render layer, with ``--render``: the project's analytic sphere (``analysis.gapbench.
+bench_render.write_analytic_fit``: three gloss levels, its own camera noise) photographed with
+fewer photons (noisier photos: ``--photons``), nothing added: the data cannot exclude a 1 %
+misfit; a larger data set is more photos of the same three levels, each level's copy with its
+own noise (``copies`` x 3 photos).
+
+Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render]
+[--photons P ...]``
 """
 
 from __future__ import annotations
@@ -45,12 +52,71 @@ def _diagnose(folder: Path, effect: str, strength: float, repeats: int, seed: in
     return diag, time.perf_counter() - t0
 
 
+def _render_data(folder: Path, seed: int, copies: int):
+    from analysis.gap.render import RenderData, load_render
+    from analysis.gapbench import bench_render as br
+
+    levels = []
+    for c in range(copies):
+        br.write_analytic_fit(folder / f"c{c}", {}, np.random.default_rng(seed * 100 + c))
+        for lv in load_render(folder / f"c{c}", folder / f"c{c}").levels:
+            lv["name"] = f"{lv['name']}_copy{c}"
+            levels.append(lv)
+    return RenderData(levels)
+
+
+def render_check(photons: float, draws: int, seed: int) -> None:
+    """The render layer's brute-force check at ``photons`` (see the module's docstring)."""
+    from analysis.gapbench import bench_render as br
+
+    br._ANALYTIC_PHOTONS = float(photons)
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        diag = diagnose("render", _render_data(Path(tmp) / "one", seed, 1), None, None,
+                        seed=seed, n_boot=300)[0]
+        took = time.perf_counter() - t0
+        print(f"render, {photons:g} photons: verdict {diag.verdict}, misfit "
+              f"{diag.remaining.get('size'):.2f} %, upper bound {diag.misfit_upper:.2f} %, "
+              f"diagnosis {took:.1f} s")
+        if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
+            print(f"  nothing to check (to_decide {diag.to_decide.get('words')})")
+            return
+        det, dec = diag.detectable, diag.to_decide
+        print(f"  detectable: {det['value']} %; to_decide: x{dec['factor']} ({dec['words']})")
+        rate = next(c for c in dec["curve"] if c["size"] == dec["factor"])
+        verdicts, times = [], []
+        for i in range(draws):
+            t0 = time.perf_counter()
+            d = diagnose("render", _render_data(Path(tmp) / f"d{i}", seed + 1 + i,
+                                                int(dec["factor"])),
+                         None, None, seed=seed, n_boot=300)[0]
+            times.append(time.perf_counter() - t0)
+            verdicts.append(d.verdict)
+        _print_brute(verdicts, rate, times)
+
+
+def _print_brute(verdicts: list, rate: dict, times: list) -> None:
+    n = len(verdicts)
+    decided = sum(v != "inconclusive" for v in verdicts)
+    print(f"  brute force, {n} data sets refitted in full: decided {decided}/{n} = "
+          f"{100 * decided / n:.0f} % (simulated from the fitted models: "
+          f"{100 * rate['rate']:.0f} %, 95 % CI {100 * rate['ci_low']:.0f}-"
+          f"{100 * rate['ci_high']:.0f} %); not a gap {sum(v in NOT_A_GAP for v in verdicts)}"
+          f"/{n}; verdicts {dict(Counter(verdicts))}; {np.mean(times):.1f} s per diagnosis")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--draws", type=int, default=10)
     ap.add_argument("--seed", type=int, default=100)
+    ap.add_argument("--render", action="store_true", help="the render layer's check only")
+    ap.add_argument("--photons", type=float, nargs="+", default=[170.0])
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)
+    if args.render:
+        for photons in args.photons:
+            render_check(photons, args.draws, args.seed)
+        return 0
     with tempfile.TemporaryDirectory() as tmp:
         for name, effect, strength, seed in CASES:
             diag, took = _diagnose(Path(tmp) / f"{seed}", effect, strength, 1, seed)
@@ -71,13 +137,8 @@ def main(argv=None) -> int:
                                  args.seed + 1000 * seed + i)
                 verdicts.append(d.verdict)
                 times.append(t)
-            decided = sum(v != "inconclusive" for v in verdicts)
-            print(f"  brute force, {reps} repeats, {args.draws} checks refitted in full: "
-                  f"decided {decided}/{args.draws} = {100 * decided / args.draws:.0f} % "
-                  f"(simulated from the fitted models: {100 * rate['rate']:.0f} %, 95 % CI "
-                  f"{100 * rate['ci_low']:.0f}-{100 * rate['ci_high']:.0f} %); not a gap "
-                  f"{sum(v in NOT_A_GAP for v in verdicts)}/{args.draws}; verdicts "
-                  f"{dict(Counter(verdicts))}; {np.mean(times):.1f} s per diagnosis")
+            print(f"  {reps} repeats:")
+            _print_brute(verdicts, rate, times)
     return 0
 
 

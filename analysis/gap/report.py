@@ -140,7 +140,9 @@ def lead_figure(d: Diagnosis) -> str:
                "RMS misfit " + (d.misfit or {}).get("unit", "of the photos' RMS luminance")
                + ", before \u2192 after")]
              if math.isfinite(d.misfit_pct_before) else [])
-    said = f"upper 95 % bound of the misfit (tolerance {d.tolerance:g})"
+    unit = (d.remaining or {}).get("size_unit", "")
+    short = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    said = f"upper 95 % bound of the misfit (tolerance {d.tolerance:g}{short})"
     bound = ([(f"\u2264 {d.misfit_upper:.2g}", said)] if math.isfinite(d.misfit_upper)
              else [])
     if d.verdict == NO_GAP_THAT_MATTERS:

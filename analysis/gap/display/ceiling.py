@@ -320,9 +320,11 @@ def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tup
     size is 100 sqrt of the largest (0 if none is positive); the SE is at least the noise
     model's (a group of one reading has no spread). Upper bound: 100 sqrt of the
     largest one-sided 95 % bound (mean + 1.645 SE): whichever group's misfit is largest, its
-    own bound holds it with 95 %, so the largest bound holds the size. Lower bound: the same
-    with the groups' bounds at 95 % jointly (Bonferroni): above 0 where some group's misfit
-    is significantly more than noise.
+    own bound holds it with 95 %, so the largest bound holds the size. ``significant``: the
+    size where the readings' misfit is significantly more than their noise over all readings
+    (squared z-scores in excess of 1, one-sided 5 %, as the diagnosis's test against the
+    ceiling pools all readings), else 0 (the ``lower`` that
+    :func:`~analysis.gap.engine.decide_size` takes).
 
     Parameters
     ----------
@@ -332,7 +334,7 @@ def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tup
 
     Returns
     -------
-    (size, lower, upper) : float or ndarray of shape ``seen.shape[:-1]``, %
+    (size, significant, upper) : float or ndarray of shape ``seen.shape[:-1]``, %
     """
     from scipy.stats import norm
 
@@ -356,8 +358,12 @@ def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tup
     def pct(ms):
         out = 100 * np.sqrt(np.maximum(ms.max(axis=-1), 0.0))
         return float(out) if out.ndim == 0 else out
-    return (pct(mean), pct(mean - norm.isf(0.05 / n_groups) * se),
-            pct(mean + norm.isf(0.05) * se))
+    size = pct(mean)
+    # Significance over all readings, as the diagnosis's test against the ceiling pools them:
+    # the readings' squared z-scores in excess of 1, one-sided 5 % (a chi-square's mean and SD).
+    z2 = np.asarray(seen, float) ** 2 / np.maximum(sd2, 1e-300)
+    excess = np.sum(z2 - 1, axis=-1) / np.sqrt(2 * z2.shape[-1])
+    return size, np.where(excess > norm.isf(0.05), size, 0.0)[()], pct(mean + norm.isf(0.05) * se)
 
 
 def display_misfit_upper(fits: list) -> float:
