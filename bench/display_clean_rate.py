@@ -9,7 +9,7 @@ Four clean set-ups of the display layer, ``--n`` seeds each (issue 29's "hidden 
   :mod:`analysis.gapbench.inject`), its calibration fitted from noisy repeats, checked
   against a separate run (seeds ``--start + 1000 + s``, diagnosis seed s).
 
-Printed: per set-up the count of ``no_significant_gap`` / ``no_gap_that_matters`` verdicts and the verdicts met, then the
+Printed: per set-up the count of ``no_gap_that_matters`` / ``inconclusive`` verdicts (not a gap) and the verdicts met, then the
 total and the rate. Usage::
 
     python bench/display_clean_rate.py --n 25 --start 1000
@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap import NO_GAP, NO_GAP_THAT_MATTERS, diagnose
+from analysis.gap import NOT_A_GAP, diagnose
 from analysis.gapbench import bench_display, inject
 
-_NO_GAP = (NO_GAP, NO_GAP_THAT_MATTERS)
+_NO_GAP = NOT_A_GAP
 
 
 def _blind(seed: int, diag_seed: int, n_boot: int) -> str:
@@ -69,7 +69,7 @@ def main(argv=None) -> int:
         misses = {s: x for s, x in zip(seeds, v) if x not in _NO_GAP}
         print(f"{name}: {ok} / {args.n}; misses {misses}", flush=True)
         total, hits = total + args.n, hits + ok
-    print(f"clean display -> no gap (no_significant_gap or no_gap_that_matters): {hits} / {total} = {100 * hits / total:.1f} % "
+    print(f"clean display -> not a gap (no_gap_that_matters or inconclusive): {hits} / {total} = {100 * hits / total:.1f} % "
           f"(seeds {args.start}-{args.start + args.n - 1}; {time.perf_counter() - t0:.0f} s)")
     return 0
 

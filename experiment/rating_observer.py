@@ -158,6 +158,10 @@ def _fit_one(y, x, scale, step) -> tuple[dict, dict]:
             {"gain": float(se[0]), "offset": float(se[1])})
 
 
+#: The fewest participants a rating population (its between-observer SDs) is fitted to.
+MIN_POPULATION = 2
+
+
 def _population(values: np.ndarray, se: np.ndarray) -> dict:
     """Mean and between-observer SD (method of moments: the estimates' variance less their
     mean squared SE, floored at 0)."""
@@ -181,8 +185,16 @@ def fit_rating_observers(frame: pd.DataFrame, study) -> dict:
     Raises
     ------
     ValueError
-        Fewer than 10 trials for a participant (the fit has four parameters).
+        Fewer than 10 trials for a participant (the fit has four parameters), or fewer than
+        :data:`MIN_POPULATION` participants (no between-observer spread to estimate).
     """
+    ids = sorted(frame["participant"].astype(str).unique())
+    if len(ids) < MIN_POPULATION:
+        raise ValueError(f"only {len(ids)} participant ({', '.join(ids)}): a population's "
+                         f"between-observer SDs need at least {MIN_POPULATION} participants "
+                         "(with one they read 0, and a diagnosis would then call every "
+                         "participant's own gain and offset a gap); fit a pilot of several "
+                         "participants (--participants 01 02 03 ...)")
     x_mid = 0.5 * (float(frame["factor"].min()) + float(frame["factor"].max()))
     per, ses = {}, {}
     for pid, rows in frame.groupby("participant", sort=True):

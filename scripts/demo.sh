@@ -182,7 +182,9 @@ mkdir -p "$GAP"
 GAP_REAL=(); GAP_SIM=()
 # Observer, as a lab would: a pilot of four (simulated humanlike observers, no app), the
 # humanlike observer fitted to it (experiment fit-observer), then the app's humanlike sessions
-# (other participants) diagnosed against the fitted observer (expected: no significant gap) and
+# (other participants) diagnosed against the fitted observer (expected: not a gap -- no gap that
+# matters, or inconclusive with the misfit these data detect and how many more participants
+# decide) and
 # against the ideal observer (expected: central tendency + crosstalk, the humanlike observer's
 # known effects), each with three bootstrap seeds: the verdicts must not depend on --seed.
 if [ -d "$RUN/data/sessions" ] && [ -d "$RUN/data_ideal/sessions" ]; then
@@ -231,6 +233,23 @@ if [ ${#GAP_REAL[@]} -ge 2 ]; then
   "$PY" -m analysis gap diagnose --layer all --real "$(IFS=,; echo "${GAP_REAL[*]}")" \
     --sim "$(IFS=,; echo "${GAP_SIM[*]}")" --out "$GAP/all"
 fi
+# Each verdict is one of three outcomes (gap / no gap that matters / inconclusive): one line per
+# report, the outcome first, so the demo shows them at a glance.
+for f in "$GAP"/*/diagnosis.json "$GAP"/all/*/diagnosis.json; do
+  [ -f "$f" ] || continue
+  "$PY" - "$f" <<'PYEOF'
+import json, sys
+d = json.load(open(sys.argv[1]))
+v = d["verdict"]
+outcome = v if v in ("no_gap_that_matters", "inconclusive") else "GAP"
+more = ""
+if v == "inconclusive" and d.get("detectable"):
+    det, dec = d["detectable"], d["to_decide"]
+    val = "n/a" if det["value"] is None else f"{det['value']:.2g}"
+    more = f" (detectable {val} {det['unit'][:20]}; to decide: {dec['words']})"
+print(f"gap outcome: {outcome:20s} {d['layer']:9s} {v}{more}  <- {sys.argv[1]}")
+PYEOF
+done
 echo "blind benchmarks (not run here; the render layer renders with Mitsuba and takes longest): $PY -m analysis gapbench --layer all --trials 40 --seed 1 --threshold-reps 5; harder, seeds pooled: $PY -m analysis gapbench --layer observer --harder --trials 30 --seed 1 2 3"
 # --- end sim-to-real gap ---
 

@@ -44,7 +44,7 @@ from analysis.gap.engine import (
     register_out_of_catalogue,
     strengths,
 )
-from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
 from analysis.gap.layers import parse_layer_paths, which_layer
 from analysis.gap.observer import (
     OBSERVER_CANDIDATES,
@@ -61,8 +61,9 @@ from analysis.gap.render import noise_sd
 from analysis.gap.report import write_multi_report, write_report
 
 __all__ = [
+    "INCONCLUSIVE",
     "LAYERS",
-    "NO_GAP",
+    "NOT_A_GAP",
     "NO_GAP_THAT_MATTERS",
     "OBSERVER_CANDIDATES",
     "Candidate",

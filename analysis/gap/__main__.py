@@ -69,11 +69,13 @@ def _print_notes(notes: list[str]) -> None:
 def _print(diag, name: str) -> None:
     for w in diag.warnings:
         print(f"warning ({name}): {w}", file=sys.stderr)
-    from analysis.gap import NO_GAP_THAT_MATTERS
-    from analysis.gap.report import misfit_words, no_significant_gap
+    from analysis.gap.engine import NOT_A_GAP
+    from analysis.gap.report import misfit_words, power_words
 
-    verdict = ("no gap that matters" if diag.verdict == NO_GAP_THAT_MATTERS
-               else "no significant gap" if no_significant_gap(diag) else diag.verdict)
+    verdict = (diag.verdict.replace("_", " ") if diag.verdict in NOT_A_GAP
+               else f"gap: {diag.verdict}")
+    more = power_words(diag)
+    verdict += f" ({more})" if more else ""
     remains = " (and a gap remains)" if diag.unexplained_remains and diag.steps else ""
     units = misfit_words(diag)
     print(f"{name}: verdict {verdict}{remains}; {units + '; ' if units else ''}gap "

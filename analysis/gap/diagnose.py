@@ -21,6 +21,8 @@ from analysis.gap.engine import (
     diagnose_losses,
     summarise,
 )
+from analysis.gap.engine.power import power_analysis
+from analysis.gap.engine.steps import INCONCLUSIVE
 
 __all__ = ["LAYERS", "diagnose"]
 
@@ -42,6 +44,11 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
         # Words again: the sizes (the misfit in the data's units) are part of the verdict.
         diag = replace(diag, **plan.sizes(diag))
         diag = replace(diag, summary=summarise(diag))
+    if diag.verdict == INCONCLUSIVE and plan.power is not None:
+        model = plan.power(diag)
+        if model is not None:
+            diag = replace(diag, **power_analysis(model, seed=seed))
+            diag = replace(diag, summary=summarise(diag))
     return diag, plan.localise(diag, rng)
 
 

@@ -58,16 +58,21 @@ def which_layer(diags: dict[str, Diagnosis], tolerance: float = TOLERANCE_NATS) 
     Returns ``{"layer": name or None, "carrying": [names with a gap], "text": str,
     "gaps": {name: (gap, ci_low, ci_high)}}``.
     """
-    from analysis.gap.report import no_significant_gap
+    from analysis.gap.engine.steps import NOT_A_GAP
 
     gaps = {n: _gap(d) for n, d in diags.items()}
-    # A layer whose own verdict is 'no significant gap' (with a ceiling: the simulation predicts
-    # as well as a flexible model of the data) carries none, whatever its distance to the floor.
+    # A layer whose own verdict is not a gap (no gap that matters, or inconclusive) carries
+    # none, whatever its distance to the floor.
     carrying = [n for n in LAYER_ORDER if n in gaps and gaps[n][1] > tolerance
-                and not no_significant_gap(diags[n])]
+                and diags[n].verdict not in NOT_A_GAP]
     if not carrying:
-        text = (f"No layer shows a held-out gap above {tolerance} nats per unit (lower 95 % "
-                "bound): the simulation matches the data at every layer given.")
+        undecided = [n for n in LAYER_ORDER if n in diags and diags[n].verdict == "inconclusive"]
+        text = (f"No layer shows a gap (a held-out gap above {tolerance} nats per unit, lower "
+                "95 % bound, that the layer's own verdict counts)")
+        text += (f"; inconclusive at the {', '.join(undecided)} layer"
+                 f"{'s' if len(undecided) > 1 else ''}: a gap there is not excluded (see "
+                 "its detectable misfit and how much more data decides)." if undecided else
+                 ": every layer given excludes a gap that matters.")
         return {"layer": None, "carrying": [], "text": text, "gaps": gaps}
     # An attributed gap outranks an unexplained one: a layer's unexplained gap is often the
     # estimation error of its own simulation (a calibration or fit from noisy data), which

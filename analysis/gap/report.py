@@ -15,13 +15,13 @@ import math
 from pathlib import Path
 
 from analysis.gap.engine import Diagnosis, GapError
-from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS, no_gap
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
 from analysis.gap.params_table import format_sig, param_rows
 from analysis.gap.report_figures import write_figures
 from labfiles import atomic_open, atomic_write_text, write_new_file
 
-__all__ = ["lead_figure", "misfit_words", "no_significant_gap", "params_html", "remaining_html", "verdict_text",
-           "write_multi_report", "write_report"]
+__all__ = ["badge", "lead_figure", "misfit_words", "outcome", "params_html", "remaining_html",
+           "verdict_text", "write_multi_report", "write_report"]
 
 #: The page's style: a readable measure, the verdict in a band with its lead figure beside it,
 #: figures never wider than the page (and never stretched into empty bands).
@@ -45,15 +45,39 @@ th{background:#f4f4f4}
 td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
 ol.steps>li{margin-bottom:.6em}
 img{display:block;max-width:100%;height:auto;margin:.3em 0 1em}
+.badge{display:inline-block;padding:.15em .6em;border-radius:.8em;font-weight:bold;
+font-size:.95em;color:#fff;white-space:nowrap;margin:.1em 0 .3em}
+.badge.gap{background:#b3261e}.badge.none{background:#1e7b34}.badge.inconclusive{background:#a86a00}
 """
 
+#: The three outcomes of a diagnosis: the badge's class and words.
+_OUTCOMES = {"gap": ("gap", "gap"), NO_GAP_THAT_MATTERS: ("none", "no gap that matters"),
+             INCONCLUSIVE: ("inconclusive", "inconclusive")}
 
-def no_significant_gap(d: Diagnosis) -> bool:
-    """True when nothing was attributed, the floor is sound, and either (with a ceiling) the
-    simulation falls short of the ceiling by nothing significant, or (without) the held-out
-    gap's 95 % CI reaches the layer's tolerance (``min_gain``, 0 if none): the engine's
-    :func:`analysis.gap.engine.steps.no_gap`, which sets the verdict."""
-    return no_gap(d.steps, d.floor_status, d.remaining, d.gap_before_ci, d.min_gain)
+
+def outcome(d: Diagnosis) -> str:
+    """The diagnosis's outcome of three: ``'gap'`` (named effects or unexplained),
+    ``'no_gap_that_matters'`` or ``'inconclusive'``."""
+    return d.verdict if d.verdict in NOT_A_GAP else "gap"
+
+
+def badge(d: Diagnosis) -> str:
+    """The outcome at a glance (HTML): a coloured badge, red for a gap, green for no gap that
+    matters, amber for inconclusive."""
+    cls, words = _OUTCOMES[outcome(d)]
+    return f'<span class="badge {cls}">{html.escape(words)}</span>'
+
+
+def power_words(d: Diagnosis) -> str:
+    """For an inconclusive verdict: the smallest misfit these data would detect and how much
+    more data would decide, in words ('' otherwise or where the layer simulates neither)."""
+    if d.verdict != INCONCLUSIVE or not d.detectable:
+        return ""
+    det, dec = d.detectable, d.to_decide
+    seen = (f"detectable with {100 * det['power']:.0f} % power: {det['value']:.2g} "
+            f"{det['unit']}" if det.get("value") is not None else
+            f"not detectable up to {det['tried_up_to']:.2g} {det['unit']}")
+    return f"{seen}; to decide: {dec['words']}"
 
 
 def verdict_text(d: Diagnosis) -> str:
@@ -61,7 +85,7 @@ def verdict_text(d: Diagnosis) -> str:
     chosen effect in bold), how the data were held out, and the warnings. The gap against the
     ceiling in numbers is :func:`remaining_html`'s table."""
     text = html.escape(d.summary or d.verdict)
-    if d.steps and d.verdict not in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS):
+    if d.steps and d.verdict != "unexplained" and d.verdict not in NOT_A_GAP:
         text = text.replace(html.escape(d.steps[0]["added"].replace("_", " ")),
                             f"<b>{html.escape(d.steps[0]['added'].replace('_', ' '))}</b>", 1)
     text = f"<p>{text}</p>"
@@ -116,11 +140,17 @@ def lead_figure(d: Diagnosis) -> str:
                "RMS misfit " + (d.misfit or {}).get("unit", "of the photos' RMS luminance")
                + ", before \u2192 after")]
              if math.isfinite(d.misfit_pct_before) else [])
+    unit = (d.remaining or {}).get("size_unit", "")
+    short = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    said = f"upper 95 % bound of the misfit (tolerance {d.tolerance:g}{short})"
+    bound = ([(f"\u2264 {d.misfit_upper:.2g}", said)] if math.isfinite(d.misfit_upper)
+             else [])
     if d.verdict == NO_GAP_THAT_MATTERS:
-        return _lead([("no gap that matters", "significant, but within the tolerance"), *units,
-                      *_misfit_lead(d)])
-    if no_significant_gap(d):
-        return _lead([("no significant gap", ""), *units, *_misfit_lead(d)])
+        return _lead([("no gap that matters", "the data exclude a misfit of the tolerance"),
+                      *bound, *units, *_misfit_lead(d)])
+    if d.verdict == INCONCLUSIVE:
+        return _lead([("inconclusive", power_words(d) or "neither a gap nor excluded"),
+                      *bound, *units, *_misfit_lead(d)])
     items = [*units, *_misfit_lead(d),
              (f"{format_sig(d.gap_before)} \u2192 {format_sig(d.gap_after)}",
               "nats per unit above the noise floor, before \u2192 after")]
@@ -144,8 +174,8 @@ def _misfit_lead(d: Diagnosis) -> list[tuple[str, str]]:
              f"{d.misfit_unit}, RMS misfit of the predicted responses, before \u2192 after")]
 
 
-def _verdict_block(lead: str, words: str) -> str:
-    return f'<div class="verdict">{lead}<div class="words">{words}</div></div>'
+def _verdict_block(lead: str, words: str, mark: str = "") -> str:
+    return f'<div class="verdict">{lead}<div class="words">{mark}{words}</div></div>'
 
 
 def _spans(keys: list) -> list[int]:
@@ -219,7 +249,10 @@ def remaining_html(d: Diagnosis) -> str:
         state = ("a gap beyond the catalogue" if rem["significant"] else
                  "significant in nats but within the tolerance (not a gap beyond the "
                  "catalogue)" if rem.get("within_tolerance") else "not significant")
-        rows += [("what remains, its size", f"about {rem['size']:.2g} {unit}".strip()),
+        rows += [("what remains, its size", f"about {rem['size']:.2g} {unit}".strip())]
+        if "size_upper" in rem:
+            rows.append(("its upper 95 % bound", f"{rem['size_upper']:.2g}{tol_unit}"))
+        rows += [
                  ("tolerance", f"{rem['tolerance']:g}{tol_unit}{source}; the misfit is {side} it"),
                  ("what remains counts as", state)]
     return ("<h3>Against a flexible model of the data (the ceiling)</h3>" + _rows_table(rows))
@@ -262,7 +295,7 @@ def diagnosis_html(diag: Diagnosis, figure: str | None = "localisation.png",
     maps_html = ('<h3>Residual maps (held-out photo, prediction with the chosen extensions, '
                  'residual in noise SDs before and after them)</h3>'
                  f'<img src="{maps}" alt="residual maps">' if maps else "")
-    return (_verdict_block(lead_figure(diag), verdict_text(diag))
+    return (_verdict_block(lead_figure(diag), verdict_text(diag), badge(diag))
             + "<h3>Chosen effects (greedy combination) and their fitted parameters</h3>"
             + _steps_html(diag) + _before_after(diag) + remaining_html(diag) + _ranking(diag)
             + img + maps_html)
@@ -327,7 +360,7 @@ def write_report(diag: Diagnosis, local, out_dir: str | Path, *,
 def _which_lead(which: dict) -> str:
     layer = which.get("layer")
     if not layer:
-        return _lead([("no significant gap", "at any layer given")])
+        return _lead([("no gap found", "at any layer given")])
     gap = which["gaps"][layer][0]
     return _lead([(f"{layer} layer", "carries the gap"),
                   (format_sig(gap), "nats per unit")])
@@ -353,11 +386,14 @@ def write_multi_report(results: dict, which: dict, out_dir: str | Path, *,
                                          if figs["localisation"] else None,
                                          f"{name}/{figs['maps']}" if figs["maps"] else "")
                         + _figure_lines(failed))
-    rows = "".join(f'<tr><td>{html.escape(n)}</td><td class="num">{g[0]:.4f}</td>'
+    rows = "".join(f'<tr><td>{html.escape(n)}</td><td>{badge(results[n][0])}</td>'
+                   f'<td>{html.escape(power_words(results[n][0]))}</td>'
+                   f'<td class="num">{g[0]:.4f}</td>'
                    f'<td class="num">[{g[1]:.4f}, {g[2]:.4f}]</td></tr>'
                    for n, g in which["gaps"].items())
     body = ("<h1>Sim-to-real gap, all layers</h1>\n"
             + _verdict_block(_which_lead(which), f"<p>{html.escape(which['text'])}</p>")
-            + "<table><tr><th>layer</th><th>held-out gap (nats per unit)</th><th>95 % CI</th>"
+            + "<table><tr><th>layer</th><th>outcome</th><th>detectable; to decide</th>"
+            "<th>held-out gap (nats per unit)</th><th>95 % CI</th>"
             f"</tr>{rows}</table>\n" + "".join(sections))
     return _atomic_page(out, _page("Sim-to-real gap: all layers", body))

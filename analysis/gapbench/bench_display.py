@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap import NO_GAP, NO_GAP_THAT_MATTERS
+from analysis.gap import NOT_A_GAP
 from analysis.gapbench.gog_display import (
     T0,
     GOGDisplay,
@@ -202,8 +202,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int) -> d
         true_shrink = _true_shrink(diag, target, real) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
     outside = [e for e in plan["effects"] if e not in cat]
-    named = ([s["added"] for s in diag.steps] if diag.verdict == NO_GAP_THAT_MATTERS
-             else [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + "))
+    named = ([s["added"] for s in diag.steps] if diag.verdict in NOT_A_GAP
+             else [] if diag.verdict == "unexplained" else diag.verdict.split(" + "))
     rem = diag.remaining or {}
     return {"layer": "display", "case": case, "effects": plan["effects"],
             "inside": inside, "outside": outside, "verdict": diag.verdict,
@@ -285,7 +285,7 @@ def score_display_cases(records: list[dict]) -> dict:
     calibration: also nothing flagged; few levels: quantisation named or not said to be
     unidentifiable); unexplained_out: out-of-catalogue effects (a screen load confounded with
     time included: never a warm-up), alone or on top of a catalogue effect, never given a
-    catalogue name and their gap flagged; no_gap_clean: verdict no_significant_gap or no_gap_that_matters on the
+    catalogue name and their gap flagged; no_gap_clean: verdict no_gap_that_matters or inconclusive (not a gap) on the
     clean display (none, floor zeros, refitted calibration);
     co_occurring: both effects named; shrink_error: median |predicted - true| / true over
     single effects named right; seed_agreement: share of (case, seed) verdicts equal to the
@@ -297,7 +297,7 @@ def score_display_cases(records: list[dict]) -> dict:
     false_attr, n_none = rate(_NULL_CASES, lambda r: not _right(r))
     unexpl, n_out = rate(("out_of_catalogue", "out_with_catalogue", "condition"), _right)
     clean, n_clean = rate(("none", "floor_zeros", "refit_clean"),
-                          lambda r: r["verdict"] in (NO_GAP, NO_GAP_THAT_MATTERS))
+                          lambda r: r["verdict"] in NOT_A_GAP)
     both, n_co = rate(("co_occurring",), _right)
     errs = shrink_errors(records, ("single", "drift_repeats", "gain_change"), _right)
     return {"top1": top1, "n_in": n_in, "false_attribution": false_attr, "n_none": n_none,
@@ -325,7 +325,7 @@ def format_display_scores(s: dict) -> str:
         line("co-occurring effects both named", s["co_occurring"], s["n_co"],
              f">= {t['top1']}", s["co_occurring"] >= t["top1"]),
         line("clean display (none, floor zeros, refitted calibration): verdict "
-             "no_significant_gap", s.get("no_gap_clean", float("nan")), s.get("n_clean", 0),
+             "not a gap", s.get("no_gap_clean", float("nan")), s.get("n_clean", 0),
              f">= {t['top1']}", s.get("no_gap_clean", 0.0) >= t["top1"]),
         line("shrinkage error (median)", s["shrink_error"], s["n_in"],
              f"<= {t['shrink_error']}", s["shrink_error"] <= t["shrink_error"]),

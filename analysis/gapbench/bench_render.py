@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap import NO_GAP, NO_GAP_THAT_MATTERS, catalogue, diagnose, effect, out_of_catalogue
+from analysis.gap import NOT_A_GAP, catalogue, diagnose, effect, out_of_catalogue
 from analysis.gapbench.render_photos import (
     SECOND_LIGHT,
     analytic_photo,
@@ -136,8 +136,8 @@ def _run_case(case: str, rng: np.random.Generator, n_boot: int, seeds: int,
         single = case == "independent"
         true_shrink = render_true_shrink(diag, folder, truth) if single else float("nan")
     inside = [e for e in plan["effects"] if e in cat]
-    named = ([s["added"] for s in diag.steps] if diag.verdict == NO_GAP_THAT_MATTERS
-             else [] if diag.verdict in ("unexplained", NO_GAP) else diag.verdict.split(" + "))
+    named = ([s["added"] for s in diag.steps] if diag.verdict in NOT_A_GAP
+             else [] if diag.verdict == "unexplained" else diag.verdict.split(" + "))
     return {"layer": "render", "case": case, "generator": plan["generator"],
             "effects": plan["effects"], "inside": inside,
             "outside": [e for e in plan["effects"] if e not in cat],

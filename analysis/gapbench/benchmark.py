@@ -24,8 +24,7 @@ import numpy as np
 import pandas as pd
 
 from analysis.gap import (
-    NO_GAP,
-    NO_GAP_THAT_MATTERS,
+    NOT_A_GAP,
     OutOfCatalogue,
     candidate,
     catalogue,
@@ -121,11 +120,11 @@ def _layer(layer: str):
 
 
 def _top(diag) -> str:
-    """The first effect named: of the verdict, or of the steps of a "no gap that matters"
-    verdict (an effect found and named, smaller than the layer's tolerance)."""
-    if diag.verdict == NO_GAP_THAT_MATTERS and diag.steps:
+    """The first effect named: of the verdict, or of the steps of a "no gap that matters" or
+    "inconclusive" verdict (an effect found and named, smaller than the layer's tolerance)."""
+    if diag.verdict in NOT_A_GAP and diag.steps:
         return diag.steps[0]["added"]
-    return ("unexplained" if diag.verdict in ("unexplained", NO_GAP, NO_GAP_THAT_MATTERS)
+    return ("unexplained" if diag.verdict == "unexplained" or diag.verdict in NOT_A_GAP
             else diag.verdict.split(" + ")[0])
 
 

@@ -104,6 +104,7 @@ from analysis.gap.display.ceiling import (
     display_floor,
     display_misfit,
     display_misfit_size,
+    display_misfit_upper,
 )
 from analysis.gap.display.data import load_display
 from analysis.gap.display.model import (
@@ -117,6 +118,7 @@ from analysis.gap.display.model import (
     fit_noise_drift,
     split_display,
 )
+from analysis.gap.display.power import display_power
 from analysis.gap.display.where import display_where, localise_display
 from analysis.gap.engine import DiagnosisSettings, LayerFunctions, LayerPlan
 
@@ -136,7 +138,9 @@ __all__ = [
     "display_loss_info",
     "display_misfit",
     "display_misfit_size",
+    "display_misfit_upper",
     "display_nll",
+    "display_power",
     "display_unit_ids",
     "display_where",
     "fit_noise_drift",
@@ -152,8 +156,10 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     """Photometer readings (``readings.csv``, its folder or a frame) against the calibration
     (``calibration.json``, its folder or a Calibration), cross-fitted over folds of readings
     drawn from ``rng``. The calibration is the display's simulation; from ``design`` (the
-    shipped design's when None) only ``[gap] display_tolerance_pct``: a significant remainder
-    whose systematic misfit is smaller (:func:`display_misfit_size`) is no gap that matters.
+    shipped design's when None) only ``[gap] display_tolerance_pct``: the verdict is no gap
+    that matters only where the upper 95 % bound of the systematic misfit
+    (:func:`display_misfit_upper`) lies below it; neither a gap nor that, inconclusive, with
+    the misfit these readings detect and how many more decide (:func:`display_power`).
     The misfit in the lab's units (:func:`display_misfit`) is recorded in the diagnosis."""
     if design is None:
         from studydesign import load_design
@@ -165,7 +171,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     bits, note = quantisation_resolution(data)
     functions = LayerFunctions(loss=display_loss_given, floor=display_floor,
                                ceiling=display_ceiling, where=display_where,
-                               size=display_misfit_size, unit_ids=display_unit_ids)
+                               size=display_misfit_size, size_upper=display_misfit_upper,
+                               unit_ids=display_unit_ids)
     # The noise variance measured from n pairs is known to a relative SD of sqrt(2 / n) (a
     # chi-square's), so the floor, 0.5 log(2 pi sd^2) + 0.5 per reading, to 0.5 sqrt(2 / n)
     # nats: the floor is called mis-estimated only beyond that (an assumed noise: 0).
@@ -192,4 +199,5 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
         warnings=(*readings.attrs.get("display_source", {}).get("zero_evidence", ()),
                   *((note,) if note else ())), not_identifiable=display_identifiability(data),
         sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
-                                                  for st in diag.steps]))
+                                                  for st in diag.steps]),
+        power=lambda diag: display_power(folds, diag))

@@ -31,8 +31,9 @@ from scipy import linalg
 from analysis.gap.display.model import display_mean_given, display_nll
 from analysis.gap.display.null.noise import _bspline
 
-__all__ = ["DARK_LIGHT_CD_M2", "DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction", "display_ceiling",
-           "display_floor", "display_misfit", "display_misfit_size"]
+__all__ = ["DARK_LIGHT_CD_M2", "DISPLAY_SIZE_UNIT", "NEAR_BLACK_FRACTION", "ceiling_prediction",
+           "display_ceiling", "display_floor", "display_misfit", "display_misfit_size",
+           "display_misfit_upper", "group_codes", "size_bounds"]
 
 #: Smoothing parameters the ceiling's cross-validation chooses from (relative to the data).
 _CEIL_LAMBDAS = 10.0 ** np.arange(-3, 6)
@@ -264,10 +265,6 @@ def _summary(parts: list) -> dict:
     RMS and systematic cd/m^2, and the size held to the tolerance, of folds' ``_parts``."""
     p = {k: np.concatenate([q[k] for q in parts])
          for k in ("rel", "sd", "cell", "dark", "dark_sd", "seen", "seen_sd")}
-    # Each reading is in two groups (its screen position, its drive level).
-    group = np.concatenate([q["group"] for q in parts])
-    seen = np.concatenate([p["seen"], p["seen"]])
-    seen_sd = np.concatenate([p["seen_sd"], p["seen_sd"]])
     rel, sd = p["rel"], p["sd"]
     out = dict.fromkeys(("rms_pct", "systematic_pct", "worst_pct"), float("nan"))
     if rel.size:
@@ -277,8 +274,11 @@ def _summary(parts: list) -> dict:
     dark = p["dark"]
     out["black_cd_m2"] = float(np.sqrt(np.mean(dark**2))) if dark.size else float("nan")
     out["black_systematic_cd_m2"] = _systematic(dark, p["dark_sd"])
-    sizes = {q: 100 * _systematic(seen[group == q], seen_sd[group == q])
-             for q in np.unique(group)}
+    # Each reading is in two groups (its screen position, its drive level).
+    seen, seen_sd, codes, names = group_codes(parts)
+    sizes = {q: 100 * _systematic(seen[(codes == i).any(axis=0)],
+                                  seen_sd[(codes == i).any(axis=0)])
+             for i, q in enumerate(names)}
     where = max(sizes, key=sizes.get) if sizes else ""
     out["size_pct"] = float(sizes[where]) if sizes else float("nan")
     out["size_where"] = where.replace("level ", "drive level ").replace("pos ", "position ")
@@ -294,6 +294,84 @@ def display_misfit_size(fits: list) -> float:
     ``(train, test, fitted, ceiling_loss)``."""
     return _summary([_parts(te, display_mean_given(tr, te, list(ch), wander=False))
                      for tr, te, ch, _ in fits])["size_pct"]
+
+
+def group_codes(parts: list) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Folds' ``_parts`` pooled for :func:`size_bounds`: each reading's ``seen`` misfit and
+    noise SD (fractions of its light plus the dark light), and, for the two groups each
+    reading is in (its screen position, its drive level), an integer code per reading and
+    group (shape (2, n)) with the groups' names."""
+    seen = np.concatenate([q["seen"] for q in parts])
+    seen_sd = np.concatenate([q["seen_sd"] for q in parts])
+    # Each part's groups are its readings' positions, then their levels.
+    pos = [q["group"][:q["seen"].size] for q in parts]
+    lvl = [q["group"][q["seen"].size:] for q in parts]
+    group = np.concatenate(pos + lvl)
+    codes, names = pd.factorize(pd.Series(group))
+    return seen, seen_sd, codes.reshape(2, -1), np.asarray(names)
+
+
+def size_bounds(seen: np.ndarray, seen_sd: np.ndarray, codes: np.ndarray) -> tuple:
+    """The size held to the tolerance (:func:`display_misfit_size`, %) with its lower and
+    upper 95 % bounds, for one set of readings or many at once.
+
+    Per group g (a screen position, a drive level) the systematic mean square is the mean of
+    ``seen^2 - seen_sd^2`` over its readings, with its standard error from their spread; the
+    size is 100 sqrt of the largest (0 if none is positive); the SE is at least the noise
+    model's (a group of one reading has no spread). Upper bound: 100 sqrt of the
+    largest one-sided 95 % bound (mean + 1.645 SE): whichever group's misfit is largest, its
+    own bound holds it with 95 %, so the largest bound holds the size. ``significant``: the
+    size where the readings' misfit is significantly more than their noise over all readings
+    (squared z-scores in excess of 1, one-sided 5 %, as the diagnosis's test against the
+    ceiling pools all readings), else 0 (the ``lower`` that
+    :func:`~analysis.gap.engine.decide_size` takes).
+
+    Parameters
+    ----------
+    seen, seen_sd : ndarray, shape (..., n) and (n,)
+        Misfits and noise SDs as fractions (:func:`group_codes`); leading axes are draws.
+    codes : ndarray of int, shape (2, n)
+
+    Returns
+    -------
+    (size, significant, upper) : float or ndarray of shape ``seen.shape[:-1]``, %
+    """
+    from scipy.stats import norm
+
+    v = np.asarray(seen, float) ** 2 - np.asarray(seen_sd, float) ** 2
+    n_groups = int(codes.max()) + 1 if codes.size else 0
+    if not n_groups:
+        nan = np.full(v.shape[:-1], np.nan)
+        return (nan, nan, nan) if nan.ndim else (float("nan"),) * 3
+    onehot = np.zeros((v.shape[-1], n_groups))
+    for row in codes:
+        onehot[np.arange(row.size), row] = 1.0
+    n = onehot.sum(axis=0)
+    mean = (v @ onehot) / n
+    var = np.maximum((v**2 @ onehot) - n * mean**2, 0.0) / np.maximum(n - 1, 1)
+    # A group of one or a few readings shows no spread to take an SE from: at least what the
+    # noise alone gives, Var(r^2 - sd^2) = 2 sd^4 + 4 m^2 sd^2 for r = m + noise.
+    sd2 = np.asarray(seen_sd, float) ** 2
+    noise_var = (2 * sd2**2) @ onehot + 4 * np.maximum(mean, 0.0) * (sd2 @ onehot)
+    se = np.sqrt(np.maximum(var / n, noise_var / n**2))
+
+    def pct(ms):
+        out = 100 * np.sqrt(np.maximum(ms.max(axis=-1), 0.0))
+        return float(out) if out.ndim == 0 else out
+    size = pct(mean)
+    # Significance over all readings, as the diagnosis's test against the ceiling pools them:
+    # the readings' squared z-scores in excess of 1, one-sided 5 % (a chi-square's mean and SD).
+    z2 = np.asarray(seen, float) ** 2 / np.maximum(sd2, 1e-300)
+    excess = np.sum(z2 - 1, axis=-1) / np.sqrt(2 * z2.shape[-1])
+    return size, np.where(excess > norm.isf(0.05), size, 0.0)[()], pct(mean + norm.isf(0.05) * se)
+
+
+def display_misfit_upper(fits: list) -> float:
+    """The engine's ``size_upper``: the upper 95 % bound (%) of :func:`display_misfit_size`
+    (:func:`size_bounds`) on the held-out readings. ``fits`` as for the size."""
+    parts = [_parts(te, display_mean_given(tr, te, list(ch), wander=False))
+             for tr, te, ch, _ in fits]
+    return size_bounds(*group_codes(parts)[:3])[2]
 
 
 def display_misfit(folds: list, chosen: list) -> dict:

@@ -26,6 +26,14 @@ from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.heldout import split_held_out
 from analysis.gap.engine.layer import LayerPlan
 from analysis.gap.engine.pipeline import diagnose_losses
+from analysis.gap.engine.power import (
+    OUTCOME_GAP,
+    OUTCOME_INCONCLUSIVE,
+    OUTCOME_NONE,
+    PowerModel,
+    decide_size,
+    power_analysis,
+)
 from analysis.gap.engine.registry import (
     LAYER_NAMES,
     Candidate,
@@ -42,9 +50,12 @@ from analysis.gap.engine.registry import (
 from analysis.gap.engine.result import CandidateScore, Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import holm
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
 from analysis.gap.engine.words import summarise
 
-__all__ = ["LAYER_NAMES", "Candidate", "CandidateScore", "Diagnosis", "DiagnosisSettings",
-           "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue", "ParamDoc", "candidate", "catalogue", "diagnose_losses",
-           "effect", "holm", "out_of_catalogue", "register", "register_out_of_catalogue",
-           "split_held_out", "strengths", "summarise"]
+__all__ = ["INCONCLUSIVE", "LAYER_NAMES", "NOT_A_GAP", "NO_GAP_THAT_MATTERS", "OUTCOME_GAP",
+           "OUTCOME_INCONCLUSIVE", "OUTCOME_NONE", "Candidate", "CandidateScore", "Diagnosis",
+           "DiagnosisSettings", "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue",
+           "ParamDoc", "PowerModel", "candidate", "catalogue", "decide_size",
+           "diagnose_losses", "effect", "holm", "out_of_catalogue", "power_analysis", "register",
+           "register_out_of_catalogue", "split_held_out", "strengths", "summarise"]

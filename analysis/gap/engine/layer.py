@@ -44,7 +44,18 @@ class LayerPlan:
                      observer layer's ``misfit_*``), or None; the words are written again after
     not_identifiable ``{effect: reason}``: catalogue effects the data cannot identify (left
                      out of the ranking, named in the words)
+    power            ``power(diag) -> PowerModel`` or None: how to simulate this layer's data
+                     from the diagnosis's fitted models (:class:`~analysis.gap.engine.power.
+                     PowerModel`), called only for an ``'inconclusive'`` verdict, after
+                     ``sizes``; the engine then finds ``detectable`` and ``to_decide``
+                     (:func:`~analysis.gap.engine.power.power_analysis`) and writes the words
+                     again. None: an inconclusive verdict says neither
     ================ =========================================================================
+
+    A layer with three verdicts gives, besides the loss, floor and ceiling:
+    ``functions.size`` (the remaining misfit in the lab's units), ``functions.size_upper``
+    (its upper 95 % bound: below ``settings.min_size``, the layer's [gap] tolerance, the
+    verdict is no gap that matters) and ``power``.
     """
 
     functions: LayerFunctions
@@ -59,3 +70,4 @@ class LayerPlan:
     candidates: tuple = ()
     sizes: Callable[[Diagnosis], dict] | None = None
     not_identifiable: dict = field(default_factory=dict)
+    power: Callable[[Diagnosis], object] | None = None

@@ -16,11 +16,9 @@ from analysis.gap.engine.result import Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import PairedTest, boot_idx
 from analysis.gap.engine.steps import (
-    chosen_within_tolerance,
     combine_greedily,
     explained_shares,
     measure_gap,
-    no_gap,
     remaining_gap,
     score_candidates,
     verdict_of,
@@ -111,25 +109,27 @@ def diagnose_losses(
 
 def _record(layer, ranking, combination, gap, remaining, share, ceiling_share, settings,
             **recorded) -> Diagnosis:
-    """The Diagnosis with its verdict (:func:`verdict_of`; :data:`NO_GAP` where
-    :func:`no_gap`, :data:`NO_GAP_THAT_MATTERS` where what remains is within the tolerance)
-    and its words."""
-    none = no_gap(combination.steps, gap.floor_status, remaining, gap.gap_before_ci,
-                  settings.min_gain)
+    """The Diagnosis with its verdict (:func:`verdict_of`), the remaining misfit's upper 95 %
+    bound in the layer's units (``misfit_upper``: the plain simulation's where chosen effects
+    are held to the tolerance, else the chosen model's) and its words."""
+    rem = remaining or {}
+    upper = (rem.get("size_before_upper") if settings.tolerate_chosen and "size_before" in rem
+             else rem.get("size_upper"))
     return with_summary(Diagnosis(
         layer=layer,
         ranking=tuple(asdict(s) for s in ranking),
         steps=tuple(combination.steps),
-        verdict=verdict_of(combination.steps, share, settings.min_share, no_gap=none,
-                           within_tolerance=(chosen_within_tolerance(
-                               combination.steps, gap.floor_status, remaining, settings.min_size)
-                               if combination.steps else
-                               bool((remaining or {}).get("within_tolerance")))),
+        verdict=verdict_of(combination.steps, share, settings.min_share,
+                           floor_status=gap.floor_status, remaining=remaining,
+                           gap_before_ci=gap.gap_before_ci, min_gain=settings.min_gain,
+                           tolerate_chosen=settings.tolerate_chosen),
         explained_share=share,
         min_share=float(settings.min_share),
         min_gain=float(settings.min_gain),
         remaining=remaining,
         ceiling_share=ceiling_share,
+        misfit_upper=float("nan") if upper is None else float(upper),
+        tolerance=float(settings.min_size) if "tolerance" in rem else float("nan"),
         **recorded,
         **asdict(gap),
     ))

@@ -31,11 +31,14 @@ class Diagnosis:
     """Ranking, greedy steps, before/after gap and the remaining gap (loss units: mean NLL per
     held-out unit).
 
-    ``verdict`` names the chosen candidates (``a + b``), or is ``'no_significant_gap'`` (nothing
-    chosen and no significant gap: what the words then say), ``'no_gap_that_matters'`` (nothing
-    chosen; what remains is significant but within the layer's practical tolerance) or
-    ``'unexplained'``; ``summary``
-    is the plain-language sentence. ``not_identifiable`` maps effects the data given cannot
+    ``verdict`` is one of three outcomes: a gap (the chosen candidates' names ``a + b``, or
+    ``'unexplained'``); ``'no_gap_that_matters'`` (the data exclude a gap of the layer's
+    tolerance: the upper 95 % bound of the remaining misfit, ``misfit_upper``, in the lab's
+    units, lies below ``tolerance``); or ``'inconclusive'`` (neither: then ``detectable``
+    and ``to_decide`` say the smallest misfit these data would detect with 80 % power and how
+    much more data would decide, both found by simulation from the fitted models:
+    :func:`analysis.gap.engine.power.power_analysis`). ``summary`` is the plain-language
+    sentence. ``not_identifiable`` maps effects the data given cannot
     identify (left out of the ranking) to the reason, in words. ``remaining`` (with a ceiling) holds the chosen model's
     held-out loss above the ceiling's: ``gap``, ``ci``, ``p``, ``significant``, ``where``;
     in a layer with a practical tolerance also ``size`` (the misfit in the data's units),
@@ -62,6 +65,13 @@ class Diagnosis:
     held-out data's RMS (render) or of each reading's luminance (display), noise included.
     ``misfit`` (display layer; else empty): the same and more in the lab's units, keyed as the
     layer documents (e.g. ``worst_pct_after``, ``ceiling_pct``, ``black_cd_m2_before``).
+    ``misfit_upper``: the one-sided upper 95 % bound of the remaining misfit in the units of
+    ``remaining['size_unit']`` (the plain simulation's where the layer holds chosen effects
+    to the tolerance), NaN where the layer gives none; ``tolerance`` the layer's (same
+    units). ``detectable`` (inconclusive only; else empty): ``value`` (None: above
+    ``tried_up_to``), ``unit``, ``power``, ``curve``; ``to_decide``: ``factor`` (times the
+    data; None: beyond ``tried_up_to``), ``words`` (the larger data set in the lab's
+    words), ``truth``, ``curve``.
     """
 
     layer: str
@@ -99,6 +109,10 @@ class Diagnosis:
     misfit_unit: str = ""
     misfit_by_response: dict = field(default_factory=dict)
     misfit: dict = field(default_factory=dict)
+    misfit_upper: float = float("nan")
+    tolerance: float = float("nan")
+    detectable: dict = field(default_factory=dict)
+    to_decide: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:

@@ -58,6 +58,14 @@ class LayerFunctions:
                                                         tolerance (many units make an
                                                         approximate form's small leftovers
                                                         significant)
+    size_upper           ``size_upper(fits)`` -> float  the one-sided upper 95 % bound of
+                         or None                        ``size(fits)``, same units (e.g. a
+                                                        bootstrap over the held-out units or
+                                                        their clusters). The verdict is no gap
+                                                        that matters only when it lies below
+                                                        ``min_size`` (an equivalence test);
+                                                        without it a diagnosis that finds no
+                                                        gap is inconclusive
     unit_ids             ``unit_ids(test)`` or None     names of the held-out units (str),
                                                         recorded in ``Diagnosis.heldout``;
                                                         needed with several folds
@@ -84,6 +92,7 @@ class LayerFunctions:
     ceiling_given_chosen: bool = False
     where: Callable | None = None
     size: Callable | None = None
+    size_upper: Callable | None = None
     unit_ids: Callable | None = None
     cluster_of: Callable | None = None
 
@@ -97,6 +106,8 @@ class LayerFunctions:
             elif not (callable(value) or (value is None and f.name not in ("loss", "floor"))):
                 need = "a function" if f.name in ("loss", "floor") else "a function or None"
                 raise GapError(f"LayerFunctions: {f.name} must be {need}; got {value!r}")
+        if self.size_upper is not None and self.size is None:
+            raise GapError("LayerFunctions: size_upper needs size (the misfit it bounds)")
         if self.ceiling_given_chosen and self.ceiling is None:
             raise GapError("LayerFunctions: ceiling_given_chosen=True needs a ceiling")
 
@@ -131,10 +142,12 @@ class DiagnosisSettings:
     size_source     str          ""      where the tolerance is set (e.g. "the design's [gap]
                                          render_tolerance_pct"), for the summary
     tolerate_chosen bool         False   hold the plain simulation's misfit to the tolerance
-                                         too: where its ``size`` (``size_before``) is below
-                                         ``min_size`` and nothing significant remains, chosen
-                                         effects are reported but the verdict is no gap that
-                                         matters (a change smaller than the tolerance)
+                                         too: where nothing significant remains and its
+                                         ``size`` (``size_before``) has its upper 95 % bound
+                                         below ``min_size``, chosen effects are reported but
+                                         the verdict is no gap that matters (a change smaller
+                                         than the tolerance); where only its point lies below,
+                                         inconclusive
     floor_sd        float        0.0     SD (>= 0) of the floor's mean from its own estimation
                                          (e.g. a noise measured from n pairs of repeats): a gap is
                                          called below the floor only beyond it and its CI

@@ -27,33 +27,36 @@ from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import PairedTest, boot_means, holm
 
 __all__ = [
-    "NO_GAP",
+    "INCONCLUSIVE",
+    "NOT_A_GAP",
     "NO_GAP_THAT_MATTERS",
     "Combination",
     "GapMeasures",
     "apply_tolerance",
     "backfit",
-    "chosen_within_tolerance",
     "combine_greedily",
     "explained_shares",
     "mean_params",
     "measure_gap",
-    "no_gap",
     "remaining_gap",
     "score_candidates",
     "verdict_of",
 ]
 
-#: The verdict of a diagnosis that finds no significant gap (nothing attributed, the floor
-#: sound, nothing significant beyond the ceiling or, without one, no gap above tolerance): the
-#: JSON's ``verdict`` says what the words say.
-NO_GAP = "no_significant_gap"
-
-#: The verdict of a diagnosis whose remainder is statistically significant but smaller than
-#: the layer's practical tolerance (nothing attributed, the floor sound, ``remaining``
-#: ``within_tolerance``): a difference the data can see and a lab need not act on. Reported
-#: with its size and where it lies.
+#: The verdict of a diagnosis whose data exclude a gap that matters: nothing significant remains
+#: beyond the catalogue (or what remains is smaller than the tolerance) and the upper 95 %
+#: bound of the remaining misfit, in the layer's units, lies below the layer's tolerance (an
+#: equivalence test). With chosen effects (``tolerate_chosen``) the plain simulation's own
+#: misfit is held to it: a change smaller than what matters.
 NO_GAP_THAT_MATTERS = "no_gap_that_matters"
+
+#: The verdict of a diagnosis that neither finds a gap nor excludes one of the tolerance: the
+#: words and the JSON then say the smallest misfit these data detect (``detectable``) and how
+#: much more data would decide (``to_decide``), found by simulation (:mod:`.power`).
+INCONCLUSIVE = "inconclusive"
+
+#: The verdicts that are not a gap (every other verdict names effects or is "unexplained").
+NOT_A_GAP = (NO_GAP_THAT_MATTERS, INCONCLUSIVE)
 
 
 def with_added(chosen: list[list], name: str, params: list) -> list[list]:
@@ -274,11 +277,15 @@ def remaining_gap(cv: CrossFit, combination: Combination, test: PairedTest,
            "loss_ceiling": float(ceil.mean()), "where": ""}
     if functions.size is not None:
         rem.update(apply_tolerance(detected, float(functions.size(fits)), settings))
+        if functions.size_upper is not None:
+            rem["size_upper"] = float(functions.size_upper(fits))
         if settings.tolerate_chosen and any(combination.chosen):
             # The plain simulation's own misfit, for a verdict on chosen effects that are
             # smaller than the tolerance.
-            rem["size_before"] = float(functions.size([(tr, te, [], cf)
-                                                       for tr, te, _, cf in fits]))
+            plain = [(tr, te, [], cf) for tr, te, _, cf in fits]
+            rem["size_before"] = float(functions.size(plain))
+            if functions.size_upper is not None:
+                rem["size_before_upper"] = float(functions.size_upper(plain))
     if detected and functions.where is not None:
         rem["where"] = functions.where(fits)
     return rem, ceil
@@ -326,41 +333,42 @@ def explained_shares(gap: GapMeasures, base: np.ndarray, current: np.ndarray,
     return share, ceiling_share
 
 
-def chosen_within_tolerance(steps, floor_status: str, remaining: dict | None,
-                            min_size: float) -> bool:
-    """True when effects were chosen, the floor is sound, nothing significant remains beyond
-    them and the plain simulation's own misfit (``remaining['size_before']``, set with
-    ``tolerate_chosen``) is below the tolerance ``min_size``: a change smaller than what
-    matters."""
+def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str = "ok",
+               remaining: dict | None = None, gap_before_ci=(), min_gain: float = 0.0,
+               tolerate_chosen: bool = False) -> str:
+    """The verdict: a gap (the chosen candidates' names ``a + b``, or ``'unexplained'``),
+    :data:`NO_GAP_THAT_MATTERS` or :data:`INCONCLUSIVE`.
+
+    - Chosen effects: their names, or ``'unexplained'`` where they explain less than
+      ``min_share`` of the gap (a NaN share does not refuse them). With ``tolerate_chosen``,
+      the floor sound and nothing significant beyond them, the plain simulation's own misfit
+      decides first: its upper 95 % bound (``remaining['size_before_upper']``) below the
+      tolerance is no gap that matters; its point (``size_before``) below but not its bound,
+      inconclusive.
+    - Nothing chosen: ``'unexplained'`` where what remains beyond the ceiling is significant
+      (and, with a size, at least the tolerance), or the floor is mis-estimated; no gap that
+      matters where the remaining misfit's upper 95 % bound (``remaining['size_upper']``)
+      lies below the tolerance; else inconclusive. Without a ceiling: ``'unexplained'``
+      where the held-out gap's 95 % CI lies above ``min_gain``, else inconclusive.
+    """
     rem = remaining or {}
-    return bool(steps and floor_status == "ok" and not rem.get("significant")
-                and "size_before" in rem and rem["size_before"] < min_size)
-
-
-def no_gap(steps, floor_status: str, remaining: dict | None, gap_before_ci,
-           min_gain: float) -> bool:
-    """True when there is no significant gap: nothing attributed, the floor sound, and either
-    (with a ceiling, ``remaining``) the simulation falls short of the ceiling by nothing
-    significant, or (without) the held-out gap's 95 % CI reaches the tolerance ``min_gain``
-    (0 if none)."""
-    if steps or floor_status != "ok":
-        return False
-    if remaining is not None:
-        return not remaining.get("significant")
-    return bool(gap_before_ci) and gap_before_ci[0] <= max(min_gain, 0.0)
-
-
-def verdict_of(steps: list, share: float, min_share: float, *, no_gap: bool = False,
-               within_tolerance: bool = False) -> str:
-    """The chosen candidates' names (``a + b``); :data:`NO_GAP` when ``no_gap`` (nothing
-    chosen and no significant gap: :func:`no_gap`), :data:`NO_GAP_THAT_MATTERS` when moreover
-    a significant remainder lies within the tolerance (``within_tolerance``; with chosen
-    effects: the whole difference, :func:`chosen_within_tolerance`); else
-    ``'unexplained'`` (none chosen, or they explain less than ``min_share`` of the gap; a NaN
-    share does not refuse them)."""
-    explained = bool(steps) and (share >= min_share if np.isfinite(share) else True)
-    if not steps and no_gap:
-        return NO_GAP_THAT_MATTERS if within_tolerance else NO_GAP
-    if steps and within_tolerance:
+    sound = floor_status == "ok"
+    if steps:
+        if tolerate_chosen and sound and not rem.get("significant") and "size_before" in rem:
+            tol = rem["tolerance"]
+            if rem.get("size_before_upper", np.inf) < tol:
+                return NO_GAP_THAT_MATTERS
+            if rem["size_before"] < tol:
+                return INCONCLUSIVE
+        explained = share >= min_share if np.isfinite(share) else True
+        return " + ".join(s["added"] for s in steps) if explained else "unexplained"
+    if not sound:
+        return "unexplained"
+    if remaining is None:
+        above = bool(gap_before_ci) and gap_before_ci[0] > max(min_gain, 0.0)
+        return "unexplained" if above else INCONCLUSIVE
+    if rem.get("significant"):
+        return "unexplained"
+    if rem.get("size_upper", np.inf) < rem.get("tolerance", -np.inf):
         return NO_GAP_THAT_MATTERS
-    return " + ".join(s["added"] for s in steps) if explained else "unexplained"
+    return INCONCLUSIVE

@@ -11,7 +11,7 @@ import numpy as np
 from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.registry import candidate
 from analysis.gap.engine.result import Diagnosis
-from analysis.gap.engine.steps import NO_GAP, NO_GAP_THAT_MATTERS
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
 
 __all__ = ["summarise", "with_summary"]
 
@@ -26,7 +26,7 @@ def summarise(d: Diagnosis) -> str:
     text = _verdict_words(d)
     misfit = _misfit_words(d)
     text += f" {misfit}" if misfit else ""
-    if d.steps and d.verdict not in ("unexplained", NO_GAP) and d.floor_status == "ok":
+    if d.steps and d.verdict != "unexplained" and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
             text += f" {st['added'].replace('_', ' ').capitalize()}: {said}." if said else ""
@@ -73,13 +73,14 @@ def _verdict_words(d: Diagnosis) -> str:
     further, within = _remaining_words(rem)
     if not d.steps:
         return _nothing_chosen_words(d, rem, further, within)
-    if d.verdict == NO_GAP_THAT_MATTERS:
+    if d.verdict in NOT_A_GAP:
         one = len(d.steps) == 1
-        size = dict(rem, size=rem["size_before"])
-        return (f"No gap that matters: {_names(d.steps)} {'is' if one else 'are'} "
-                "statistically significant, but the plain simulation leaves "
-                f"{_size_words(size, 'below')}; nothing significant remains beyond "
-                f"{'it' if one else 'them'}.")
+        size = dict(rem, size=rem["size_before"], size_upper=d.misfit_upper)
+        head = "No gap that matters" if d.verdict == NO_GAP_THAT_MATTERS else "Inconclusive"
+        return (f"{head}: {_names(d.steps)} {'is' if one else 'are'} statistically "
+                f"significant, but the plain simulation leaves {_bound_words(size)}; nothing "
+                f"significant remains beyond {'it' if one else 'them'}."
+                f"{_power_words(d)}")
     share = (f"{100 * d.explained_share:.0f} %" if np.isfinite(d.explained_share)
              else "all")
     if d.verdict == "unexplained":
@@ -139,21 +140,58 @@ def _nothing_chosen_words(d: Diagnosis, rem: dict, further: str, within: str) ->
     ci = d.gap_before_ci or (float("nan"), float("nan"))
     if further:
         return f"No catalogue effect explains the gap; {further}."
+    if d.verdict == "unexplained":
+        return (f"The gap ({d.gap_before:.3f} nats per unit, 95 % CI {ci[0]:.3f} to "
+                f"{ci[1]:.3f}) is unexplained: no catalogue effect reduces it significantly.")
+    head = ("No gap that matters" if d.verdict == NO_GAP_THAT_MATTERS else "Inconclusive")
     if within:
-        return (f"No gap that matters: no catalogue effect improves the simulation; "
-                f"{within}.")
-    if rem:
-        return (f"No significant gap: the simulation predicts the held-out data as well as "
-                f"a flexible model of the data does ({-rem['gap']:+.3f} nats per unit, 95 % "
-                f"CI {-rem['ci'][1]:+.3f} to {-rem['ci'][0]:+.3f}; positive: the simulation "
-                "is better), and no catalogue effect improves it.")
-    if d.gap_before_ci and d.gap_before_ci[0] <= max(d.min_gain, 0.0):
-        above = (f"{d.min_gain:g} nats per unit above the noise floor" if d.min_gain > 0
-                 else "above the noise floor")
-        return (f"No significant gap: the held-out gap ({d.gap_before:.3f} nats per unit, "
-                f"95 % CI {ci[0]:.3f} to {ci[1]:.3f}) is not {above}.")
-    return (f"The gap ({d.gap_before:.3f} nats per unit, 95 % CI {ci[0]:.3f} to "
-            f"{ci[1]:.3f}) is unexplained: no catalogue effect reduces it significantly.")
+        said = f"no catalogue effect improves the simulation; {within}"
+    elif rem:
+        said = (f"no catalogue effect improves the simulation, and it predicts the held-out "
+                f"data about as well as a flexible model of the data does ({-rem['gap']:+.3f} "
+                f"nats per unit, 95 % CI {-rem['ci'][1]:+.3f} to {-rem['ci'][0]:+.3f}; "
+                "positive: the simulation is better)")
+    else:
+        said = (f"the held-out gap ({d.gap_before:.3f} nats per unit, 95 % CI {ci[0]:.3f} to "
+                f"{ci[1]:.3f}) is not significantly above the noise floor")
+    if "size" in rem and "size_upper" in rem:
+        said += f"; it leaves {_bound_words(rem)}"
+    elif d.verdict == INCONCLUSIVE:
+        said += "; this layer gives no bound on the misfit in its units, so no gap is excluded"
+    return f"{head}: {said}.{_power_words(d)}"
+
+
+def _bound_words(rem: dict) -> str:
+    """'a misfit of about 0.4 % of luminance (upper 95 % bound 1.3 %), so a misfit of the
+    tolerance of 1 % (the design's ...) is not excluded' from a size, its bound and the
+    tolerance."""
+    unit = rem.get("size_unit", "")
+    short = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    source = f" ({rem['size_source']})" if rem.get("size_source") else ""
+    upper = rem.get("size_upper", float("nan"))
+    excluded = bool(np.isfinite(upper) and upper < rem["tolerance"])
+    return (f"a misfit of about {rem['size']:.2g} {unit} (upper 95 % bound {upper:.2g}"
+            f"{short}), so a misfit of the tolerance, {rem['tolerance']:g}{short}{source}, "
+            f"is {'excluded' if excluded else 'not excluded'}").replace("  ", " ")
+
+
+def _power_words(d: Diagnosis) -> str:
+    """' These data would detect a misfit of 2.5 % ... with 80 % power; to decide: 4 repeats
+    of each patch (4x the readings).' for an inconclusive verdict with ``detectable`` and
+    ``to_decide`` (:mod:`.power`), else ''."""
+    if d.verdict != INCONCLUSIVE or not d.detectable:
+        return ""
+    det, dec = d.detectable, d.to_decide
+    pct = f"{100 * det['power']:.0f} %"
+    if det.get("value") is None:
+        seen = (f" These data would not detect even a misfit of {det['tried_up_to']:.2g} "
+                f"{det['unit']} with {pct} power")
+    else:
+        seen = (f" These data would detect a misfit of {det['value']:.2g} {det['unit']} with "
+                f"{pct} power")
+    return (f"{seen} (simulated from the fitted models); to decide whether the misfit "
+            f"measured ({dec['truth']:.2g}) matters, {dec['words']} would decide it in "
+            f"{pct} of simulated data sets.").replace("  ", " ")
 
 
 def _size_words(rem: dict, side: str) -> str:

@@ -78,6 +78,7 @@ from analysis.gap.observer.model import (
     predict,
     to_slider_units,
 )
+from analysis.gap.observer.power import misfit_power, misfit_terms, misfit_upper
 from analysis.gap.observer.where import (
     OBSERVER_SIZE_UNIT,
     localise_observer,
@@ -121,6 +122,52 @@ def _same_path(real, sim) -> None:
         raise GapError(f"--real and --sim are the same path ({real}); pass the simulation")
 
 
+def _has_spread(base: ObserverBase) -> bool:
+    """Whether the simulation says how far its observers differ from each other."""
+    return bool(base.sd) and any(any(v > 0 for v in sd) for sd in base.sd.values())
+
+
+def _few_participants(data, base: ObserverBase) -> list[str]:
+    """A warning where fewer than 4 participants are held out by trial and the simulation
+    has no between-observer spread: individual differences are then not tested."""
+    n = data["participant"].nunique()
+    if n >= 4 or _has_spread(base):
+        return []
+    return [(f"only {n} participant(s) and a simulation without a between-observer spread: a "
+            "participant's own offset and slopes cannot be told from a gap and are not tested; "
+            "diagnose 4 or more participants, or simulate with an observers TOML or simulated "
+            "sessions of several observers")]
+
+
+def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions: int):
+    """``(size, size_upper, power, sizes)``: the layer's misfit, its upper 95 % bound and its
+    PowerModel, measured against the ceilings fitted per fold (``ceilings``, filled by the
+    ceiling step), and the dict the misfits are kept in for the Diagnosis."""
+    sizes, terms = {}, {}
+
+    def size(fits):
+        # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
+        # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = observer_misfit(fits, ceilings, design.slider)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = misfit_terms(fits, ceilings)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        return misfit_power(t, u, design.gap.observer_tolerance_slider,
+                            by_participant=by_participant, n_sessions=n_sessions)
+    return size, size_upper, power, sizes
+
+
 def _participant(unit_id: str) -> str:
     """The participant of a held-out trial (``participant|session|order``)."""
     return unit_id.split("|", 1)[0]
@@ -157,9 +204,16 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     notes = check_sim(frame, base)
     data = observer_frame(frame, design, base)
     folds, text = observer_folds(data, k_folds)
+    notes = notes + _few_participants(data, base)
     floor, shared = {}, {}
     for tr, te in folds:
-        shared[id(te)] = bool(set(tr["participant"]) & set(te["participant"]))
+        # Participants' own intercepts and slopes in the ceiling only where the simulation
+        # says how far observers differ (its between-observer SDs): without that spread a
+        # person's own offset, held out by trial, is no more a gap than it is held out by
+        # participant (issue 43).
+        shared[id(te)] = (bool(set(tr["participant"]) & set(te["participant"]))
+                          and _has_spread(base))
+        tr.attrs["by_participant"] = shared[id(te)]
         if not shared[id(te)]:
             adapt_own_offsets(tr, base)
             adapt_own_offsets(te, base)
@@ -168,24 +222,18 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         model = fit_ceiling(tr, by_participant=shared[id(te)])
         floor[id(te)] = ceiling_floor(model, te, rng)
 
-    ceilings, sizes = {}, {}
+    ceilings = {}
 
     def ceiling(tr, te, fitted):
         ceilings[id(te)] = fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted)
         return ceiling_loss(ceilings[id(te)], te)
 
-    def size(fits):
-        # The ceilings just fitted on each fold's chosen model (remaining_gap's): the misfits
-        # of the plain and the chosen model against them, kept for the Diagnosis (sizes).
-        # The first call is remaining_gap's, with the chosen model; a later one (the plain
-        # simulation's size) must not replace the record.
-        measured = observer_misfit(fits, ceilings, design.slider)
-        if not sizes:
-            sizes.update(measured)
-        return measured.get("misfit_after", float("nan"))
+    size, size_upper, power, sizes = _size_functions(
+        design, ceilings, by_participant=not any(shared.values()),
+        n_sessions=int(data.groupby("participant")["session"].nunique().median()))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
-                               size=size, unit_ids=observer_unit_ids,
+                               size=size, size_upper=size_upper, unit_ids=observer_unit_ids,
                                cluster_of=None if any(shared.values()) else _participant)
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN,
                                  min_size=design.gap.observer_tolerance_slider,
@@ -194,7 +242,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     return LayerPlan(
         functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
-        folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes),
+        folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes), power=power,
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})

@@ -26,6 +26,7 @@ from analysis.gap.observer.model import (
 
 __all__ = [
     "base_from_sessions",
+    "check_numeric_rows",
     "check_sim",
     "load_sim",
     "observer_folds",
@@ -59,10 +60,52 @@ def read_session_csvs(path: str | Path) -> pd.DataFrame:
             frames.append(read_session(f))
         except DataFileError as exc:
             raise GapError(f"{exc} (session CSVs need the experiment's SESSION_COLUMNS)") from exc
-    out = pd.concat([f for f in frames if len(f)], ignore_index=True) if frames else None
+    kept = [(f, fr) for f, fr in zip(files, frames) if len(fr)]
+    out = pd.concat([fr for _, fr in kept], ignore_index=True) if kept else None
     if out is None or not len(out):
         raise GapError(f"the session CSVs at {path} hold no trials")
+    # Where each row came from (file, data row from 1), for errors that name them.
+    out.attrs["rows_from"] = [(str(f), i + 1) for f, fr in kept for i in range(len(fr))]
     return out
+
+
+#: The columns of a session row that must hold numbers (truth and both settings).
+_NUMERIC = ("true_gloss_pct", "true_depth_cm", "gloss_match", "depth_match")
+
+
+def check_numeric_rows(frame: pd.DataFrame, what: str) -> None:
+    """Refuse rows whose truth or settings are empty or not numbers (NaN, inf, text), naming
+    the files and data rows (from :func:`read_session_csvs`) or the participants and
+    sessions; nothing is changed or dropped.
+
+    Raises
+    ------
+    GapError
+        Such rows, with where they are and the fix.
+    """
+    missing = [c for c in _NUMERIC if c not in frame.columns]
+    if missing:
+        raise GapError(f"{what} lack the columns {missing} (session CSVs need the experiment's "
+                       "SESSION_COLUMNS)")
+    values = frame[list(_NUMERIC)].apply(pd.to_numeric, errors="coerce").to_numpy(float)
+    bad = ~np.isfinite(values).all(axis=1)
+    if not bad.any():
+        return
+    cols = [c for c, b in zip(_NUMERIC, (~np.isfinite(values[bad])).any(axis=0)) if b]
+    src = frame.attrs.get("rows_from")
+    if src is not None and len(src) == len(frame):
+        at: dict = {}
+        for i in np.flatnonzero(bad):
+            at.setdefault(src[i][0], []).append(src[i][1])
+        where = "; ".join(f"{f} data rows {r[:8]}{' ...' if len(r) > 8 else ''}"
+                          for f, r in list(at.items())[:5])
+    else:
+        pairs = frame.loc[bad, ["participant", "session"]].drop_duplicates()
+        where = "participant, session: " + str(pairs.to_numpy().tolist()[:5])
+    raise GapError(f"{what}: {int(bad.sum())} of {len(frame)} rows have empty or non-numeric "
+                   f"{cols} ({where}); a session written by an interrupted or broken run: "
+                   "simulate these sessions again, or move the damaged files aside "
+                   "(nothing is changed by the diagnosis)")
 
 
 # --- the simulation's files ---------------------------------------------------------------
@@ -83,12 +126,37 @@ def base_from_sessions(frame: pd.DataFrame, design, *, source: str = "sessions")
     kinds = {str(v).rsplit(":", 1)[1] for v in frame.get("app_version", pd.Series(dtype=str))
              .dropna().astype(str) if ":" in str(v)}
     kind = kinds.pop() if len(kinds) == 1 else "unknown"
+    who = frame["participant"].astype(str).to_numpy()
     return ObserverBase(kind=kind, source=source,
                         coef={"gloss": tuple(float(v) for v in cg),
                               "depth": tuple(float(v) for v in cd)},
-                        participants=tuple(sorted(frame["participant"].astype(str).unique())),
+                        participants=tuple(sorted(np.unique(who))),
                         stimuli=_stimuli(frame),
-                        n_illuminations=int(frame["illumination"].nunique()))
+                        n_illuminations=int(frame["illumination"].nunique()),
+                        sd={"gloss": _between_sd(x, yg, who), "depth": _between_sd(
+                            x[:, [0, 2]], yd, who)} if np.unique(who).size >= 2 else None)
+
+
+def _between_sd(x: np.ndarray, y: np.ndarray, who: np.ndarray) -> tuple:
+    """Between-participant SDs of the coefficients of ``y ~ x`` among the simulated
+    participants (slider units): the variance of their own least-squares coefficients less
+    the mean of their sampling variances, floored at 0 (method of moments, as fit-observer's
+    population). The simulated observers differ from each other by this much, so a real
+    observer who does is no gap (issue 43: without it, 3 real participants and nothing added
+    read "unexplained ... differing between participants" against simulated sessions)."""
+    own, err = [], []
+    for pid in np.unique(who):
+        m = who == pid
+        if m.sum() <= x.shape[1] + 2:
+            continue
+        b, *_ = np.linalg.lstsq(x[m], y[m], rcond=None)
+        noise = float(np.sum((y[m] - x[m] @ b) ** 2)) / (m.sum() - x.shape[1])
+        own.append(b)
+        err.append(np.diag(np.linalg.pinv(x[m].T @ x[m])) * noise)
+    if len(own) < 2:
+        return tuple(0.0 for _ in range(x.shape[1]))
+    var = np.var(own, axis=0, ddof=1) - np.mean(err, axis=0)
+    return tuple(float(v) for v in np.sqrt(np.maximum(var, 0.0)))
 
 
 def _stimuli(frame: pd.DataFrame) -> tuple:
@@ -110,6 +178,7 @@ def load_sim(sim, design, *, kind: str | None = None) -> ObserverBase:
     if isinstance(sim, ObserverBase):
         return sim
     if isinstance(sim, pd.DataFrame):
+        check_numeric_rows(sim, "the simulated sessions (--sim)")
         return base_from_sessions(sim, design)
     path = Path(sim)
     if path.suffix.lower() == ".toml":
@@ -125,7 +194,9 @@ def load_sim(sim, design, *, kind: str | None = None) -> ObserverBase:
         fit = params.get("fit") if isinstance(params.get("fit"), Mapping) else None
         return base_from_params(params[kind], kind if fit is None or kind == "ideal"
                                 else "fitted", design.slider, source=str(path), fit_info=fit)
-    return base_from_sessions(read_session_csvs(path), design, source=str(path))
+    frame = read_session_csvs(path)
+    check_numeric_rows(frame, f"the simulated sessions at --sim {path}")
+    return base_from_sessions(frame, design, source=str(path))
 
 
 def check_sim(real: pd.DataFrame, base: ObserverBase) -> list[str]:
@@ -183,11 +254,8 @@ def observer_frame(frame: pd.DataFrame, design, base: ObserverBase | None = None
     missing = [c for c in need if c not in frame.columns]
     if missing:
         raise GapError(f"session rows lack the columns {missing}")
+    check_numeric_rows(frame, "the session rows diagnosed (--real)")
     out = frame.copy()
-    bad = ~np.isfinite(out[["gloss_match", "depth_match"]].apply(
-        pd.to_numeric, errors="coerce").to_numpy(float)).all(axis=1)
-    if bad.any():
-        raise GapError(f"{int(bad.sum())} rows have non-numeric matches; drop or fix them")
     out["participant"] = out["participant"].astype(str)
     out["gloss_u"], out["depth_u"] = to_slider_units(s, out["true_gloss_pct"],
                                                      out["true_depth_cm"])

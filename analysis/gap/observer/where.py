@@ -29,8 +29,8 @@ def observer_where(fits: list) -> str:
     engine.diagnose_losses; the ceiling is refitted here for its predictions)."""
     rows = []
     for train, test, fitted, *_ in fits:
-        model = fit_ceiling(train, by_participant=bool(
-            set(train["participant"]) & set(test["participant"])), fitted=fitted)
+        model = fit_ceiling(train, by_participant=train.attrs.get("by_participant", bool(
+            set(train["participant"]) & set(test["participant"]))), fitted=fitted)
         chosen = predict(test, fitted)
         sig = _fit_sigma(train, predict(train, fitted))
         c_pred, c_sd = _ceiling_pred(model, test)

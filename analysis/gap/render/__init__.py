@@ -117,6 +117,7 @@ from analysis.gap.render.ceiling import (
     render_ceiling,
     render_floor,
     render_misfit_pct,
+    render_misfit_upper,
 )
 from analysis.gap.render.data import (
     NPZ_ARRAYS,
@@ -133,6 +134,7 @@ from analysis.gap.render.model import (
     render_unit_ids,
     split_render,
 )
+from analysis.gap.render.power import render_power
 from analysis.gap.render.where import localise_render, render_where, residual_maps
 
 __all__ = [
@@ -152,6 +154,8 @@ __all__ = [
     "render_floor",
     "render_loss",
     "render_misfit_pct",
+    "render_misfit_upper",
+    "render_power",
     "render_unit_ids",
     "render_where",
     "residual_maps",
@@ -169,7 +173,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
     lighting of several (:mod:`stimuli.glossfit.lightings`): ``lights`` names the lighting
     held out. A remaining gap counts only
     from the design's ``[gap] render_tolerance_pct`` (the shipped design's when ``design`` is
-    None)."""
+    None); no gap that matters only where the misfit's upper 95 % bound
+    (:func:`render_misfit_upper`) lies below it; else inconclusive, with the misfit these
+    photos detect and how many more decide (:func:`render_power`)."""
     from stimuli.glossfit import is_lighting_fit
 
     paths = isinstance(real, (str, Path))
@@ -197,7 +203,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
         design = load_design()
     functions = LayerFunctions(
         loss=render_loss, floor=render_floor, ceiling=ceiling, ceiling_given_chosen=True,
-        where=render_where, size=render_misfit_pct, unit_ids=render_unit_ids,
+        where=render_where, size=render_misfit_pct, size_upper=render_misfit_upper,
+        unit_ids=render_unit_ids,
         # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
         # error (the split is fixed, so the verdict does not depend on the seed). Under the
         # null of nothing systematic left, the pixels' camera noise is independent.
@@ -219,8 +226,11 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
     def sizes(diag):
         return {"misfit_pct_before": misfit_pct(test, []),
                 "misfit_pct_after": misfit_pct(test, chosen(diag))}
+    noun = ("held-out lights' photos" if light_mode and lights is not None
+            else "photos (levels or lights)")
     return LayerPlan(functions, settings, localise=localise, train=train, test=test,
                      split=split, candidates=candidates, sizes=sizes,
+                     power=lambda diag: render_power(test, diag, noun=noun),
                      loss_info={"noise_a2_b": _noise_by_name(train, test)})
 
 

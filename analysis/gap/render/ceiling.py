@@ -130,6 +130,80 @@ def render_misfit_pct(fits: list) -> float:
     return float(100 * np.sqrt(max(cross / pairs, 0.0) / (sq_photo / n_pixels)))
 
 
+#: Side (px) of the tiles whose sums are resampled for the misfit's bound: the held-out pixels'
+#: residual products are independent between tiles this far apart under the null.
+TILE_PX = 16
+
+
+def tile_products(lv: dict, res: np.ndarray, other: np.ndarray | None = None):
+    """Per tile of :data:`TILE_PX` px, the sum of the lagged products of ``res`` (its
+    :data:`_SIZE_LAG_PX` px neighbours to the right and below, both used pixels) and their
+    number; ``other`` (same shape) takes the second factor instead (for a cross term). Each
+    product counts in the tile of its first pixel.
+
+    Returns
+    -------
+    (cross, pairs) : ndarray, shape (n_tiles,)
+    """
+    m = lv["use"]
+    other = res if other is None else other
+    k = _SIZE_LAG_PX
+    h, w = m.shape
+    ty, tx = np.mgrid[0:h, 0:w] // TILE_PX
+    tile = ty * ((w + TILE_PX - 1) // TILE_PX) + tx
+    n_tiles = int(tile.max()) + 1
+    cross = np.zeros(n_tiles)
+    pairs = np.zeros(n_tiles)
+    for a, b, both, t in ((res[:, :-k], other[:, k:], m[:, :-k] & m[:, k:], tile[:, :-k]),
+                          (res[:-k, :], other[k:, :], m[:-k, :] & m[k:, :], tile[:-k, :])):
+        cross += np.bincount(t[both], weights=(a * b)[both], minlength=n_tiles)
+        pairs += np.bincount(t[both], minlength=n_tiles)
+    return cross, pairs
+
+
+def misfit_bounds(cross, pairs, mean_sq: float) -> tuple:
+    """The render layer's size (:func:`render_misfit_pct`, %) with its lower and upper 95 %
+    bounds, from per-tile sums of lagged residual products (``cross``, ``pairs``: last axis
+    tiles; leading axes simulated data sets) and the photos' mean square luminance: the mean
+    product q = sum cross / sum pairs, its standard error cluster-robust over tiles
+    (sum_t (cross_t - q pairs_t)^2 / (sum pairs)^2, Liang & Zeger 1986), one-sided bounds
+    q -/+ 1.645 SE, each 100 sqrt(max(., 0) / mean_sq)."""
+    cross, pairs = np.asarray(cross, float), np.asarray(pairs, float)
+    total = pairs.sum(axis=-1)
+    q = cross.sum(axis=-1) / total
+    se = np.sqrt(np.sum((cross - q[..., None] * pairs) ** 2, axis=-1)) / total
+
+    def pct(x):
+        out = 100 * np.sqrt(np.maximum(x, 0.0) / mean_sq)
+        return float(out) if np.ndim(out) == 0 else out
+    return pct(q), pct(q - 1.645 * se), pct(q + 1.645 * se)
+
+
+def _misfit_tiles(fits: list) -> tuple:
+    """Per-tile lagged products of the chosen model's held-out residuals (all folds and
+    levels, concatenated) and the photos' mean square luminance."""
+    cross, pairs, sq, n = [], [], 0.0, 0.0
+    for _train, test, fitted, _ in fits:
+        for lv in test.levels:
+            m = lv["use"]
+            res = np.where(m, lv["P"] - _predict(lv, list(fitted)), 0.0)
+            c, p = tile_products(lv, res)
+            cross.append(c)
+            pairs.append(p)
+            sq += float(np.sum(lv["P"][m] ** 2))
+            n += float(m.sum())
+    return np.concatenate(cross), np.concatenate(pairs), sq / max(n, 1.0)
+
+
+def render_misfit_upper(fits: list) -> float:
+    """The engine's ``size_upper``: the upper 95 % bound (%) of :func:`render_misfit_pct`
+    (:func:`misfit_bounds` over tiles of :data:`TILE_PX` px). ``fits`` as for the size."""
+    cross, pairs, mean_sq = _misfit_tiles(fits)
+    if mean_sq <= 0 or pairs.sum() == 0:
+        return float("nan")
+    return misfit_bounds(cross, pairs, mean_sq)[2]
+
+
 def light_ceiling(train: RenderData, test: RenderData, fitted=()) -> np.ndarray:
     """Held-out loss of the chosen model plus a local smooth of what it leaves on each held-out
     photo, the smooth fitted on the other half of its 4 x 4 px blocks (both halves in turn)

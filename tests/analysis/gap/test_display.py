@@ -32,7 +32,7 @@ def test_black_offset_recovered(tmp_path):
     assert diag.steps[0]["params"]["c"] == pytest.approx(0.05, abs=0.01)
 
 
-@pytest.mark.parametrize("effect,verdict", [("none", "no_significant_gap"),
+@pytest.mark.parametrize("effect,verdict", [("none", "no_gap_that_matters"),
                                             ("gamma_change", "unexplained")])
 def test_nothing_or_out_of_catalogue_is_unexplained(tmp_path, effect, verdict):
     diag, _ = _diag(tmp_path, effect, strengths("display").get(effect, 0.0), 8)
@@ -62,6 +62,6 @@ def test_display_without_repeats_takes_the_noise_from_the_calibration_and_says_s
                        n_boot=200)
     assert diag.loss_info["noise_source"].startswith("the calibration's repeated readings")
     assert diag.loss_info["noise_pairs"] == 0
-    assert diag.verdict == "no_significant_gap", diag.summary
+    assert diag.verdict == "no_gap_that_matters", diag.summary
     with pytest.raises(GapError, match="calibration.json"):
         diagnose("display", tmp_path / "r", tmp_path / "nothing", load_design(), seed=0)

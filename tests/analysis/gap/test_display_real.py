@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.gap import diagnose
+from analysis.gap import NOT_A_GAP, diagnose
 from calibration import Calibration, choose_gamma_model, fit_gamma_models, save_calibration
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "displays"
@@ -63,8 +63,8 @@ def _lcd() -> pd.DataFrame:
 
 @pytest.mark.parametrize("seed", [0, 1])
 def test_a_repeat_pass_of_a_real_lcd_has_no_gap_and_its_zero_is_censored(tmp_path, seed):
-    """Two passes of the meter over the LCD's light, one calibrated, one checked: no
-    significant gap, or none that matters (issue 38), within 2 % of luminance (RMS, the
+    """Two passes of the meter over the LCD's light, one calibrated, one checked: not a gap
+    (issue 38), within 2 % of luminance (RMS, the
     meter's 0.5 % twice and the calibration model's misfit). The black reading is exactly 0 in both: censored (was: exact, a gap of
     up to 3e11 nats per reading); no repeats: the noise is the documented meter model's."""
     rng = np.random.default_rng(seed)
@@ -73,8 +73,11 @@ def test_a_repeat_pass_of_a_real_lcd_has_no_gap_and_its_zero_is_censored(tmp_pat
                      tmp_path / "cal")
     diag = _diagnose(lcd.assign(luminance_cd_m2=_meter(lcd["luminance_cd_m2"], rng)), cal,
                      tmp_path, "repeat")
-    assert diag.verdict in ("no_significant_gap", "no_gap_that_matters"), diag.summary
-    assert diag.summary.startswith(("No significant gap", "No gap that matters"))
+    # Not a gap; since issue 43 inconclusive rather than "no gap that matters": one reading per
+    # level at one position, and the calibration model's own misfit reaches about 2.8 % of
+    # the light at one level in both passes, so a misfit of 1 % there is not excluded.
+    assert diag.verdict in NOT_A_GAP, diag.summary
+    assert diag.summary.startswith(("Inconclusive", "No gap that matters"))
     assert diag.misfit_pct_before < 2.0 and diag.misfit["black_cd_m2_before"] < 0.5
     assert diag.loss_info["censored_readings"] >= 1
     assert abs(diag.gap_before) < 1.0

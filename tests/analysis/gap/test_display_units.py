@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from analysis.gap import NO_GAP, NO_GAP_THAT_MATTERS, diagnose
+from analysis.gap import NO_GAP_THAT_MATTERS, NOT_A_GAP, diagnose
 
 DATA = Path(__file__).resolve().parents[2] / "data" / "displays"
 _T0 = datetime(2026, 3, 2, 9, 0, tzinfo=UTC)
@@ -70,7 +70,7 @@ def test_a_clean_display_checked_against_its_calibration_is_no_gap_in_percent(tm
     out = _cli("analysis", "gap", "diagnose", "--layer", "display", "--real", str(check),
                "--sim", str(cal), "--out", str(tmp_path / "R")).stdout
     d = json.loads((tmp_path / "R" / "diagnosis.json").read_text())
-    assert d["floor_status"] == "ok" and d["verdict"] in (NO_GAP, NO_GAP_THAT_MATTERS), out
+    assert d["floor_status"] == "ok" and d["verdict"] == NO_GAP_THAT_MATTERS, out
     assert 0.3 < d["misfit_pct_before"] < 0.6 and 0.3 < d["misfit_pct_after"] < 0.6
     m = d["misfit"]
     assert 0.3 < m["ceiling_pct"] < 0.6 and m["systematic_pct_before"] < 0.3
@@ -97,7 +97,8 @@ def test_a_gain_change_smaller_than_the_tolerance_is_no_gap_that_matters(tmp_pat
                         n_boot=300)[0]
     assert diag.verdict == NO_GAP_THAT_MATTERS, diag.summary
     assert diag.summary.startswith("No gap that matters")
-    assert "below the tolerance of 1 %" in diag.summary
+    assert "so a misfit of the tolerance, 1 %" in diag.summary and "is excluded" in diag.summary
+    assert diag.misfit_upper < 1.0 <= diag.tolerance
     assert 0.3 < diag.remaining["size_before"] < 1.0
     assert 0.4 < diag.misfit_pct_before < 1.0
 
@@ -121,7 +122,7 @@ def test_a_zero_never_censors_the_reading_above_it(tmp_path):
     info = diag.loss_info
     assert info["censored_readings"] == 1
     assert info["floor_cd_m2"] < 1.0 and "lowest positive" in info["zero_floor_source"]
-    assert diag.verdict in (NO_GAP, NO_GAP_THAT_MATTERS), diag.summary
+    assert diag.verdict in NOT_A_GAP, diag.summary
 
 
 @pytest.mark.parametrize("device, floor", [("ls100", 0.001), ("PR-670", None)])
@@ -134,19 +135,19 @@ def test_a_zeros_floor_is_the_meters_documented_one_where_known(device, floor):
 
 
 def test_no_gap_that_matters_is_the_engines_verdict_for_any_layer():
-    """The engine's verdict, layer-agnostic: a significant remainder within the tolerance
-    with nothing chosen (the render layer's path too), or chosen effects whose plain
-    simulation's misfit is within it; above the tolerance the verdict is as before."""
-    from analysis.gap.engine.steps import chosen_within_tolerance, verdict_of
+    """The engine's verdict, layer-agnostic: nothing chosen and the misfit's upper bound below
+    the tolerance (the render layer's path too), or chosen effects whose plain simulation's
+    misfit is bounded below it; a bound above the tolerance is inconclusive, never no gap."""
+    from analysis.gap.engine.steps import verdict_of
 
-    assert verdict_of([], float("nan"), 0.8, no_gap=True, within_tolerance=True) \
-        == NO_GAP_THAT_MATTERS
-    assert verdict_of([], float("nan"), 0.8, no_gap=True) == NO_GAP
+    rem = {"significant": False, "size": 0.3, "size_upper": 0.7, "tolerance": 1.0}
+    assert verdict_of([], float("nan"), 0.8, remaining=rem) == NO_GAP_THAT_MATTERS
+    assert verdict_of([], float("nan"), 0.8, remaining=rem | {"size_upper": 1.2}) \
+        == "inconclusive"
     steps = [{"added": "gain_change"}]
-    rem = {"significant": False, "size_before": 0.6}
-    assert chosen_within_tolerance(steps, "ok", rem, 1.0)
-    assert not chosen_within_tolerance(steps, "ok", rem, 0.5)
-    assert not chosen_within_tolerance(steps, "misestimated", rem, 1.0)
-    assert not chosen_within_tolerance(steps, "ok", {"significant": False}, 1.0)
-    assert verdict_of(steps, 1.0, 0.8, within_tolerance=True) == NO_GAP_THAT_MATTERS
-    assert verdict_of(steps, 1.0, 0.8) == "gain_change"
+    held = rem | {"size_before": 0.6, "size_before_upper": 0.9}
+    assert verdict_of(steps, 1.0, 0.8, remaining=held, tolerate_chosen=True) \
+        == NO_GAP_THAT_MATTERS
+    assert verdict_of(steps, 1.0, 0.8, remaining=held, tolerate_chosen=True,
+                      floor_status="misestimated") == "gain_change"
+    assert verdict_of(steps, 1.0, 0.8, remaining=held) == "gain_change"

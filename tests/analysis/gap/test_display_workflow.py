@@ -157,8 +157,10 @@ def test_nothing_remains_above_the_ceiling_when_the_catalogue_explains_it(tmp_pa
     _check(tmp_path, rng, display, warmup=effect != "warmup_drift",
            start_s=30.0 if effect == "warmup_drift" else 1800.0)
     diag, _ = diagnose("display", tmp_path / "check", tmp_path / "cal", None, seed=3, n_boot=300)
-    assert diag.verdict.split(" + ")[0] == ("no_significant_gap" if effect == "none"
-                                            else effect)
+    # Nothing added: not a gap. Inconclusive since issue 43 (was "no significant gap"): the
+    # check's readings leave about 1.1 % at drive level 0.13 with an upper bound of 1.9 %, so
+    # they cannot exclude a misfit of the 1 % tolerance.
+    assert diag.verdict.split(" + ")[0] == ("inconclusive" if effect == "none" else effect)
     assert diag.remaining["ci"][0] <= 0
 
 

@@ -183,10 +183,39 @@ def test_verdict_is_unexplained_without_steps_or_below_the_minimum_share():
     assert verdict_of(steps, 0.6, 0.5) == "a + b"
     assert verdict_of(steps, 0.4, 0.5) == "unexplained"
     assert verdict_of(steps, float("nan"), 0.5) == "a + b"
-    assert verdict_of([], 1.0, 0.0) == "unexplained"
-    # Nothing chosen and no significant gap: the verdict says so (as the words do).
-    assert verdict_of([], float("nan"), 0.0, no_gap=True) == "no_significant_gap"
-    assert verdict_of(steps, 0.6, 0.5, no_gap=True) == "a + b"
+    # Without a ceiling: a held-out gap whose CI lies above min_gain is unexplained; one that
+    # does not is not excluded (no misfit bound): inconclusive, never "no gap".
+    assert verdict_of([], 1.0, 0.0, gap_before_ci=(0.1, 0.3)) == "unexplained"
+    assert verdict_of([], 1.0, 0.0, gap_before_ci=(-0.1, 0.3)) == "inconclusive"
+    assert verdict_of([], 1.0, 0.0, floor_status="misestimated") == "unexplained"
+
+
+def _rem(significant, size, upper, tol=1.0, **more):
+    return {"significant": significant, "size": size, "size_upper": upper, "tolerance": tol,
+            **more}
+
+
+def test_no_gap_that_matters_only_when_the_misfits_upper_bound_lies_below_the_tolerance():
+    # Nothing significant and the bound below the tolerance: the data exclude a gap.
+    assert verdict_of([], 0.0, 0.0, remaining=_rem(False, 0.2, 0.8)) == "no_gap_that_matters"
+    # Nothing significant but the bound above: neither found nor excluded.
+    assert verdict_of([], 0.0, 0.0, remaining=_rem(False, 0.2, 1.4)) == "inconclusive"
+    # Significant in nats but small and well bounded: excluded all the same.
+    assert verdict_of([], 0.0, 0.0, remaining=_rem(False, 0.2, 0.5, within_tolerance=True)
+                      ) == "no_gap_that_matters"
+    assert verdict_of([], 0.0, 0.0, remaining=_rem(True, 1.5, 2.0)) == "unexplained"
+    # A layer without a bound can never exclude a gap.
+    assert verdict_of([], 0.0, 0.0, remaining={"significant": False}) == "inconclusive"
+    # Chosen effects held to the tolerance by the plain simulation's own misfit.
+    steps = [{"added": "a"}]
+    small = _rem(False, 0.1, 0.2, size_before=0.4, size_before_upper=0.7)
+    unsure = _rem(False, 0.1, 0.2, size_before=0.4, size_before_upper=1.3)
+    large = _rem(False, 0.1, 0.2, size_before=1.4, size_before_upper=1.9)
+    kw = {"tolerate_chosen": True}
+    assert verdict_of(steps, 1.0, 0.5, remaining=small, **kw) == "no_gap_that_matters"
+    assert verdict_of(steps, 1.0, 0.5, remaining=unsure, **kw) == "inconclusive"
+    assert verdict_of(steps, 1.0, 0.5, remaining=large, **kw) == "a"
+    assert verdict_of(steps, 1.0, 0.5, remaining=small) == "a"  # not held to it
 
 
 def test_summary_says_what_is_explained_and_what_remains_within_the_tolerance():

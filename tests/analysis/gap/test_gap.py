@@ -54,12 +54,13 @@ def test_crosstalk_slope_recovered():
     assert diag.steps[0]["params"]["c"] == pytest.approx(0.3, abs=0.05)
 
 
-def test_nothing_injected_is_no_significant_gap():
+def test_nothing_injected_is_no_gap_that_matters():
     diag, _ = _diag("none", 0.0, 11)
-    assert diag.verdict == "no_significant_gap" and not diag.steps
+    assert diag.verdict == "no_gap_that_matters" and not diag.steps
     assert not diag.unexplained_remains
-    assert diag.summary.startswith("No significant gap")
-    assert diag.to_dict()["verdict"] == "no_significant_gap"
+    assert diag.summary.startswith("No gap that matters")
+    assert diag.misfit_upper < diag.tolerance
+    assert diag.to_dict()["verdict"] == "no_gap_that_matters"
 
 
 def test_out_of_catalogue_is_unexplained():
@@ -226,20 +227,26 @@ def _diagnosis(**kw):
     return Diagnosis(**(base | kw))
 
 
-def test_verdict_says_no_significant_gap_when_the_gap_ci_reaches_zero():
+def test_a_gap_ci_reaching_zero_without_a_bound_is_inconclusive_never_no_gap():
+    """Issue 43: "no significant gap" is no longer a verdict. Without a ceiling or a bound on
+    the misfit in the lab's units nothing is excluded: inconclusive (amber badge), and the
+    words never say "no gap"."""
     from analysis.gap.engine import summarise
-    from analysis.gap.report import no_significant_gap, verdict_text
+    from analysis.gap.report import badge, outcome, verdict_text
 
-    none = _diagnosis(gap_before_ci=(-0.09, 0.88))
+    none = _diagnosis(gap_before_ci=(-0.09, 0.88), verdict="inconclusive")
     none = replace(none, summary=summarise(none))
     some = _diagnosis(gap_before_ci=(0.2, 0.9))
     some = replace(some, summary=summarise(some))
-    assert no_significant_gap(none) and "No significant gap" in verdict_text(none)
-    assert not no_significant_gap(some) and "unexplained" in verdict_text(some)
+    assert outcome(none) == "inconclusive" and 'class="badge inconclusive"' in badge(none)
+    assert verdict_text(none).startswith("<p>Inconclusive:"), verdict_text(none)
+    assert "no significant gap" not in verdict_text(none).lower()
+    assert outcome(some) == "gap" and "unexplained" in verdict_text(some)
+    assert 'class="badge gap"' in badge(some)
     below = _diagnosis(gap_before=-0.26, gap_before_ci=(-0.29, -0.23), floor_status="misestimated")
     below = replace(below, summary=summarise(below))
-    assert not no_significant_gap(below)
-    assert "mis-estimated" in verdict_text(below) and "No significant gap" not in verdict_text(below)
+    assert outcome(below) == "gap"
+    assert "mis-estimated" in verdict_text(below)
 
 
 def _pilot_fit(design):

@@ -97,9 +97,8 @@ def test_a_significant_remainder_under_the_tolerance_is_no_gap_that_matters():
     assert rem["size"] == pytest.approx(0.1, abs=0.04)
     assert rem["tolerance"] == 0.25 and rem["size_unit"] == "slider units"
     assert not diag.unexplained_remains and not diag.steps
-    # The engine's no-gap verdict (a verdict of its own for this, no_gap_that_matters, is
-    # the display helper's, merged beside this).
-    assert diag.verdict in ("no_significant_gap", "no_gap_that_matters")
+    assert diag.verdict == "no_gap_that_matters"
+    assert diag.misfit_upper < diag.tolerance
     assert "within the tolerance" in diag.summary
     assert "below the tolerance of 0.25 slider units" in diag.summary
     assert "gloss response" in rem["where"] and rem["where"] in diag.summary

@@ -14,9 +14,12 @@ study is given.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
+from analysis.gap.observer.power import misfit_power, misfit_upper
 from analysis.gap.observer.rating.candidates import BY_NAME, rating_candidates
 from analysis.gap.observer.rating.ceiling import (
     rating_ceiling_fit,
@@ -39,6 +42,7 @@ from analysis.gap.observer.rating.model import (
 from analysis.gap.observer.rating.where import (
     localise_rating,
     rating_misfit,
+    rating_misfit_terms,
     rating_tolerance,
     rating_unit,
     rating_where,
@@ -60,6 +64,49 @@ def _labels_identifiable(study) -> tuple[bool, str]:
                                                       / study.step) + 1:
         return False, "rounding to labels is not tested: every step of the scale is labelled"
     return True, ""
+
+
+def _spread_unknown(base: RatingBase) -> str:
+    """Why individual differences cannot be told apart (a simulation fitted to fewer than
+    2 participants: its between-observer SDs are no estimate), or ''."""
+    n = len(base.participants)
+    if not base.participants or n >= 2:
+        return ""
+    return (f"the rating observer was fitted to {n} participant ({', '.join(base.participants)})"
+            ": its between-observer SDs (gain {:.3f}, offset {:.3f}) are no estimate of the "
+            "population's, so individual differences cannot be told apart from the "
+            "simulation's and are not tested; fit the observer to a pilot of several "
+            "participants (fit-observer --study ... --participants 01 02 03 ...)"
+            ).format(base.gain_sd, base.offset_sd)
+
+
+def _size_functions(ceilings: dict, unit: str, tolerance: float):
+    """``(size, size_upper, power, sizes)``: the misfit in the scale's units, its upper 95 %
+    bound and the PowerModel, against the ceilings fitted per fold (``ceilings``, filled by
+    the ceiling step), and the dict the misfits are kept in for the Diagnosis."""
+    sizes, terms = {}, {}
+
+    def size(fits):
+        # The misfits against the ceilings just fitted on each fold's chosen model, kept for
+        # the Diagnosis (sizes); the chosen model's is held to the tolerance.
+        # The first call is remaining_gap's, with the chosen model; a later one (the plain
+        # simulation's size) must not replace the record.
+        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
+        if not sizes:
+            sizes.update(measured)
+        return measured.get("misfit_after", float("nan"))
+
+    def size_upper(fits):
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        t, u = rating_misfit_terms(fits, ceilings, BY_NAME)
+        terms.setdefault("after", (t, u))
+        return misfit_upper(t, u)
+
+    def power(_diag):
+        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
+        return model if model is None else replace(model, unit=unit)
+    return size, size_upper, power, sizes
 
 
 def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
@@ -86,6 +133,9 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
     if data["participant"].nunique() < 2:
         raise GapError("the diagnosis needs at least 2 participants (the split-half "
                        "consistency of a stimulus's deviation); pass more with --participants")
+    unknown = _spread_unknown(base)
+    if unknown:
+        notes.append(unknown)
     folds, text = rating_folds(data, k_folds)
     floor = {}
     for tr, te in folds:
@@ -93,7 +143,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         floor[id(te)] = rating_ceiling_floor(tr, te, BY_NAME)
     adapt_rating_base(data, data.iloc[:0].copy(), base)
 
-    ceilings, sizes = {}, {}
+    ceilings = {}
     unit = rating_unit(st)
     if design is None:
         from studydesign import load_design
@@ -105,15 +155,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         ceilings[id(te)] = rating_ceiling_fit(tr, fitted, BY_NAME)
         return rating_ceiling_loss(tr, te, fitted, BY_NAME, ceilings[id(te)])
 
-    def size(fits):
-        # The misfits against the ceilings just fitted on each fold's chosen model, kept for
-        # the Diagnosis (sizes); the chosen model's is held to the tolerance.
-        # The first call is remaining_gap's, with the chosen model; a later one (the plain
-        # simulation's size) must not replace the record.
-        measured = rating_misfit(fits, ceilings, BY_NAME, unit)
-        if not sizes:
-            sizes.update(measured)
-        return measured.get("misfit_after", float("nan"))
+    size, size_upper, power, sizes = _size_functions(ceilings, unit, tolerance)
 
     def localise(diag, rng):
         chosen = ([(s["added"], s["params"]) for s in diag.steps]
@@ -121,14 +163,15 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         return localise_rating(data, chosen, BY_NAME, rng, n_boot=min(n_boot, 500))
     functions = LayerFunctions(
         loss=rating_loss(BY_NAME), floor=lambda te: floor[id(te)], ceiling=ceiling,
-        ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size,
+        ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size, size_upper=size_upper,
         where=lambda fits: rating_where(fits, BY_NAME, st.estimates))
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN, min_size=tolerance,
                                  size_unit=unit, size_source=source)
     return LayerPlan(
-        functions, settings, sizes=lambda _diag: dict(sizes),
+        functions, settings, sizes=lambda _diag: dict(sizes), power=power,
         localise=localise, folds=folds, split=text, warnings=tuple(notes),
         candidates=tuple(rating_candidates(labels_ok)),
+        not_identifiable={"individual_differences": unknown} if unknown else {},
         loss_info={"base": {"kind": "rating", "source": base.source,
                             "gain": base.gain, "gain_sd": base.gain_sd,
                             "offset": base.offset, "offset_sd": base.offset_sd,

@@ -17,8 +17,8 @@ import pandas as pd
 
 from analysis.gap.observer.rating.model import _fit_sigma, rating_expected, rating_predict
 
-__all__ = ["localise_rating", "rating_misfit", "rating_tolerance", "rating_unit", "rating_where",
-           "stimulus_deviations"]
+__all__ = ["localise_rating", "rating_misfit", "rating_misfit_terms", "rating_tolerance",
+           "rating_unit", "rating_where", "stimulus_deviations"]
 
 _TOP = 5  # stimuli named in the words
 
@@ -203,6 +203,22 @@ def rating_misfit(fits: list, ceilings: dict, cands: dict, unit: str) -> dict:
             "misfit_by_response": {"rating": {
                 "unit": unit, "before": before,
                 "after": after, "ceiling": scatter}}}
+
+
+def rating_misfit_terms(fits: list, ceilings: dict, cands: dict) -> tuple:
+    """Per held-out trial the squared distance (scale units^2) of the chosen model's expected
+    rating from the ceiling's, and the trial's participant (the independent unit: each
+    participant's trials share their own gain and offset); ``fits``, ``ceilings`` and
+    ``cands`` as :func:`rating_misfit` takes them."""
+    terms, units = [], []
+    for _train, test, chosen, _ in fits:
+        pred_c, sigma = ceilings[id(test)](test)
+        after = _expected(test, rating_predict(test, list(chosen), cands), sigma)
+        terms.append((after - _expected(test, pred_c, sigma)) ** 2)
+        units.append(test["participant"].astype(str).to_numpy())
+    if not terms:
+        return np.zeros(0), np.zeros(0, dtype=object)
+    return np.concatenate(terms), np.concatenate(units)
 
 
 def _expected(data, pred: dict, sigma: float) -> np.ndarray:

@@ -1,0 +1,131 @@
+"""How sure the observer layer's misfit is, and how much more data would decide it (issue 43).
+
+The misfit (:func:`analysis.gap.observer.where.observer_misfit`) is the RMS over held-out
+trials of the distance between the chosen model's predicted settings and the flexible model's
+(slider units). :func:`misfit_terms` gives its per-trial squared distances (both responses
+summed) and the units that are independent: participants where they are held out whole,
+else each participant's sessions (a person's trials share their own offset, so they are not
+independent draws). :func:`misfit_upper` is the misfit's one-sided upper 95 % bound, a
+percentile bootstrap over those units (Efron & Tibshirani 1993, ch. 13), or Student's t over
+them where that is wider (few participants): below the design's
+``[gap] observer_tolerance_slider`` the verdict is no gap that matters.
+
+:func:`misfit_power` is the :class:`~analysis.gap.engine.PowerModel` of an inconclusive
+verdict: a data set ``factor`` times as large is drawn by resampling the units (their
+per-trial squared distances, shifted so that their mean is the squared misfit simulated, so
+the spread between units is the data's own, not an assumed normal one), its misfit and bounds
+measured and decided as the diagnosis decides (:func:`analysis.gap.engine.decide_size`).
+What the resampling cannot move is the ceiling's own estimation error, which shrinks with
+more data: the bound it gives for ``to_decide`` errs on the side of more data.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from analysis.gap.engine import PowerModel, decide_size
+from analysis.gap.observer.ceiling import ceiling_prediction
+from analysis.gap.observer.model import RESP
+from analysis.gap.observer.where import _distance_sq, _model_spread
+
+__all__ = ["misfit_power", "misfit_terms", "misfit_upper"]
+
+_N_BOOT = 2000
+_Z95 = 1.6448536269514722  # one-sided 95 %
+
+
+def misfit_terms(fits: list, ceilings: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Per held-out trial the squared distance (slider units^2, both responses summed) of the
+    chosen model's predicted settings from the ceiling's, and the trial's independent unit
+    (participant, or participant|session where participants are in training and test parts).
+
+    ``fits`` and ``ceilings`` as :func:`analysis.gap.observer.where.observer_misfit` takes
+    them."""
+    terms, units = [], []
+    for train, test, chosen, _ in fits:
+        lo, hi = test.attrs["range"]
+        mu_c, sd_c = ceiling_prediction(ceilings[id(test)], test)
+        mu, sd = _model_spread(train, test, list(chosen))
+        terms.append(sum(_distance_sq(mu[r], sd[r], mu_c[r], sd_c[r], lo, hi) for r in RESP))
+        who = test["participant"].astype(str)
+        shared = bool(set(train["participant"]) & set(test["participant"]))
+        units.append((who + "|" + test["session"].astype(str) if shared else who).to_numpy())
+    if not terms:
+        return np.zeros(0), np.zeros(0, dtype=object)
+    return np.concatenate(terms), np.concatenate(units)
+
+
+def _unit_sums(terms: np.ndarray, units: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    codes, inv = np.unique(units, return_inverse=True)
+    return (np.bincount(inv, weights=terms, minlength=codes.size),
+            np.bincount(inv, minlength=codes.size).astype(float))
+
+
+def misfit_upper(terms: np.ndarray, units: np.ndarray, *, seed: int = 0) -> float:
+    """One-sided upper 95 % bound of the misfit ``sqrt(mean(terms))`` (slider units): the
+    95th percentile of its bootstrap over ``units`` (resampled whole), or its Student-t bound
+    over them where larger."""
+    if terms.size == 0:
+        return float("nan")
+    s, n = _unit_sums(terms, units)
+    rng = np.random.default_rng(seed)
+    counts = rng.multinomial(s.size, np.full(s.size, 1.0 / s.size), size=_N_BOOT)
+    boot = (counts @ s) / np.maximum(counts @ n, 1.0)
+    # Few units: the percentile bootstrap's interval is too narrow (its resamples hold at
+    # most that many distinct participants); Student's t on C - 1 degrees of freedom over the
+    # ratio estimator's standard error (Cameron & Miller 2015) where that is wider. With 4
+    # participants whose depth rose with gloss by exactly the tolerance the percentile
+    # bound alone was 0.240 slider units: no gap that matters (issue 43, seed 1).
+    r = float(s.sum() / n.sum())
+    se = float(np.sqrt(np.sum((s - r * n) ** 2) * s.size / max(s.size - 1, 1))) / n.sum()
+    t_bound = r + float(stats.t.ppf(0.95, max(s.size - 1, 1))) * se
+    return float(np.sqrt(max(np.quantile(boot, 0.95), t_bound, 0.0)))
+
+
+def _decide(s: np.ndarray, n: np.ndarray, tolerance: float) -> int:
+    """The verdict on one simulated data set of unit sums ``s`` over ``n`` trials: its
+    misfit and bounds from the ratio estimator's standard error over units."""
+    r = s.sum() / n.sum()
+    se = math.sqrt(max(float(np.sum((s - r * n) ** 2)), 0.0)) / n.sum()
+    size = math.sqrt(max(r, 0.0))
+    upper = math.sqrt(max(r + _Z95 * se, 0.0))
+    return int(decide_size(np.array([size]), np.array([r - _Z95 * se]), np.array([upper]),
+                           tolerance)[0])
+
+
+def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
+                 by_participant: bool, n_sessions: int, n_sim: int = 100) -> PowerModel | None:
+    """The PowerModel of an inconclusive observer diagnosis (see the module docstring):
+    misfits tried 0.5-4 x the tolerance, data sizes 1.5-8 x (participants where they are
+    held out whole, else sessions per participant). None without held-out trials."""
+    if terms.size == 0:
+        return None
+    s, n = _unit_sums(terms, units)
+    mean = float(s.sum() / n.sum())
+
+    def draws(misfit: float, factor: float):
+        shifted = s - n * mean + n * misfit ** 2
+        k_units = max(math.ceil(factor * s.size), 2)
+
+        def run(rng, k):
+            out = np.empty(k, int)
+            for i in range(k):
+                pick = rng.integers(0, s.size, k_units)
+                out[i] = _decide(shifted[pick], n[pick], tolerance)
+            return out
+        return run
+
+    n_units = s.size
+
+    def more(factor: float) -> str:
+        if by_participant:
+            return f"{math.ceil(factor * n_units)} participants ({factor:g}x)"
+        return (f"{math.ceil(factor * n_sessions)} sessions per participant "
+                f"({factor:g}x the trials)")
+    return PowerModel(draws=draws, misfit_now=math.sqrt(max(mean, 0.0)),
+                      misfits=tuple(tolerance * m for m in (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)),
+                      factors=(1.5, 2.0, 3.0, 4.0, 6.0, 8.0), unit="slider units", more=more,
+                      n_sim=n_sim)
