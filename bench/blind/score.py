@@ -28,7 +28,10 @@ R4    no-effect cases at the smallest size (3 participants, a short run,   >= 90
 ====  ===================================================================  ==========
 
 Each row prints the count, the rate, a Wilson 95 % interval and the verdicts' breakdown; then
-one line per case, effect multiple and data size.
+one line per case, effect multiple and data size: the median realised size (in tolerances,
+truth.json) beside the median misfit the diagnosis reports before its catalogue (in the layer's
+units: slider units, % of luminance, % of the photos' RMS; tolerance 0.25, 1, 1), and how many
+were a gap.
 
 What runs (the plan): every case asked at the full size (20 participants, the full meter run,
 48 lights); the new cases at each ``--multiples`` (default 0.5 1 2 tolerances); the no-effect
@@ -112,6 +115,15 @@ def classify(verdict: str | None) -> tuple[str, list[str]]:
     return "gap", [n.strip() for n in v.split("+") if n.strip()]
 
 
+def reported_misfit(d: dict) -> float | None:
+    """The misfit the diagnosis reports before its catalogue, in the layer's units (slider
+    units, % of luminance, % of the photos' RMS), or None."""
+    for v in (d.get("misfit_before"), (d.get("misfit") or {}).get("size_pct_before")):
+        if isinstance(v, int | float) and math.isfinite(v):
+            return float(v)
+    return None
+
+
 def wilson(k: int, n: int, z: float = 1.959964) -> tuple[float, float]:
     """Wilson score 95 % interval of k successes in n (Wilson 1927), as fractions."""
     if n == 0:
@@ -186,7 +198,8 @@ def read_result(layer, case, multiple, size, seed, folder: Path, status: str) ->
     if diag.is_file():
         d = json.loads(diag.read_text())
         verdict = d.get("verdict")
-        extra = {k: d[k] for k in ("detectable", "to_decide", "misfit") if k in d}
+        extra = {k: d[k] for k in ("detectable", "to_decide", "misfit_unit") if k in d}
+        extra["misfit_before"] = reported_misfit(d)
     elif status == "ok":
         status = "crash (no diagnosis.json)"
     t = json.loads(truth.read_text()) if truth.is_file() else {}
@@ -329,6 +342,10 @@ def rows(layer: str, rs: list[dict]) -> list[tuple]:
             for rid, desc, target, ok, recs in out]
 
 
+def median(values: list[float]) -> str:
+    return f"{sorted(values)[len(values) // 2]:7.2f}" if values else "      -"
+
+
 def breakdown(recs: list[dict]) -> str:
     counts = Counter(r["verdict"] if r["verdict"] is not None else r["status"] for r in recs)
     return ", ".join(f"{v} ({c})" for v, c in counts.most_common())
@@ -354,16 +371,17 @@ def table(results: list[dict]) -> tuple[str, list[dict]]:
             out.append({"layer": layer, "row": rid, "cases": desc, "target": target, "pass": k,
                         "n": n, "ci95": [lo, hi], "verdicts": breakdown(recs)})
     lines += ["", (f"{'layer':9s} {'case':16s} {'x tol':>6s} {'size':6s} {'real. x':>7s} "
-                   f"{'gap':>7s}  verdicts")]
+                   f"{'misfit':>7s} {'gap':>7s}  verdicts")]
     groups = defaultdict(list)
     for r in results:
         groups[(r["layer"], r["case"], r["multiple"], r["size"])].append(r)
     for (layer, case, m, size), recs in groups.items():
         real = [r["size_in_tolerances"] for r in recs if r["size_in_tolerances"] is not None]
-        med = f"{sorted(real)[len(real) // 2]:7.2f}" if real else "      -"
+        said = [r["misfit_before"] for r in recs if r.get("misfit_before") is not None]
         gaps = sum(r["kind"] == "gap" for r in recs)
         lines.append(f"{layer:9s} {case:16s} {'-' if m is None else f'{m:g}':>6s} {size:6s} "
-                     f"{med} {gaps:3d}/{len(recs):<3d}  {breakdown(recs)}")
+                     f"{median(real)} {median(said)} {gaps:3d}/{len(recs):<3d}  "
+                     f"{breakdown(recs)}")
     legacy = sum(r["kind"] == "legacy" for r in results)
     if legacy:
         lines.append(f"\nFLAG: {legacy} verdict(s) 'no_significant_gap' (removed by issue 43): "
