@@ -295,6 +295,18 @@ def size_slider(a, b):
     return float(np.sqrt(np.mean((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2)))
 
 
+def size_within_person(a, b, person):
+    """``size_slider`` after each participant's mean change of each slider is taken out: the
+    part of the effect a person's own offset cannot absorb, slider units."""
+    total = 0.0
+    for p in np.unique(person):
+        m = person == p
+        for i in (0, 1):
+            d = a[i][m] - b[i][m]
+            total += np.sum((d - d.mean()) ** 2)
+    return float(np.sqrt(total / len(person)))
+
+
 def scale_effect(case, target, tab, person_k, rng):
     """The strength (and swap mask) at which the effect's size is ``target`` slider units."""
     ref = (on_slider(tab["gloss"]), on_slider(tab["depth"]))
@@ -399,12 +411,16 @@ def generate(case, seed, out, *, participants=N_REAL, multiple=1.0):
     write_sessions(out / "pilot", pilot)
     write_sessions(out / "real", real)
     size = size_slider(got, ref)
+    person = np.concatenate([np.full(len(tr["rt_s"]), k) for k, tr in enumerate(trials)])
+    within = size_within_person(got, ref, person)
     truth = {"generator": "bench/blind/observer_gen.py", "case": case, "seed": seed,
              "expected": EXPECTED[case], "in_catalogue": case not in NEW_CASES,
              "near_catalogue": NEAR.get(case, []), "participants": participants,
              "multiple_asked": multiple if new else None,
              "size": size, "size_unit": "slider units, RMS distance (gloss, depth) over trials",
              "tolerance": TOLERANCE_SLIDER, "size_in_tolerances": size / TOLERANCE_SLIDER,
+             "size_within_person": within,
+             "size_within_person_in_tolerances": within / TOLERANCE_SLIDER,
              "effect": effect, "pilot": pilot_obs, "real": real_obs}
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     return truth

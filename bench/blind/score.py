@@ -29,7 +29,7 @@ R4    no-effect cases at the smallest size (3 participants, a short run,   >= 90
 
 Each row prints the count, the rate, a Wilson 95 % interval and the verdicts' breakdown; then
 one line per case, effect multiple and data size: the median realised size (in tolerances,
-truth.json) beside the median misfit the diagnosis reports before its catalogue (in the layer's
+truth.json; observer: also the part a person's own offset cannot absorb, "within") beside the median misfit the diagnosis reports before its catalogue (in the layer's
 units: slider units, % of luminance, % of the photos' RMS; tolerance 0.25, 1, 1), and how many
 were a gap.
 
@@ -212,7 +212,9 @@ def read_result(layer, case, multiple, size, seed, folder: Path, status: str) ->
             "full": size == FULL[layer], "no_effect": case in NONE_CASES[layer],
             "in_catalogue": bool(t.get("in_catalogue")) and case not in NONE_CASES[layer],
             "expected": [n for n in expected if n != "unexplained"],
-            "size_in_tolerances": t.get("size_in_tolerances"), "status": status,
+            "size_in_tolerances": t.get("size_in_tolerances"),
+            "size_within_person_in_tolerances": t.get("size_within_person_in_tolerances"),
+            "status": status,
             "verdict": verdict, "kind": kind, "names": names, "folder": str(folder), **extra}
 
 
@@ -371,16 +373,18 @@ def table(results: list[dict]) -> tuple[str, list[dict]]:
             out.append({"layer": layer, "row": rid, "cases": desc, "target": target, "pass": k,
                         "n": n, "ci95": [lo, hi], "verdicts": breakdown(recs)})
     lines += ["", (f"{'layer':9s} {'case':16s} {'x tol':>6s} {'size':6s} {'real. x':>7s} "
-                   f"{'misfit':>7s} {'gap':>7s}  verdicts")]
+                   f"{'within':>7s} {'misfit':>7s} {'gap':>7s}  verdicts")]
     groups = defaultdict(list)
     for r in results:
         groups[(r["layer"], r["case"], r["multiple"], r["size"])].append(r)
     for (layer, case, m, size), recs in groups.items():
         real = [r["size_in_tolerances"] for r in recs if r["size_in_tolerances"] is not None]
         said = [r["misfit_before"] for r in recs if r.get("misfit_before") is not None]
+        within = [r["size_within_person_in_tolerances"] for r in recs
+                  if r.get("size_within_person_in_tolerances") is not None]
         gaps = sum(r["kind"] == "gap" for r in recs)
         lines.append(f"{layer:9s} {case:16s} {'-' if m is None else f'{m:g}':>6s} {size:6s} "
-                     f"{median(real)} {median(said)} {gaps:3d}/{len(recs):<3d}  "
+                     f"{median(real)} {median(within)} {median(said)} {gaps:3d}/{len(recs):<3d}  "
                      f"{breakdown(recs)}")
     legacy = sum(r["kind"] == "legacy" for r in results)
     if legacy:
