@@ -400,6 +400,10 @@ def generate(case, seed, out, *, participants=N_REAL, multiple=1.0):
         got = shifted(case, strength, tab, person_k, mask)
         effect = {"strength": strength, "person_share": person_k.tolist(),
                   "unit": STRENGTH_UNIT[case]}
+        if case == "slider_swap":
+            # A swap on a fraction p of trials moves the expected setting by p x the swap and
+            # adds the rest as spread: the mean's part of the size is sqrt(p) of it.
+            effect["size_of_the_mean_only"] = float(np.sqrt(strength)) * size_slider(got, ref)
         cuts = np.cumsum([len(tr["rt_s"]) for tr in trials])[:-1]
         settings = list(zip(np.split(got[0], cuts), np.split(got[1], cuts), strict=True))
     else:
