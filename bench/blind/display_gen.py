@@ -203,6 +203,15 @@ def size_pct(lum, ref, white_cd_m2):
     return float(100.0 * np.sqrt(np.mean(((lum[keep] - ref[keep]) / ref[keep]) ** 2)))
 
 
+def size_worst_pct(lum, ref, white_cd_m2, chk):
+    """The largest ``size_pct`` over the readings of one screen position or of one drive level
+    (the worst subset), in %."""
+    keep = ref > 0.05 * white_cd_m2
+    subsets = [(chk[:, 1] == x) & (chk[:, 2] == y) for x, y in {(r[1], r[2]) for r in chk}]
+    subsets += [chk[:, 3] == v for v in np.unique(chk[:, 3])]
+    return max(size_pct(lum[m & keep], ref[m & keep], 0.0) for m in subsets if np.any(m & keep))
+
+
 def new_effect(case, strength, disp, chk, shape):
     """Keyword arguments of ``luminance`` for a new case at ``strength`` (see the module
     docstring); ``shape`` holds the case's fixed draws."""
@@ -319,12 +328,14 @@ def generate(case, seed, out, *, run="full", multiple=1.0):
     write_csv(out / "check.csv", f"blind-{case}-{seed}-check", device, chk,
               meter(rng_case, lum_chk, floor))
     size = size_pct(lum_chk, lum_ref, white)
+    worst = size_worst_pct(lum_chk, lum_ref, white, chk)
     truth = {
         "generator": "bench/blind/display_gen.py", "case": case, "seed": seed,
         "expected": EXPECTED[case], "in_catalogue": not new or case == "offset_warmup",
         "run": run, "multiple_asked": multiple if new else None,
         "size": size, "size_unit": "% of luminance, RMS over check readings above 5 % of white",
         "tolerance": TOLERANCE_PCT, "size_in_tolerances": size / TOLERANCE_PCT,
+        "size_worst_pct": worst, "size_worst_unit": "the same, at the worst position or level",
         "effect": effect, "display": disp,
         "meter": {"device": device, "floor_cd_m2": floor, "noise_rel": NOISE_REL,
                   "noise_abs_cd_m2": NOISE_ABS_CD_M2, "digits": 4},
