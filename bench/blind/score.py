@@ -118,7 +118,8 @@ def classify(verdict: str | None) -> tuple[str, list[str]]:
 def reported_misfit(d: dict) -> float | None:
     """The misfit the diagnosis reports before its catalogue, in the layer's units (slider
     units, % of luminance, % of the photos' RMS), or None."""
-    for v in (d.get("misfit_before"), (d.get("misfit") or {}).get("size_pct_before")):
+    for v in (d.get("misfit_before"), (d.get("misfit") or {}).get("size_pct_before"),
+              d.get("misfit_pct_before")):
         if isinstance(v, int | float) and math.isfinite(v):
             return float(v)
     return None
