@@ -348,6 +348,19 @@ def minutes_since_rest(onset_s, pauses_s):
     return out
 
 
+def pilot_participants(seed, day0):
+    """(rows, parameters) of the 8 pilot participants: the seed's alone, the same for every
+    case, never with an effect."""
+    rng_pilot = np.random.default_rng([seed, 31337])
+    pilot, pilot_obs = [], {}
+    for k in range(N_PILOT):
+        pid = f"P{k + 1:02d}"
+        pilot_obs[pid] = draw_observer(rng_pilot)
+        tr = draw_trials(pilot_obs[pid], rng_pilot, day0)
+        pilot += participant_rows(pid, tr, *recorded(tr), onsets(tr))
+    return pilot, pilot_obs
+
+
 def generate(case, seed, out, *, participants=N_REAL, multiple=1.0):
     """Write OUT/pilot, OUT/real and OUT/truth.json for one case and seed.
 
@@ -358,14 +371,7 @@ def generate(case, seed, out, *, participants=N_REAL, multiple=1.0):
         raise ValueError(f"--participants {participants}: give at least 1")
     out = Path(out)
     day0 = datetime(2026, 3, 2, tzinfo=UTC)
-    # The pilot depends on the seed only: the same for every case.
-    rng_pilot = np.random.default_rng([seed, 31337])
-    pilot, pilot_obs = [], {}
-    for k in range(N_PILOT):
-        pid = f"P{k + 1:02d}"
-        pilot_obs[pid] = draw_observer(rng_pilot)
-        tr = draw_trials(pilot_obs[pid], rng_pilot, day0)
-        pilot += participant_rows(pid, tr, *recorded(tr), onsets(tr))
+    pilot, pilot_obs = pilot_participants(seed, day0)
     new = case in NEW_CASES
     # The new cases take the real participants of `none` (the same stream), their effect
     # from a stream of their own: `none` of the same seed is their no-effect data.
