@@ -71,16 +71,28 @@ from pathlib import Path
 
 import numpy as np
 
-CASES = ("none", "label_pull", "serial", "both")
+NEW_CASES = ("rest_drift", "highlight_depth", "slider_swap", "gloss_depth", "illum_depth")
+CASES = ("none", "label_pull", "serial", "both", *NEW_CASES)
+#: Expected names; the new cases lie outside the catalogue: any gap ("unexplained" or a name).
 EXPECTED = {"none": [], "label_pull": ["label_rounding"], "serial": ["serial_dependence"],
-            "both": ["label_rounding", "serial_dependence"]}
+            "both": ["label_rounding", "serial_dependence"],
+            **{c: ["unexplained"] for c in NEW_CASES}}
+#: Catalogue names (diagnosis.json "ranking") whose description comes close to a new case.
+NEAR = {"gloss_depth": ["crosstalk"], "illum_depth": ["illumination_gain"],
+        "slider_swap": ["lapses"]}
+STRENGTH_UNIT = {"rest_drift": "slider units per minute since the rest",
+                 "highlight_depth": "slider units per unit of relative highlight size",
+                 "slider_swap": "fraction of the first participant's trials swapped",
+                 "gloss_depth": "slider units of depth per gloss label",
+                 "illum_depth": "fractional inflation of depth (above 1) under outdoor"}
+TOLERANCE_SLIDER = 0.25  # design.toml [gap] observer_tolerance_slider
 COLUMNS = ("participant", "session", "trial", "order", "stimulus_id", "illumination",
            "gloss_level", "depth_level", "true_gloss_pct", "true_depth_cm", "gloss_match",
            "depth_match", "rt_s", "onset_s", "dropped_frames", "timestamp_utc", "app_version",
            "calibration_id")
 ILLUMINATIONS = ("indoor", "outdoor")
 LEVELS = tuple(range(2, 11))
-N_PILOT, N_REAL = 8, 6
+N_PILOT, N_REAL = 8, 20
 TRIALS_PER_SESSION = 81
 SLIDER_PX_PER_UNIT = 60
 APP_VERSION = "0.9.2+gblindlab"
@@ -143,36 +155,79 @@ def apply_effects(v, label_frac, serial_frac):
     return out
 
 
-def participant_rows(pid, obs, rng, *, label_frac=0.0, serial_frac=0.0, day0):
-    """The 162 session rows of one participant (dicts of COLUMNS)."""
+def draw_trials(obs, rng, day0):
+    """Everything random about one participant's 162 trials, drawn in a fixed order (the same
+    stream gives the same trials whatever effect is added afterwards).
+
+    Returns a dict of arrays in trial order (both sessions): ``stim`` (index into
+    ``stimuli()``), ``session``, ``gloss`` and ``depth`` (base settings before the slider's
+    ends, slider units), ``rt_s``, and ``start`` (each session's start, datetimes)."""
     stim = stimuli()
     order = rng.permutation(len(stim))
-    rows = []
+    parts = {"stim": [], "session": [], "gloss": [], "depth": [], "rt_s": []}
+    starts = []
     for session in (1, 2):
         idx = order[(session - 1) * TRIALS_PER_SESSION: session * TRIALS_PER_SESSION]
         g = np.array([stim[i][2] for i in idx], float)
         d = np.array([stim[i][3] for i in idx], float)
         gloss, depth = base_settings(obs, g, d, rng)
-        gloss = apply_effects(np.clip(gloss, 1.0, 11.0), label_frac, serial_frac)
-        depth = apply_effects(np.clip(depth, 1.0, 11.0), label_frac, serial_frac)
-        gloss, depth = on_slider(gloss), on_slider(depth)
         rt = obs["rt_median_s"] * np.exp(obs["rt_log_sd"] * rng.normal(size=len(idx)))
-        start = day0 + timedelta(days=session - 1, hours=float(rng.uniform(9, 17)))
-        onset = 2.0
-        for t, i in enumerate(idx):
-            sid, il, gl, dl = stim[i]
-            stamp = start + timedelta(seconds=onset + rt[t])
-            rows.append({
-                "participant": pid, "session": session, "trial": t + 1,
-                "order": (session - 1) * TRIALS_PER_SESSION + t + 1, "stimulus_id": sid,
-                "illumination": il, "gloss_level": gl, "depth_level": dl,
-                "true_gloss_pct": f"{10.0 * (gl - 1):.1f}", "true_depth_cm": f"{0.4 * dl:.1f}",
-                "gloss_match": f"{gloss[t]:.6f}", "depth_match": f"{depth[t]:.6f}",
-                "rt_s": f"{rt[t]:.4f}", "onset_s": f"{onset:.4f}", "dropped_frames": 0,
-                "timestamp_utc": stamp.strftime("%Y-%m-%dT%H:%M:%S.%fZ"),
-                "app_version": APP_VERSION, "calibration_id": CALIBRATION_ID,
-            })
-            onset += rt[t] + 0.6
+        starts.append(day0 + timedelta(days=session - 1, hours=float(rng.uniform(9, 17))))
+        for key, val in (("stim", idx), ("session", np.full(len(idx), session)),
+                         ("gloss", gloss), ("depth", depth), ("rt_s", rt)):
+            parts[key].append(val)
+    out = {k: np.concatenate(v) for k, v in parts.items()}
+    out["start"] = starts
+    return out
+
+
+def onsets(trials, pauses_s=None):
+    """Onset of each trial from its session's start, s (2 s lead-in, 0.6 s between a
+    response and the next onset); ``pauses_s`` (trial index -> s) adds a rest before a trial."""
+    out = np.empty(len(trials["rt_s"]))
+    onset, session = 2.0, trials["session"][0]
+    for t, rt in enumerate(trials["rt_s"]):
+        if trials["session"][t] != session:
+            onset, session = 2.0, trials["session"][t]
+        onset += (pauses_s or {}).get(t, 0.0)
+        out[t] = onset
+        onset += rt + 0.6
+    return out
+
+
+def recorded(trials, label_frac=0.0, serial_frac=0.0):
+    """Recorded settings of the base observer with label and serial pulls (see
+    ``apply_effects``), on the slider: (gloss, depth) in trial order."""
+    res = []
+    for v in (trials["gloss"], trials["depth"]):
+        v = np.clip(v, 1.0, 11.0)
+        out = np.empty_like(v)
+        for session in (1, 2):
+            m = trials["session"] == session
+            out[m] = apply_effects(v[m], label_frac, serial_frac)
+        res.append(on_slider(out))
+    return tuple(res)
+
+
+def participant_rows(pid, trials, gloss, depth, onset_s):
+    """The session rows of one participant (dicts of COLUMNS)."""
+    stim = stimuli()
+    rows = []
+    for t, i in enumerate(trials["stim"]):
+        sid, il, gl, dl = stim[i]
+        session = int(trials["session"][t])
+        n_before = (session - 1) * TRIALS_PER_SESSION
+        stamp = trials["start"][session - 1] + timedelta(seconds=onset_s[t] + trials["rt_s"][t])
+        rows.append({
+            "participant": pid, "session": session, "trial": t - n_before + 1,
+            "order": t + 1, "stimulus_id": sid,
+            "illumination": il, "gloss_level": gl, "depth_level": dl,
+            "true_gloss_pct": f"{10.0 * (gl - 1):.1f}", "true_depth_cm": f"{0.4 * dl:.1f}",
+            "gloss_match": f"{gloss[t]:.6f}", "depth_match": f"{depth[t]:.6f}",
+            "rt_s": f"{trials['rt_s'][t]:.4f}", "onset_s": f"{onset_s[t]:.4f}",
+            "dropped_frames": 0, "timestamp_utc": stamp.strftime("%Y-%m-%dT%H:%M:%S.%fZ"),
+            "app_version": APP_VERSION, "calibration_id": CALIBRATION_ID,
+        })
     return rows
 
 
@@ -191,23 +246,139 @@ def write_sessions(folder, rows):
         os.replace(tmp, path)
 
 
-def generate(case, seed, out):
-    """Write OUT/pilot, OUT/real and OUT/truth.json for one case and seed."""
-    if case not in CASES:
-        raise ValueError(f"--case {case!r}: choose one of {', '.join(CASES)}")
-    out = Path(out)
-    day0 = datetime(2026, 3, 2, tzinfo=UTC)
-    # The pilot depends on the seed only: the same for every case.
+def trial_table(trials, obs_list):
+    """The real participants' trials stacked into one table of arrays (see ``shifted``)."""
+    stim = stimuli()
+    cols = {k: [] for k in ("g", "d", "outdoor", "gloss", "depth", "minutes", "person")}
+    for p, tr in enumerate(trials):
+        idx = tr["stim"]
+        cols["g"].append(np.array([stim[i][2] for i in idx], float))
+        cols["d"].append(np.array([stim[i][3] for i in idx], float))
+        cols["outdoor"].append(np.array([stim[i][1] == "outdoor" for i in idx]))
+        cols["gloss"].append(tr["gloss"])
+        cols["depth"].append(tr["depth"])
+        cols["minutes"].append(tr["minutes_since_rest"])
+        cols["person"].append(np.full(len(idx), p))
+    return {k: np.concatenate(v) for k, v in cols.items()}
+
+
+def highlight_size(g):
+    """Relative size of a highlight at gloss label g: the Ward roughness behind the labels
+    falls about geometrically with the label (1 at label 2, 0.2 at label 10)."""
+    return 0.2 ** ((np.asarray(g, float) - 2.0) / 8.0)
+
+
+def shifted(case, strength, tab, person_k, swap_mask=None):
+    """Recorded (gloss, depth) of the real participants with one new effect at ``strength``.
+
+    The effect acts on the internal setting, before the slider's ends and its pixel grid;
+    ``person_k`` (one per participant, U(0.5, 1.5)) sets each person's share of it."""
+    k = person_k[tab["person"]] * strength
+    gloss, depth = tab["gloss"].copy(), tab["depth"].copy()
+    if case == "rest_drift":
+        gloss += k * tab["minutes"]
+        depth += k * tab["minutes"]
+    elif case == "highlight_depth":
+        depth += k * (np.mean(highlight_size(LEVELS)) - highlight_size(tab["g"]))
+    elif case == "gloss_depth":
+        depth += k * (tab["g"] - 6.0)
+    elif case == "illum_depth":
+        depth += np.where(tab["outdoor"], k * (np.clip(depth, 1.0, 11.0) - 1.0), 0.0)
+    elif case == "slider_swap" and swap_mask is not None:
+        gloss, depth = np.where(swap_mask, depth, gloss), np.where(swap_mask, gloss, depth)
+    return on_slider(gloss), on_slider(depth)
+
+
+def size_slider(a, b):
+    """RMS over trials of the distance between two sets of (gloss, depth) settings, slider
+    units: sqrt(mean((g_a - g_b)^2 + (d_a - d_b)^2)) (a depth-only shift of c gives c)."""
+    return float(np.sqrt(np.mean((a[0] - b[0]) ** 2 + (a[1] - b[1]) ** 2)))
+
+
+def size_within_person(a, b, person):
+    """``size_slider`` after each participant's mean change of each slider is taken out: the
+    part of the effect a person's own offset cannot absorb, slider units."""
+    total = 0.0
+    for p in np.unique(person):
+        m = person == p
+        for i in (0, 1):
+            d = a[i][m] - b[i][m]
+            total += np.sum((d - d.mean()) ** 2)
+    return float(np.sqrt(total / len(person)))
+
+
+def scale_effect(case, target, tab, person_k, rng):
+    """The strength (and swap mask) at which the effect's size is ``target`` slider units."""
+    ref = (on_slider(tab["gloss"]), on_slider(tab["depth"]))
+    if case == "slider_swap":
+        # One participant (the first) swaps now and then: trials taken in a random order,
+        # each kept while the summed squared distance stays within the target's.
+        cost = 2.0 * (ref[0] - ref[1]) ** 2 * (tab["person"] == 0)
+        budget, total = target ** 2 * len(cost), 0.0
+        mask = np.zeros(len(cost), bool)
+        for t in rng.permutation(np.flatnonzero(tab["person"] == 0)):
+            if total + cost[t] <= budget:
+                mask[t], total = True, total + cost[t]
+        return float(mask.sum() / max(1, (tab["person"] == 0).sum())), mask
+    lo, hi = 0.0, 0.05
+    while size_slider(shifted(case, hi, tab, person_k), ref) < target:
+        hi *= 2.0
+    for _ in range(50):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if size_slider(shifted(case, mid, tab, person_k), ref) < target \
+            else (lo, mid)
+    return 0.5 * (lo + hi), None
+
+
+def rest_pauses(rng):
+    """Rest breaks (trial index within both sessions -> pause, s): 1-3 min before the 28th
+    and 55th trial of each session."""
+    return {s * TRIALS_PER_SESSION + t: float(rng.uniform(60.0, 180.0))
+            for s in (0, 1) for t in (27, 54)}
+
+
+def minutes_since_rest(onset_s, pauses_s):
+    """Minutes since the block began (a session's start or the end of a rest), per trial."""
+    out = np.empty(len(onset_s))
+    block0 = 0.0
+    for t in range(len(onset_s)):
+        if t % TRIALS_PER_SESSION == 0 or t in pauses_s:
+            block0 = onset_s[t]
+        out[t] = (onset_s[t] - block0) / 60.0
+    return out
+
+
+def pilot_participants(seed, day0):
+    """(rows, parameters) of the 8 pilot participants: the seed's alone, the same for every
+    case, never with an effect."""
     rng_pilot = np.random.default_rng([seed, 31337])
     pilot, pilot_obs = [], {}
     for k in range(N_PILOT):
         pid = f"P{k + 1:02d}"
         pilot_obs[pid] = draw_observer(rng_pilot)
-        pilot += participant_rows(pid, pilot_obs[pid], rng_pilot, day0=day0)
-    rng = np.random.default_rng([seed, CASES.index(case), 271828])
-    real, real_obs = [], {}
-    for k in range(N_REAL):
-        pid = f"R{k + 1:02d}"
+        tr = draw_trials(pilot_obs[pid], rng_pilot, day0)
+        pilot += participant_rows(pid, tr, *recorded(tr), onsets(tr))
+    return pilot, pilot_obs
+
+
+def generate(case, seed, out, *, participants=N_REAL, multiple=1.0):
+    """Write OUT/pilot, OUT/real and OUT/truth.json for one case and seed.
+
+    ``multiple``: the new cases' effect size in units of the tolerance (0.25 slider units)."""
+    if case not in CASES:
+        raise ValueError(f"--case {case!r}: choose one of {', '.join(CASES)}")
+    if participants < 1:
+        raise ValueError(f"--participants {participants}: give at least 1")
+    out = Path(out)
+    day0 = datetime(2026, 3, 2, tzinfo=UTC)
+    pilot, pilot_obs = pilot_participants(seed, day0)
+    new = case in NEW_CASES
+    # The new cases take the real participants of `none` (the same stream), their effect
+    # from a stream of their own: `none` of the same seed is their no-effect data.
+    rng = np.random.default_rng([seed, 0 if new else CASES.index(case), 271828])
+    rng_eff = np.random.default_rng([seed, CASES.index(case), 271828, 7])
+    real_obs, trials, fracs = {}, [], []
+    for k in range(participants):
         obs = draw_observer(rng)
         label_frac = serial_frac = 0.0
         if case == "label_pull":
@@ -216,14 +387,51 @@ def generate(case, seed, out):
             serial_frac = float(rng.uniform(0.15, 0.35))
         elif case == "both":
             label_frac, serial_frac = 0.5, 0.25
-        obs = {**obs, "label_pull_fraction": label_frac, "serial_pull_fraction": serial_frac}
-        real_obs[pid] = obs
-        real += participant_rows(pid, obs, rng, label_frac=label_frac,
-                                 serial_frac=serial_frac, day0=day0 + timedelta(days=14))
+        tr = draw_trials(obs, rng, day0 + timedelta(days=14))
+        pauses = rest_pauses(rng_eff) if case == "rest_drift" else {}
+        tr["onset_s"] = onsets(tr, pauses)
+        tr["minutes_since_rest"] = minutes_since_rest(tr["onset_s"], pauses)
+        real_obs[f"R{k + 1:02d}"] = {**obs, "label_pull_fraction": label_frac,
+                                     "serial_pull_fraction": serial_frac,
+                                     "rest_pauses_s": {str(t): v for t, v in pauses.items()}}
+        trials.append(tr)
+        fracs.append((label_frac, serial_frac))
+    none = [recorded(tr) for tr in trials]
+    ref = tuple(np.concatenate([n[i] for n in none]) for i in (0, 1))
+    effect = {}
+    if new:
+        tab = trial_table(trials, real_obs)
+        person_k = rng_eff.uniform(0.5, 1.5, participants)
+        strength, mask = scale_effect(case, multiple * TOLERANCE_SLIDER, tab, person_k, rng_eff)
+        got = shifted(case, strength, tab, person_k, mask)
+        effect = {"strength": strength, "person_share": person_k.tolist(),
+                  "unit": STRENGTH_UNIT[case]}
+        if case == "slider_swap":
+            # A swap on a fraction p of trials moves the expected setting by p x the swap and
+            # adds the rest as spread: the mean's part of the size is sqrt(p) of it.
+            effect["size_of_the_mean_only"] = float(np.sqrt(strength)) * size_slider(got, ref)
+        cuts = np.cumsum([len(tr["rt_s"]) for tr in trials])[:-1]
+        settings = list(zip(np.split(got[0], cuts), np.split(got[1], cuts), strict=True))
+    else:
+        settings = [recorded(tr, *fr) for tr, fr in zip(trials, fracs, strict=True)]
+        got = tuple(np.concatenate([s[i] for s in settings]) for i in (0, 1))
+    real = []
+    for k, (tr, (gl, dp)) in enumerate(zip(trials, settings, strict=True)):
+        real += participant_rows(f"R{k + 1:02d}", tr, gl, dp, tr["onset_s"])
     write_sessions(out / "pilot", pilot)
     write_sessions(out / "real", real)
+    size = size_slider(got, ref)
+    person = np.concatenate([np.full(len(tr["rt_s"]), k) for k, tr in enumerate(trials)])
+    within = size_within_person(got, ref, person)
     truth = {"generator": "bench/blind/observer_gen.py", "case": case, "seed": seed,
-             "expected": EXPECTED[case], "pilot": pilot_obs, "real": real_obs}
+             "expected": EXPECTED[case], "in_catalogue": case not in NEW_CASES,
+             "near_catalogue": NEAR.get(case, []), "participants": participants,
+             "multiple_asked": multiple if new else None,
+             "size": size, "size_unit": "slider units, RMS distance (gloss, depth) over trials",
+             "tolerance": TOLERANCE_SLIDER, "size_in_tolerances": size / TOLERANCE_SLIDER,
+             "size_within_person": within,
+             "size_within_person_in_tolerances": within / TOLERANCE_SLIDER,
+             "effect": effect, "pilot": pilot_obs, "real": real_obs}
     (out / "truth.json").write_text(json.dumps(truth, indent=2) + "\n")
     return truth
 
@@ -233,10 +441,15 @@ def main(argv=None):
     ap.add_argument("--case", required=True, choices=CASES)
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--out", required=True, help="folder written: pilot/, real/, truth.json")
+    ap.add_argument("--participants", type=int, default=N_REAL,
+                    help=f"real participants (default {N_REAL}, the full size; also 3, 6, 11)")
+    ap.add_argument("--multiple", type=float, default=1.0,
+                    help="new cases: effect size in tolerances (0.25 slider units); default 1")
     args = ap.parse_args(argv)
-    truth = generate(args.case, args.seed, args.out)
-    print(json.dumps({"case": truth["case"], "seed": truth["seed"],
-                      "expected": truth["expected"]}))
+    truth = generate(args.case, args.seed, args.out, participants=args.participants,
+                     multiple=args.multiple)
+    print(json.dumps({k: truth[k] for k in ("case", "seed", "expected", "participants",
+                                            "size", "size_in_tolerances")}))
     return 0
 
 

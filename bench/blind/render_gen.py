@@ -76,10 +76,15 @@ from pathlib import Path
 
 import numpy as np
 
-CASES = ("ward", "clearcoat", "broad_lobe", "glare")
-#: Catalogue names as the diagnosis's output (diagnosis.json "ranking") lists them.
+NEW_CASES = ("interreflection", "lens_flare")
+CASES = ("ward", "clearcoat", "broad_lobe", "glare", *NEW_CASES)
+#: Catalogue names as the diagnosis's output (diagnosis.json "ranking") lists them; the new
+#: cases lie outside it (any gap).
 EXPECTED = {"ward": "none", "clearcoat": "clearcoat", "broad_lobe": "broad_lobe",
-            "glare": "veiling_glare"}
+            "glare": "veiling_glare", "interreflection": "unexplained",
+            "lens_flare": "unexplained"}
+TOLERANCE_PCT = 1.0  # design.toml [gap] render_tolerance_pct
+N_HALF = 24  # 48 lights: the full size (12 is the small one)
 SUPERSAMPLE = 4
 FULL_CODE = 65535
 READ_NOISE_CODES = 4.0
@@ -201,32 +206,126 @@ def draw_material(rng, case):
     return mat
 
 
-def generate(case, seed, out, *, size=56, n_half=12):
-    """Write the photo set for one case and seed into ``out``."""
+def floor_light(normals, on, light, mat, albedo):
+    """Light a diffuse white floor under the ball (normal +y, the ball resting on it) sends
+    back onto the ball, per unit irradiance of the light (grey).
+
+    The floor, lit by the light at cos = l_y, has radiance L_f = albedo l_y / pi and fills the
+    lower hemisphere seen from the ball: it adds an irradiance pi L_f (1 - n_y) / 2 (the
+    ground term of a sky/ground split), reflected diffusely, and, mirrored in the coat, a
+    reflection of the floor rho_s L_f where the mirror direction of the view points down
+    (an edge blurred by the lobe's width alpha)."""
+    if light[1] <= 0.0:
+        return np.zeros(normals.shape[:2])
+    lf = albedo * light[1] / np.pi
+    diffuse = mat["rho_d"] / np.pi * np.pi * lf * (1.0 - normals[..., 1]) / 2.0
+    r_y = 2.0 * normals[..., 2] * normals[..., 1]  # mirror of v = z about n, its y part
+    edge = 0.5 * (1.0 + np.tanh(-r_y / (2.0 * mat["alpha"])))
+    return np.where(on, diffuse + mat["rho_s"] * lf * edge, 0.0)
+
+
+def add_flare(img, frac, centre, sigma_px, tint):
+    """A lens ghost: ``frac`` of the photo's light, blurred (Gaussian, ``sigma_px``), tinted,
+    and mirrored through the optical centre (the ghost of a highlight on the ball's far side)."""
+    h, w = img.shape[:2]
+    ky = np.fft.fftfreq(2 * h)[:, None]
+    kx = np.fft.rfftfreq(2 * w)[None, :]
+    otf = np.exp(-2.0 * (np.pi * sigma_px) ** 2 * (kx * kx + ky * ky))
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    # Mirror each pixel centre through the optical centre; nearest sample of the blurred photo.
+    ys = np.clip(np.rint(2.0 * centre[1] - yy - 1.0).astype(int), 0, h - 1)
+    xs = np.clip(np.rint(2.0 * centre[0] - xx - 1.0).astype(int), 0, w - 1)
+    out = img.copy()
+    for c in range(img.shape[2]):
+        pad = np.zeros((2 * h, 2 * w))
+        pad[:h, :w] = img[..., c]
+        blur = np.fft.irfft2(np.fft.rfft2(pad) * otf, s=pad.shape)[:h, :w]
+        out[..., c] += frac * tint[c] * blur[ys, xs]
+    return out
+
+
+def size_pct(images, reference, mask, heldout):
+    """RMS over the ball's pixels of the held-out photos of (image - reference), as % of the
+    reference's RMS there (design.toml [gap] render_tolerance_pct's measure), on the channels'
+    mean, noise-free and before saturation."""
+    a = np.stack([images[k].mean(-1)[mask] for k in heldout])
+    b = np.stack([reference[k].mean(-1)[mask] for k in heldout])
+    return float(100.0 * np.sqrt(np.mean((a - b) ** 2)) / np.sqrt(np.mean(b ** 2)))
+
+
+def photos(case, mat, lights, intens, normals_ss, on_ss, size, effect):
+    """Noise-free pixel values of every light's photo (radiance x the light's RGB)."""
+    images = []
+    if case == "glare":
+        psf = glare_psf(size, effect["glare_r0_px"])
+    for k in range(len(lights)):
+        rad = radiance(normals_ss, on_ss, lights[k], mat, case)
+        if case == "interreflection":
+            rad = rad + floor_light(normals_ss, on_ss, lights[k], mat, effect["floor_albedo"])
+        px = rad.reshape(size, SUPERSAMPLE, size, SUPERSAMPLE).mean(axis=(1, 3))
+        img = px[..., None] * intens[k][None, None, :]
+        if case == "glare":
+            img = add_glare(img, effect["glare_fraction"], psf)
+        if case == "lens_flare":
+            img = add_flare(img, effect["flare_fraction"], effect["optical_centre_px"],
+                            effect["flare_sigma_px"], effect["flare_tint"])
+        images.append(img)
+    return images
+
+
+def scale_new(case, target, args, reference, mask, heldout, rng_eff, size):
+    """The new case's effect dict at which its size is ``target`` % (bisection)."""
+    if case == "interreflection":
+        shape = {}
+        key = "floor_albedo"
+    else:
+        shape = {"optical_centre_px": [size / 2 + rng_eff.uniform(-2, 2),
+                                       size / 2 + rng_eff.uniform(-2, 2)],
+                 "flare_sigma_px": 0.1 * size,
+                 "flare_tint": (np.array([0.8, 1.0, 1.2]) * rng_eff.uniform(0.9, 1.1, 3)).tolist()}
+        key = "flare_fraction"
+
+    def got(x):
+        return size_pct(photos(case, *args, {**shape, key: x}), reference, mask, heldout)
+
+    lo, hi = 0.0, 0.01
+    while got(hi) < target:
+        hi *= 2.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if got(mid) < target else (lo, mid)
+    return {**shape, key: 0.5 * (lo + hi)}
+
+
+def generate(case, seed, out, *, size=56, n_half=N_HALF, multiple=1.0):
+    """Write the photo set for one case and seed into ``out`` (lights 1..n_half to fit,
+    n_half+1..2 n_half held out); ``multiple``: the new cases' size in tolerances (1 %)."""
     if case not in CASES:
         raise ValueError(f"--case {case!r}: choose one of {', '.join(CASES)}")
-    rng = np.random.default_rng([seed, CASES.index(case), 161803])
-    mat = draw_material(rng, case)
+    new = case in NEW_CASES
+    # The new cases take `ward`'s stream (their no-effect photos), their effect apart.
+    rng = np.random.default_rng([seed, 0 if new else CASES.index(case), 161803])
+    rng_eff = np.random.default_rng([seed, CASES.index(case), 161803, 7])
+    mat = draw_material(rng, "ward" if new else case)
     cx, cy = size / 2 + rng.uniform(-1.0, 1.0), size / 2 + rng.uniform(-1.0, 1.0)
     radius = 0.39 * size
     lights = light_directions(rng, n_half)
     n = len(lights)
     intens = rng.uniform(0.7, 1.3, n)[:, None] * rng.uniform(0.95, 1.05, (n, 3))
     normals_ss, on_ss = sphere_samples(size, cx, cy, radius, SUPERSAMPLE)
+    normals_px, on_px = sphere_samples(size, cx, cy, radius, 1)
+    args = (mat, lights, intens, normals_ss, on_ss, size)
+    reference = photos("ward", *args, {})
+    heldout = range(n_half, n)
     effect = {}
     if case == "glare":
         effect = {"glare_fraction": float(rng.uniform(0.03, 0.06)), "glare_r0_px": 0.08 * size}
-        psf = glare_psf(size, effect["glare_r0_px"])
-    # Radiance per light, binned to pixels (the pixel's area), times the light's RGB.
-    images = []
-    for k in range(n):
-        rad = radiance(normals_ss, on_ss, lights[k], mat, case)
-        px = rad.reshape(size, SUPERSAMPLE, size, SUPERSAMPLE).mean(axis=(1, 3))
-        img = px[..., None] * intens[k][None, None, :]
-        if case == "glare":
-            img = add_glare(img, effect["glare_fraction"], psf)
-        images.append(img)
-    exposure = 1.02 * FULL_CODE / max(float(im.max()) for im in images)
+    if new:
+        effect = scale_new(case, multiple * TOLERANCE_PCT, args, reference, on_px, heldout,
+                           rng_eff, size)
+    images = photos(case, *args, effect)
+    # One exposure for the set; the new cases keep the exposure of their no-effect photos.
+    exposure = 1.02 * FULL_CODE / max(float(im.max()) for im in (reference if new else images))
     out = Path(out)
     (out / "images").mkdir(parents=True, exist_ok=True)
     names, saturated = [], 0
@@ -239,7 +338,6 @@ def generate(case, seed, out, *, size=56, n_half=12):
         write_atomic(out / "images" / name, png_bytes(codes, 16))
         names.append(name)
     # The mask and the normals at pixel centres (what a lab's calibration would give).
-    normals_px, on_px = sphere_samples(size, cx, cy, radius, 1)
     write_atomic(out / "mask.png", png_bytes(np.where(on_px, 255, 0).astype(np.uint8), 8))
     np.save(out / "normal_gt.npy", normals_px.astype(np.float32))
     (out / "filenames.txt").write_text("\n".join(names) + "\n")
@@ -247,8 +345,13 @@ def generate(case, seed, out, *, size=56, n_half=12):
         "\n".join(" ".join(f"{v:.8f}" for v in d) for d in lights) + "\n")
     (out / "light_intensities.txt").write_text(
         "\n".join(" ".join(f"{v:.8f}" for v in row) for row in intens) + "\n")
+    got = size_pct(images, reference, on_px, heldout)
     truth = {"generator": "bench/blind/render_gen.py", "case": case, "seed": seed,
-             "expected": EXPECTED[case], "material": mat, "effect": effect,
+             "expected": EXPECTED[case], "in_catalogue": not new, "lights": n,
+             "multiple_asked": multiple if new else None, "size": got,
+             "size_unit": "% of the held-out photos' RMS over the ball's pixels",
+             "tolerance": TOLERANCE_PCT, "size_in_tolerances": got / TOLERANCE_PCT,
+             "material": mat, "effect": effect,
              "size_px": size, "centre_px": [cx, cy], "radius_px": radius,
              "lights_fit": f"1-{n_half}", "lights_heldout": f"{n_half + 1}-{n}",
              "exposure_codes_per_unit": exposure, "saturated_pixels": saturated,
@@ -264,13 +367,18 @@ def main(argv=None):
     ap.add_argument("--seed", type=int, required=True)
     ap.add_argument("--out", required=True, help="photo set folder written")
     ap.add_argument("--size", type=int, default=56, help="image size, px (default 56)")
-    ap.add_argument("--lights-per-half", type=int, default=12,
-                    help="lights fitted (1..N) and held out (N+1..2N); default 12")
+    ap.add_argument("--lights", type=int, default=2 * N_HALF,
+                    help=f"lights in all, even: half fitted (1..N), half held out (N+1..2N); "
+                         f"default {2 * N_HALF} (the full size), 12 the small one")
+    ap.add_argument("--multiple", type=float, default=1.0,
+                    help="new cases: effect size in tolerances (1 %% of the photos' RMS)")
     args = ap.parse_args(argv)
-    truth = generate(args.case, args.seed, args.out, size=args.size, n_half=args.lights_per_half)
-    print(json.dumps({"case": truth["case"], "seed": truth["seed"],
-                      "expected": truth["expected"], "material": truth["material"],
-                      "effect": truth["effect"], "saturated_pixels": truth["saturated_pixels"]}))
+    if args.lights < 2 or args.lights % 2:
+        ap.error(f"--lights {args.lights}: give an even number, at least 2 (e.g. 12 or 48)")
+    truth = generate(args.case, args.seed, args.out, size=args.size, n_half=args.lights // 2,
+                     multiple=args.multiple)
+    print(json.dumps({k: truth[k] for k in ("case", "seed", "expected", "lights", "size",
+                                            "size_in_tolerances", "effect", "saturated_pixels")}))
     return 0
 
 
