@@ -68,7 +68,8 @@ def _misfit_words(d: Diagnosis) -> str:
 def _verdict_words(d: Diagnosis) -> str:
     """The verdict's own sentence(s)."""
     if d.floor_status == "misestimated":
-        return _floor_words(d)
+        head = "Inconclusive: " if d.verdict == INCONCLUSIVE else ""
+        return f"{head}{_floor_words(d)}{_power_words(d)}"
     rem = d.remaining or {}
     further, within = _remaining_words(rem)
     if not d.steps:

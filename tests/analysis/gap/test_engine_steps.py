@@ -187,7 +187,8 @@ def test_verdict_is_unexplained_without_steps_or_below_the_minimum_share():
     # does not is not excluded (no misfit bound): inconclusive, never "no gap".
     assert verdict_of([], 1.0, 0.0, gap_before_ci=(0.1, 0.3)) == "unexplained"
     assert verdict_of([], 1.0, 0.0, gap_before_ci=(-0.1, 0.3)) == "inconclusive"
-    assert verdict_of([], 1.0, 0.0, floor_status="misestimated") == "unexplained"
+    # A mis-estimated floor is neither a gap nor its exclusion.
+    assert verdict_of([], 1.0, 0.0, floor_status="misestimated") == "inconclusive"
 
 
 def _rem(significant, size, upper, tol=1.0, **more):
