@@ -148,6 +148,10 @@ class DiagnosisSettings:
                                       the verdict is no gap that matters (a change smaller
                                       than the tolerance); where only its point lies below,
                                       inconclusive
+    size_without_noise_model bool False  the layer's ``size`` and ``size_upper`` do not use
+                                      its noise model (the render layer's lagged residual
+                                      products): a mis-estimated floor then does not stop
+                                      their bound from excluding a gap
     floor_sd     float        0.0     SD (>= 0) of the floor's mean from its own estimation
                                       (e.g. a noise measured from n pairs of repeats): a gap is
                                       called below the floor only beyond it and its CI
@@ -170,6 +174,7 @@ class DiagnosisSettings:
     size_source: str = ""
     floor_sd: float = 0.0
     tolerate_chosen: bool = False
+    size_without_noise_model: bool = False
 
     def __post_init__(self):
         _check_real("alpha", self.alpha, 0.0, 1.0, "in (0, 1)", open_low=True, open_high=True)
@@ -181,6 +186,9 @@ class DiagnosisSettings:
         _check_int("refit_rounds", self.refit_rounds, 0)
         _check_real("min_size", self.min_size, 0.0, math.inf, ">= 0 and finite")
         _check_real("floor_sd", self.floor_sd, 0.0, math.inf, ">= 0 and finite")
+        if not isinstance(self.size_without_noise_model, bool):
+            raise GapError(f"DiagnosisSettings: size_without_noise_model must be True or "
+                           f"False; got {self.size_without_noise_model!r}")
         if not isinstance(self.tolerate_chosen, bool):
             raise GapError(f"DiagnosisSettings: tolerate_chosen must be True or False; got "
                            f"{self.tolerate_chosen!r}")
