@@ -132,8 +132,9 @@ def misfit_words(d: Diagnosis) -> str:
 
 
 def lead_figure(d: Diagnosis) -> str:
-    """The figure beside the verdict (HTML): 'no significant gap' or 'no gap that matters', or
-    the held-out gap before -> after in nats per unit and the share the chosen effects explain
+    """The figure beside the verdict (HTML): 'no gap that matters' or 'inconclusive' (with the
+    misfit's upper bound and, inconclusive, what is detectable and what decides), or the
+    held-out gap before -> after in nats per unit and the share the chosen effects explain
     (with a ceiling: of what the ceiling removes, the summary's share); first, where the layer
     measures it, the held-out RMS misfit before -> after in the data's own units (%)."""
     units = ([(f"{d.misfit_pct_before:.2g} % \u2192 {d.misfit_pct_after:.2g} %",

@@ -116,42 +116,46 @@ class LayerFunctions:
 class DiagnosisSettings:
     """The statistical choices of one diagnosis (loss units: nats per held-out unit).
 
-    =============== ============ ======= ===========================================================
-    field           type         default meaning
-    =============== ============ ======= ===========================================================
-    alpha           float        0.05    family-wise error rate, in (0, 1): of the ranking (Holm),
-                                         of each greedy step and of the test of what remains
-    n_boot          int          2000    bootstrap resamples of the held-out units, >= 1
-    max_steps       int or None  None    most candidates the greedy combination adds (None: the
-                                         whole catalogue). At each step every candidate not yet
-                                         chosen is re-fitted and re-tested; a step must reduce the
-                                         held-out loss significantly (one-sided p times the number
-                                         of candidates left < alpha) by at least ``min_gain``
-    min_share       float        0.0     in [0, 1]: an attribution needs the chosen candidates to
-                                         remove at least this share of the held-out gap; below it
-                                         the verdict is 'unexplained' (the partial steps are kept)
-    min_gain        float        0.0     a candidate, a greedy step or a remaining gap counts only
-                                         if it is at least this many nats per unit
-    refit_rounds    int          2       after each greedy step, rounds of backfitting (every
-                                         chosen candidate re-fitted given the others; their
-                                         reported parameters are the re-fitted ones); 0: none
-    min_size        float        0.0     the practical tolerance, >= 0, for the layer's ``size``
-                                         (same units)
-    size_unit       str          ""      words for ``size``'s unit (e.g. "% of the photos' RMS
-                                         luminance")
-    size_source     str          ""      where the tolerance is set (e.g. "the design's [gap]
-                                         render_tolerance_pct"), for the summary
-    tolerate_chosen bool         False   hold the plain simulation's misfit to the tolerance
-                                         too: where nothing significant remains and its
-                                         ``size`` (``size_before``) has its upper 95 % bound
-                                         below ``min_size``, chosen effects are reported but
-                                         the verdict is no gap that matters (a change smaller
-                                         than the tolerance); where only its point lies below,
-                                         inconclusive
-    floor_sd        float        0.0     SD (>= 0) of the floor's mean from its own estimation
-                                         (e.g. a noise measured from n pairs of repeats): a gap is
-                                         called below the floor only beyond it and its CI
-    =============== ============ ======= ===========================================================
+    ======================== ============ ======= ===========================================================
+    field                    type         default meaning
+    ======================== ============ ======= ===========================================================
+    alpha                    float        0.05    family-wise error rate, in (0, 1): of the ranking (Holm),
+                                                  of each greedy step and of the test of what remains
+    n_boot                   int          2000    bootstrap resamples of the held-out units, >= 1
+    max_steps                int or None  None    most candidates the greedy combination adds (None: the
+                                                  whole catalogue). At each step every candidate not yet
+                                                  chosen is re-fitted and re-tested; a step must reduce the
+                                                  held-out loss significantly (one-sided p times the number
+                                                  of candidates left < alpha) by at least ``min_gain``
+    min_share                float        0.0     in [0, 1]: an attribution needs the chosen candidates to
+                                                  remove at least this share of the held-out gap; below it
+                                                  the verdict is 'unexplained' (the partial steps are kept)
+    min_gain                 float        0.0     a candidate, a greedy step or a remaining gap counts only
+                                                  if it is at least this many nats per unit
+    refit_rounds             int          2       after each greedy step, rounds of backfitting (every
+                                                  chosen candidate re-fitted given the others; their
+                                                  reported parameters are the re-fitted ones); 0: none
+    min_size                 float        0.0     the practical tolerance, >= 0, for the layer's ``size``
+                                                  (same units)
+    size_unit                str          ""      words for ``size``'s unit (e.g. "% of the photos' RMS
+                                                  luminance")
+    size_source              str          ""      where the tolerance is set (e.g. "the design's [gap]
+                                                  render_tolerance_pct"), for the summary
+    tolerate_chosen          bool         False   hold the plain simulation's misfit to the tolerance
+                                                  too: where nothing significant remains and its
+                                                  ``size`` (``size_before``) has its upper 95 % bound
+                                                  below ``min_size``, chosen effects are reported but
+                                                  the verdict is no gap that matters (a change smaller
+                                                  than the tolerance); where only its point lies below,
+                                                  inconclusive
+    size_without_noise_model bool         False   the layer's ``size`` and ``size_upper`` do not use
+                                                  its noise model (the render layer's lagged residual
+                                                  products): a mis-estimated floor then does not stop
+                                                  their bound from excluding a gap
+    floor_sd                 float        0.0     SD (>= 0) of the floor's mean from its own estimation
+                                                  (e.g. a noise measured from n pairs of repeats): a gap is
+                                                  called below the floor only beyond it and its CI
+    ======================== ============ ======= ===========================================================
 
     Raises
     ------
@@ -170,6 +174,7 @@ class DiagnosisSettings:
     size_source: str = ""
     floor_sd: float = 0.0
     tolerate_chosen: bool = False
+    size_without_noise_model: bool = False
 
     def __post_init__(self):
         _check_real("alpha", self.alpha, 0.0, 1.0, "in (0, 1)", open_low=True, open_high=True)
@@ -181,6 +186,9 @@ class DiagnosisSettings:
         _check_int("refit_rounds", self.refit_rounds, 0)
         _check_real("min_size", self.min_size, 0.0, math.inf, ">= 0 and finite")
         _check_real("floor_sd", self.floor_sd, 0.0, math.inf, ">= 0 and finite")
+        if not isinstance(self.size_without_noise_model, bool):
+            raise GapError(f"DiagnosisSettings: size_without_noise_model must be True or "
+                           f"False; got {self.size_without_noise_model!r}")
         if not isinstance(self.tolerate_chosen, bool):
             raise GapError(f"DiagnosisSettings: tolerate_chosen must be True or False; got "
                            f"{self.tolerate_chosen!r}")

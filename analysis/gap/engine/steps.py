@@ -335,7 +335,7 @@ def explained_shares(gap: GapMeasures, base: np.ndarray, current: np.ndarray,
 
 def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str = "ok",
                remaining: dict | None = None, gap_before_ci=(), min_gain: float = 0.0,
-               tolerate_chosen: bool = False) -> str:
+               tolerate_chosen: bool = False, size_without_noise_model: bool = False) -> str:
     """The verdict: a gap (the chosen candidates' names ``a + b``, or ``'unexplained'``),
     :data:`NO_GAP_THAT_MATTERS` or :data:`INCONCLUSIVE`.
 
@@ -345,8 +345,10 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
       decides first: its upper 95 % bound (``remaining['size_before_upper']``) below the
       tolerance is no gap that matters; its point (``size_before``) below but not its bound,
       inconclusive.
-    - Nothing chosen: ``'unexplained'`` where what remains beyond the ceiling is significant
-      (and, with a size, at least the tolerance), or the floor is mis-estimated; no gap that
+    - Nothing chosen: inconclusive where the floor is mis-estimated (the held-out loss below
+      it: neither a gap nor excluded), unless the size does not use the noise model
+      (``size_without_noise_model``) and its bound excludes a gap; ``'unexplained'`` where what remains beyond the ceiling
+      is significant (and, with a size, at least the tolerance); no gap that
       matters where the remaining misfit's upper 95 % bound (``remaining['size_upper']``)
       lies below the tolerance; else inconclusive. Without a ceiling: ``'unexplained'``
       where the held-out gap's 95 % CI lies above ``min_gain``, else inconclusive.
@@ -363,7 +365,10 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
         explained = share >= min_share if np.isfinite(share) else True
         return " + ".join(s["added"] for s in steps) if explained else "unexplained"
     if not sound:
-        return "unexplained"
+        # The held-out loss below the noise floor: the floor is wrong, which is neither a gap
+        # nor its exclusion -- unless the misfit's bound does not rest on the noise model.
+        excluded = rem.get("size_upper", np.inf) < rem.get("tolerance", -np.inf)
+        return NO_GAP_THAT_MATTERS if size_without_noise_model and excluded else INCONCLUSIVE
     if remaining is None:
         above = bool(gap_before_ci) and gap_before_ci[0] > max(min_gain, 0.0)
         return "unexplained" if above else INCONCLUSIVE

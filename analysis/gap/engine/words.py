@@ -68,7 +68,12 @@ def _misfit_words(d: Diagnosis) -> str:
 def _verdict_words(d: Diagnosis) -> str:
     """The verdict's own sentence(s)."""
     if d.floor_status == "misestimated":
-        return _floor_words(d)
+        head = {INCONCLUSIVE: "Inconclusive: ",
+                NO_GAP_THAT_MATTERS: "No gap that matters (the misfit's bound rests on no "
+                                     "noise model): "}.get(d.verdict, "")
+        bound = (f" It leaves {_bound_words(d.remaining)}." if d.remaining and "size_upper"
+                 in d.remaining and "size" in d.remaining else "")
+        return f"{head}{_floor_words(d)}{bound}{_power_words(d)}"
     rem = d.remaining or {}
     further, within = _remaining_words(rem)
     if not d.steps:

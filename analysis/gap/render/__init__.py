@@ -213,7 +213,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
                                  min_gain=RENDER_MIN_GAIN,
                                  min_size=design.gap.render_tolerance_pct,
                                  size_unit=RENDER_SIZE_UNIT,
-                                 size_source="the design's [gap] render_tolerance_pct")
+                                 size_source="the design's [gap] render_tolerance_pct",
+                                 size_without_noise_model=True)
 
     def chosen(diag):
         return [(s["added"], s["params"]) for s in diag.steps]

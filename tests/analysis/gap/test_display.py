@@ -54,7 +54,7 @@ def test_cli_display_report(tmp_path, capsys):
 def test_display_without_repeats_takes_the_noise_from_the_calibration_and_says_so(tmp_path):
     """Readings without repeats (issue 29): the photometer's noise is the one the calibration
     measured from its own repeats (was: refused, 'needs repeated readings'), named in the
-    record; a clean display then shows no significant gap."""
+    record; a clean display then shows no gap that matters."""
     rng = np.random.default_rng(1)
     inject.write_calibration(rng, tmp_path / "cal")
     inject.write_readings(inject.simulate_readings(rng, repeats=1), tmp_path / "r")

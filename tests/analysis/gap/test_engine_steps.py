@@ -187,7 +187,14 @@ def test_verdict_is_unexplained_without_steps_or_below_the_minimum_share():
     # does not is not excluded (no misfit bound): inconclusive, never "no gap".
     assert verdict_of([], 1.0, 0.0, gap_before_ci=(0.1, 0.3)) == "unexplained"
     assert verdict_of([], 1.0, 0.0, gap_before_ci=(-0.1, 0.3)) == "inconclusive"
-    assert verdict_of([], 1.0, 0.0, floor_status="misestimated") == "unexplained"
+    # A mis-estimated floor is neither a gap nor its exclusion.
+    assert verdict_of([], 1.0, 0.0, floor_status="misestimated") == "inconclusive"
+    # ... unless the misfit's bound rests on no noise model and excludes a gap.
+    bounded = {"significant": False, "size": 0.1, "size_upper": 0.4, "tolerance": 1.0}
+    assert verdict_of([], 1.0, 0.0, floor_status="misestimated", remaining=bounded) \
+        == "inconclusive"
+    assert verdict_of([], 1.0, 0.0, floor_status="misestimated", remaining=bounded,
+                      size_without_noise_model=True) == "no_gap_that_matters"
 
 
 def _rem(significant, size, upper, tol=1.0, **more):

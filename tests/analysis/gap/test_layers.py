@@ -49,7 +49,7 @@ def test_a_layer_whose_own_verdict_is_no_gap_does_not_carry_one():
     """Above its floor but no worse than its ceiling (the demo's fitted observer) is no gap."""
     from analysis.gap.layers import which_layer
 
-    observer = _diag("observer", 0.388, (0.30, 0.47), verdict="none",
+    observer = _diag("observer", 0.388, (0.30, 0.47), verdict="inconclusive",
                      remaining={"gap": -0.04, "ci": (-0.12, 0.02), "significant": False})
     render = _diag("render", 1.34, (1.18, 1.53), steps=("clearcoat",), verdict="clearcoat",
                    remaining={"gap": 0.0, "ci": (-0.01, 0.01), "significant": False})
