@@ -22,7 +22,7 @@ from analysis.gap.engine import (
     summarise,
 )
 from analysis.gap.engine.power import power_analysis
-from analysis.gap.engine.steps import INCONCLUSIVE
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS
 
 __all__ = ["LAYERS", "diagnose"]
 
@@ -44,6 +44,13 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
         # Words again: the sizes (the misfit in the data's units) are part of the verdict.
         diag = replace(diag, **plan.sizes(diag))
         diag = replace(diag, summary=summarise(diag))
+    if diag.verdict == NO_GAP_THAT_MATTERS and plan.cannot_exclude:
+        # The bound excludes a gap of the tolerance only in what the data could measure.
+        diag = replace(diag, verdict=INCONCLUSIVE)
+        words = summarise(diag).replace(" is excluded.", " is excluded where the meter measured.")
+        diag = replace(diag, summary=words + " The data cannot exclude a gap: "
+                       + " ".join(plan.cannot_exclude))
+        return diag, plan.localise(diag, rng)
     if diag.verdict == INCONCLUSIVE and plan.power is not None:
         model = plan.power(diag)
         if model is not None:

@@ -186,6 +186,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
     lof_share = float(np.mean(0.5 * data["lof"].to_numpy(float) ** 2
                               / data["sd"].to_numpy(float) ** 2))
     floor_sd = float(np.hypot(floor_sd, lof_share / 1.96))
+    zeros = readings.attrs.get("display_source", {}).get("zero_evidence", ())
     return LayerPlan(
         functions, DiagnosisSettings(n_boot=n_boot, min_share=DISPLAY_MIN_SHARE,
                                      min_gain=DISPLAY_MIN_GAIN, floor_sd=floor_sd,
@@ -196,8 +197,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
         localise=lambda _diag, rng: localise_display(data, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text,
         loss_info=display_loss_info(data) | {"quantisation_visible_bits": bits},
-        warnings=(*readings.attrs.get("display_source", {}).get("zero_evidence", ()),
-                  *((note,) if note else ())), not_identifiable=display_identifiability(data),
+        warnings=(*zeros, *((note,) if note else ())), cannot_exclude=tuple(zeros),
+        not_identifiable=display_identifiability(data),
         sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
                                                   for st in diag.steps]),
         power=lambda diag: display_power(folds, diag))

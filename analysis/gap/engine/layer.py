@@ -50,6 +50,10 @@ class LayerPlan:
                      ``sizes``; the engine then finds ``detectable`` and ``to_decide``
                      (:func:`~analysis.gap.engine.power.power_analysis`) and writes the words
                      again. None: an inconclusive verdict says neither
+    cannot_exclude   reasons, in words, that the data cannot exclude a gap whatever the misfit's
+                     bound says (the display layer's blacks that read 0 where the calibration
+                     saw light): a ``'no_gap_that_matters'`` verdict becomes ``'inconclusive'``
+                     with the reasons in its words
     ================ =========================================================================
 
     A layer with three verdicts gives, besides the loss, floor and ceiling:
@@ -71,3 +75,4 @@ class LayerPlan:
     sizes: Callable[[Diagnosis], dict] | None = None
     not_identifiable: dict = field(default_factory=dict)
     power: Callable[[Diagnosis], object] | None = None
+    cannot_exclude: tuple = ()

@@ -127,7 +127,13 @@ def test_a_black_that_reads_zero_where_the_calibration_saw_light_is_named(tmp_pa
         assert len(named) == 1, layer.warnings
         assert "18 of 18 readings at drive level 0 read 0 cd/m^2 where calibration " \
                "'lab-cal' saw 0.351 cd/m^2" in named[0]
-        assert "'no significant gap' there is no pass" in named[0]
+        assert "cannot say there is no gap that matters" in named[0]
+        assert layer.cannot_exclude == tuple(named)
+        from analysis.gap import diagnose
+
+        diag = diagnose("display", check, tmp_path / "cal", None, seed=0, n_boot=200)[0]
+        assert diag.verdict == "inconclusive", diag.summary  # was no_gap_that_matters
+        assert "The data cannot exclude a gap" in diag.summary
         assert "check the meter's range and zero" in named[0]
     else:
-        assert named == []
+        assert named == [] and layer.cannot_exclude == ()

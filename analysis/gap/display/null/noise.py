@@ -239,8 +239,10 @@ def zeros_against_calibration(readings: pd.DataFrame, fitted_rows, cal, path) ->
     what the meter reads (a black turned down) or the meter did not measure it (a wrong range,
     a dark reading subtracted). The diagnosis censors a zero below the meter's floor, which for
     a meter whose floor is not documented may be as high as the lowest positive reading, so
-    such a check could read "no significant gap" (was: 18 blacks read 0 against a calibration's
-    0.35 cd/m^2, no word).
+    such a check could read as no gap (was: 18 blacks read 0 against a calibration's 0.35
+    cd/m^2, "no significant gap", no word). The display layer hands these notes to the engine
+    as reasons the data cannot exclude a gap (``LayerPlan.cannot_exclude``): the verdict is
+    then never ``no_gap_that_matters``.
     """
     lum = readings["luminance_cd_m2"].to_numpy(float)
     if not (lum <= 0).any():
@@ -272,6 +274,6 @@ def zeros_against_calibration(readings: pd.DataFrame, fitted_rows, cal, path) ->
             "there fell below what the meter reads (the black turned down, another display "
             "mode) or the meter did not measure it (a wrong range, its cap on, a dark reading "
             "subtracted). These zeros are evidence of a change the diagnosis cannot size (a "
-            "zero is censored below the meter's floor), so 'no significant gap' there is no "
-            "pass: check the meter's range and zero and the display's black, then remeasure")
+            "zero is censored below the meter's floor), so the check cannot say there is "
+            "no gap that matters: check the meter's range and zero and the display's black, then remeasure")
     return notes
