@@ -74,6 +74,7 @@ __all__ = [
     "simulated_app_version",
     "simulated_rows",
     "sliders_path",
+    "unended_runs",
     "write_run_log",
 ]
 
@@ -434,3 +435,13 @@ class SessionWriter:
             raise ValueError(f"session row lacks {missing}")
         if self._rows.fd is None:
             raise RuntimeError("SessionWriter used outside its `with` block")
+
+
+def unended_runs(events: list[dict]) -> dict[int, int]:
+    """The runs of a run history that started and have no end event (killed, or the PC lost
+    power): ``{run: first_trial}``."""
+    started = {e.get("run"): e.get("first_trial") for e in events if e.get("event") == "start"}
+    for e in events:
+        if "trials_this_run" in e:
+            started.pop(e.get("run"), None)
+    return started

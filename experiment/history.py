@@ -19,7 +19,13 @@ import pandas as pd
 
 from calibration import CalibrationError
 from experiment.checks import PreflightError
-from experiment.datafile import DataFileError, read_run_events, runs_path, session_path
+from experiment.datafile import (
+    DataFileError,
+    read_run_events,
+    runs_path,
+    session_path,
+    unended_runs,
+)
 from experiment.participants import case_twins
 from experiment.runlog import run_logs
 from labfiles import TornTailWarning
@@ -76,16 +82,6 @@ def frame_records(logs, stem: str) -> dict:
         found[path] = [{"event": "start", "run": run, "first_trial": int(trials.min())},
                        {"run": run, "trials_this_run": int(trials.max() - trials.min() + 1)}]
     return found
-
-
-def unended_runs(events: list[dict]) -> dict[int, int]:
-    """The runs of a run history that started and have no end event (killed, or the PC lost
-    power): ``{run: first_trial}``."""
-    started = {e.get("run"): e.get("first_trial") for e in events if e.get("event") == "start"}
-    for e in events:
-        if "trials_this_run" in e:
-            started.pop(e.get("run"), None)
-    return started
 
 
 def check_no_lost_trials(n_done: int, path: Path, records: dict, *, runs: Path | None = None,

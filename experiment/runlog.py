@@ -215,7 +215,7 @@ def finish_log(log: dict, status: str, win, trials_log: list, hand, logs: Path, 
 def unended_last_run(events: list[dict], total: int) -> tuple[int, int] | None:
     """``(run, first_trial)`` of the last run of a session's history (of ``total`` trials)
     when it started and has no end event (killed, or the PC lost power), else None."""
-    from experiment.history import unended_runs
+    from experiment.datafile import unended_runs
 
     starts = [e for e in events if e.get("event") == "start" and isinstance(e.get("run"), int)
               and isinstance(e.get("first_trial"), int)]

@@ -38,6 +38,8 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
+from stimuli.errors import ClusterError
+
 __all__ = [
     "BATCH_SYSTEMS",
     "ClusterError",
@@ -68,10 +70,6 @@ MIN_JOB_MEMORY_BYTES = 10**9
 _REPO = Path(__file__).resolve().parents[1]
 #: Client -> the JobWatch of its batch jobs, asked by :func:`finished` while no worker runs.
 _JOB_WATCHES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
-
-
-class ClusterError(ValueError):
-    """A cluster option or a run on a cluster that cannot go on; the message names the fix."""
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 __all__ = [
+    "ClusterError",
     "GlossTableError",
     "IlluminationError",
     "MitsubaSetupError",
@@ -24,3 +25,7 @@ class IlluminationError(StimuliError):
 
 class GlossTableError(StimuliError):
     """A gloss table (gloss % -> Ward parameters) is missing or malformed."""
+
+
+class ClusterError(ValueError):
+    """A cluster option or a run on a cluster that cannot go on; the message names the fix."""

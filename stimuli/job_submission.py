@@ -31,6 +31,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from stimuli.errors import ClusterError
+
 __all__ = ["NEVER_REASONS", "JobWatch", "cancel_jobs", "check_slurm_job", "end_jobs",
            "forget_refused", "import_jobqueue", "refusal_line", "submitted_job_ids"]
 
@@ -104,7 +106,6 @@ def check_slurm_job(script: str) -> None:
         The configuration file ``SLURM_CONF`` names does not exist, ``sbatch`` is not installed,
         refuses the job (:func:`refusal_line`) or does not answer in :data:`SBATCH_TIMEOUT_S`.
     """
-    from stimuli.dask_cluster import ClusterError
 
     conf = os.environ.get("SLURM_CONF")
     if conf and not Path(conf).is_file():
@@ -184,8 +185,7 @@ class JobWatch:
     def check(self) -> None:
         """Raise :class:`~stimuli.dask_cluster.ClusterError` if a job was refused or can never
         start; the run then ends (its jobs are cancelled, finished work is kept)."""
-        from stimuli.dask_cluster import ClusterError
-
+    
         if self.refused:
             line = refusal_line(self.refused[0], system=self.system.upper(),
                                 what="sbatch" if self.system == "slurm" else "qsub")

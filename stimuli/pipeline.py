@@ -33,7 +33,7 @@ import sys
 import threading
 import time
 import zlib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
@@ -54,58 +54,14 @@ from stimuli.pngpass import (
     tonemap_light_fields,
 )
 from stimuli.probecheck import refuse_bad_light_fields
-from stimuli.render import CameraGeometry, StimulusRenderer
+from stimuli.render import StimulusRenderer
+from stimuli.renderjob import RenderJob
 from stimuli.sets import refuse_mixed_sets
 
 __all__ = ["RENDER_LOG_COLUMNS", "TONEMAP_COLUMNS", "RenderJob", "render_group", "render_set"]
 
 RENDER_LOG_COLUMNS = ["stimulus_id", "exr_path", "exr_sha256", "spp", "width_px", "rho_d", "rho_s",
                       "alpha", "seed", "variant", "envmap_sha256", "rotation_deg", "render_s"]
-
-@dataclass(frozen=True)
-class RenderJob:
-    """Settings shared by every image of a run (shipped to the workers).
-
-    Attributes
-    ----------
-    camera : CameraGeometry
-    size_px : int
-        Image width = height, px.
-    spp : int
-        Samples per pixel of every image when ``spp_by_gloss_level`` is empty (multijitter count).
-    variant : str
-        Mitsuba variant (recorded per EXR).
-    design_path : str
-        The design the workers load.
-    threads : int
-        Dr.Jit threads per worker process (0: Dr.Jit's default, all cores).
-    spp_by_gloss_level : tuple of int
-        Samples per pixel per physical gloss level label (1..n), multijitter counts; empty: ``spp``.
-    llvm_path : str
-        The client's libLLVM: a worker whose own ``DRJIT_LIBLLVM_PATH`` is unset uses it where it
-        is a file (:func:`stimuli.mitsuba_env.use_llvm_hint`), else finds its own.
-    spp_by_light_field : tuple of (str, tuple of int)
-        Per light field (name), its own spp per gloss level (multijitter counts, planned from
-        that light field's noise); a light field not listed takes ``spp_by_gloss_level``.
-    """
-
-    camera: CameraGeometry
-    size_px: int
-    spp: int
-    variant: str
-    design_path: str
-    threads: int = 0
-    spp_by_gloss_level: tuple[int, ...] = ()
-    llvm_path: str = ""
-    spp_by_light_field: tuple[tuple[str, tuple[int, ...]], ...] = ()
-
-    def spp_for(self, gloss_level: int, light_field: str = "") -> int:
-        """Samples per pixel of a stimulus of this gloss level label under ``light_field``."""
-        by_level = dict(self.spp_by_light_field).get(light_field) or self.spp_by_gloss_level
-        if not by_level:
-            return self.spp
-        return int(by_level[int(gloss_level) - 1])
-
 
 # --- worker side ---------------------------------------------------------------------------------
 _worker: dict = {}

@@ -10,7 +10,6 @@ from __future__ import annotations
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -25,6 +24,7 @@ from stimuli.manifest import (
     record_tone_curves,
     sha256_file,
 )
+from stimuli.renderjob import RenderJob
 from stimuli.tonemap import (
     display_fraction,
     gamma_encode,
@@ -33,9 +33,6 @@ from stimuli.tonemap import (
     tone_curve_record,
     write_png,
 )
-
-if TYPE_CHECKING:
-    from stimuli.pipeline import RenderJob
 
 __all__ = ["LOG_TEXT", "TONEMAP_COLUMNS", "TonemapWriter", "progress_bar", "record_tone_curves",
            "tonemap_light_fields"]

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from analysis.gap.display.zeros import zeros_against_calibration
 from analysis.gap.engine import GapError
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
 from calibration.readings import read_readings
@@ -145,7 +146,7 @@ def load_display(real_path, sim_path):
         check / readings / validation, ``in_sample_rows``, ``notes``) and
         ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from,
         ``display_source["zero_evidence"]`` the levels that read 0 where the calibration saw
-        light (:func:`~analysis.gap.display.null.noise.zeros_against_calibration`),
+        light (:func:`~analysis.gap.display.zeros.zeros_against_calibration`),
         ``readings.attrs["calibration_rows"]`` the calibration's own readings (or None).
 
     Raises
@@ -179,10 +180,7 @@ def load_display(real_path, sim_path):
         raise GapError(f"{rpath}: {len(readings)} readings; the display diagnosis needs "
                        f">= {_MIN_READINGS}")
     _refuse_uninformative(readings, Path(source["real"]))
-    # Said with the verdict (the layer's warnings), not only among the notes on the inputs;
-    # imported here, as null.noise imports this module.
-    from analysis.gap.display.null.noise import zeros_against_calibration
-
+    # Said with the verdict (the layer's warnings), not only among the notes on the inputs.
     source["zero_evidence"] = zeros_against_calibration(readings, fitted_rows, cal,
                                                         Path(source["real"]))
     _add_noise_frames(readings, fitted_rows, noise_frames, notes)

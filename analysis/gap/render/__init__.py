@@ -128,12 +128,11 @@ from analysis.gap.render.data import (
     load_render,
 )
 from analysis.gap.render.model import (
-    noise_model,
-    noise_sd,
     render_loss,
     render_unit_ids,
     split_render,
 )
+from analysis.gap.render.optics import noise_model, noise_sd
 from analysis.gap.render.power import render_power
 from analysis.gap.render.where import localise_render, render_where, residual_maps
 

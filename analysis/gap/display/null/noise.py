@@ -1,8 +1,7 @@
 """Display layer, the photometer's noise: measured from pairs of repeats with the display's drift
 between them modelled in time (:func:`fit_noise_drift`), else the calibration's noise or the
-documented meter model (:func:`meter_noise`); and the meter's floor (:func:`meter_floor`), with
-the zeros that say the light fell below it since the calibration
-(:func:`zeros_against_calibration`).
+documented meter model (:func:`meter_noise`); and the meter's floor (:func:`meter_floor`; the zeros that say
+the light fell below it since the calibration are :mod:`analysis.gap.display.zeros`).
 
 Noise units: ``abs`` (cd/m^2), ``rel`` (fraction of the reading), ``shot`` (variance per
 cd/m^2), so that a reading's variance is ``abs^2 + shot L + (rel L)^2``.
@@ -19,8 +18,7 @@ from analysis.gap.display.data import _seconds
 from analysis.gap.engine import GapError
 from calibration.noise import FLOOR_SD_MULTIPLE, METER_FLOORS_CD_M2, default_noise, zero_bound
 
-__all__ = ["METER_FLOORS_CD_M2", "fit_noise_drift", "meter_noise", "zero_floor",
-           "zeros_against_calibration"]
+__all__ = ["METER_FLOORS_CD_M2", "fit_noise_drift", "meter_noise", "zero_floor"]
 
 #: Interior knots of the time spline the noise fit may use for drift (None: no drift).
 _DRIFT_KNOTS = (None, 0, 1, 2, 4, 8)
@@ -224,56 +222,3 @@ def _foot(data: pd.DataFrame) -> float:
     at = np.unique(level[lum == low])
     below = np.unique(level[pos & (level <= at.max())]) if at.size else at
     return float(low) if at.size >= 2 and at.size == below.size else 0.0
-
-
-#: A zero contradicts the calibration where it saw at least this many times the meter's
-#: documented floor (a meter without a documented floor: any light its own readings showed).
-_ZERO_EVIDENCE_FACTOR = 3.0
-
-
-def zeros_against_calibration(readings: pd.DataFrame, fitted_rows, cal, path) -> list[str]:
-    """Notes naming the drive levels that read 0 where the calibration saw light well above the
-    meter's floor (its own readings there all positive, or, without them, its fit).
-
-    A meter reads 0 only below its floor, so such zeros are evidence: the light fell below
-    what the meter reads (a black turned down) or the meter did not measure it (a wrong range,
-    a dark reading subtracted). The diagnosis censors a zero below the meter's floor, which for
-    a meter whose floor is not documented may be as high as the lowest positive reading, so
-    such a check could read as no gap (was: 18 blacks read 0 against a calibration's 0.35
-    cd/m^2, "no significant gap", no word). The display layer hands these notes to the engine
-    as reasons the data cannot exclude a gap (``LayerPlan.cannot_exclude``): the verdict is
-    then never ``no_gap_that_matters``.
-    """
-    lum = readings["luminance_cd_m2"].to_numpy(float)
-    if not (lum <= 0).any():
-        return []
-    level = readings["level"].to_numpy(float)
-    device = str(readings["device"].iloc[0]) if "device" in readings else ""
-    floor, floor_source = zero_bound(device or cal.device, None, 0.0)
-    documented = floor > 0
-    notes = []
-    for lv in np.unique(level[lum <= 0]):
-        if fitted_rows is not None:
-            own = fitted_rows["luminance_cd_m2"].to_numpy(float)[
-                np.isclose(fitted_rows["level"].to_numpy(float), lv)]
-            if not own.size or (own <= 0).any():  # the meter was at its floor then too
-                continue
-            saw, how = float(own.mean()), f"the mean of its {own.size} readings at that level"
-        else:
-            saw, how = float(np.ravel(cal.luminance_for_drive(lv))[0]), "its fit"
-        if saw <= _ZERO_EVIDENCE_FACTOR * floor or saw <= 0:
-            continue
-        at = np.isclose(level, lv)
-        n_zero = int((at & (lum <= 0)).sum())
-        meter = (f", {saw / floor:.0f} x the meter's floor ({floor_source}, {floor:g} cd/m^2)"
-                 if documented else "")
-        notes.append(
-            f"{path}: {n_zero} of {int(at.sum())} readings at drive level {lv:g} read 0 "
-            f"cd/m^2 where calibration {cal.calibration_id!r} saw {saw:.3g} cd/m^2 ({how}"
-            f"{meter}). A meter reads 0 only below its floor: since the calibration the light "
-            "there fell below what the meter reads (the black turned down, another display "
-            "mode) or the meter did not measure it (a wrong range, its cap on, a dark reading "
-            "subtracted). These zeros are evidence of a change the diagnosis cannot size (a "
-            "zero is censored below the meter's floor), so the check cannot say there is "
-            "no gap that matters: check the meter's range and zero and the display's black, then remeasure")
-    return notes
