@@ -151,20 +151,25 @@ class ArraySpec:
         return np.column_stack([gx.ravel(), gy.ravel()])
 
 
+def _rendered_levels(table: dict, name: str) -> dict:
+    """``rendered_levels`` checked against ``n_levels``, as an override for :func:`build`; none
+    where the key is missing (build then names every missing key)."""
+    if "rendered_levels" not in table:
+        return {}
+    return {"rendered_levels": _levels(table["rendered_levels"], int(table.get("n_levels", 0)),
+                                       name)}
+
+
 def read_gloss(raw: dict, path: Path) -> GlossSpec:
     """The ``[gloss]`` table of a design file's ``raw`` tables."""
     g = section(raw, "gloss", path, GlossSpec)
-    return build(GlossSpec, g, "gloss", path,
-                 rendered_levels=_levels(g.get("rendered_levels"), int(g.get("n_levels", 0)),
-                                         "gloss"))
+    return build(GlossSpec, g, "gloss", path, **_rendered_levels(g, "gloss"))
 
 
 def read_depth(raw: dict, path: Path) -> DepthSpec:
     """The ``[depth]`` table of a design file's ``raw`` tables."""
     d = section(raw, "depth", path, DepthSpec)
-    return build(DepthSpec, d, "depth", path,
-                 rendered_levels=_levels(d.get("rendered_levels"), int(d.get("n_levels", 0)),
-                                         "depth"))
+    return build(DepthSpec, d, "depth", path, **_rendered_levels(d, "depth"))
 
 
 def read_array(raw: dict, path: Path) -> ArraySpec:
