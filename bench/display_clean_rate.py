@@ -1,4 +1,5 @@
-"""Claim (issue 29): a clean display gets "no significant gap" in >= 95 % of seeds.
+"""Claim (issue 29, verdicts of issue 43): a clean display is not a gap (``no_gap_that_matters`` or
+``inconclusive``) in >= 95 % of seeds.
 
 Four clean set-ups of the display layer, ``--n`` seeds each (issue 29's "hidden clean display"):
 

@@ -255,7 +255,7 @@ def _right(r: dict) -> bool:
     if case in ("none", "in_sample"):
         ok = r["top"] == "unexplained"
         return ok and (case == "none" or r["source_kind"] == "validation")
-    if case in ("floor_zeros", "refit_clean"):  # no significant gap, nothing named
+    if case in ("floor_zeros", "refit_clean"):  # not a gap, nothing named
         return not r["named"] and not r["remaining_flagged"]
     if case == "few_levels":  # the step cannot show: never named, said not identifiable
         return ("quantisation" not in r["named"]
