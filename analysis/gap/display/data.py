@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from analysis.gap.display.zeros import zeros_against_calibration
+from analysis.gap.display.null.zeros import zeros_against_calibration
 from analysis.gap.engine import GapError
 from calibration import READINGS_COLUMNS, CalibrationError, load_calibration, load_readings
 from calibration.readings import read_readings
@@ -146,7 +146,7 @@ def load_display(real_path, sim_path):
         check / readings / validation, ``in_sample_rows``, ``notes``) and
         ``readings.attrs["noise_frames"]`` holds the readings the noise floor comes from,
         ``display_source["zero_evidence"]`` the levels that read 0 where the calibration saw
-        light (:func:`~analysis.gap.display.zeros.zeros_against_calibration`),
+        light (:func:`~analysis.gap.display.null.zeros.zeros_against_calibration`),
         ``readings.attrs["calibration_rows"]`` the calibration's own readings (or None).
 
     Raises

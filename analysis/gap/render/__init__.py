@@ -132,7 +132,7 @@ from analysis.gap.render.model import (
     render_unit_ids,
     split_render,
 )
-from analysis.gap.render.optics import noise_model, noise_sd
+from analysis.gap.render.optics.sphere import noise_model, noise_sd
 from analysis.gap.render.power import render_power
 from analysis.gap.render.where import localise_render, render_where, residual_maps
 

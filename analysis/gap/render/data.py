@@ -22,7 +22,7 @@ import numpy as np
 from scipy import ndimage, optimize
 
 from analysis.gap.engine import GapError
-from analysis.gap.render.optics import (
+from analysis.gap.render.optics.sphere import (
     _coat_entry_ratios,
     _coat_t,
     _fill,

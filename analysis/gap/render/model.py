@@ -31,7 +31,7 @@ from scipy import fft as sp_fft
 from scipy import ndimage, signal
 
 from analysis.gap.engine import GapError, catalogue
-from analysis.gap.render.optics import _fill
+from analysis.gap.render.optics.sphere import _fill
 
 if TYPE_CHECKING:
     from analysis.gap.render.data import RenderData

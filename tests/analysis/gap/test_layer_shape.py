@@ -1,5 +1,7 @@
-"""The gap layers share one shape (issue 28): a folder per layer with the same five files and
-one face to the engine, and the package stays readable (files and functions short)."""
+"""The gap layers share one shape (issue 28): a folder per layer with the same six files (the
+five of issue 28 and, since issue 43, ``power.py``: how to simulate the layer's data for
+``detectable`` / ``to_decide``), a layer's own further modules in subfolders, and one face to
+the engine; and the package stays readable (files and functions short)."""
 
 import ast
 import importlib
@@ -10,7 +12,8 @@ import pytest
 from analysis.gap.engine import LAYER_NAMES, LayerPlan, catalogue
 
 GAP = Path(__file__).resolve().parents[3] / "analysis" / "gap"
-PARTS = {"__init__.py", "data.py", "model.py", "ceiling.py", "where.py", "candidates.py"}
+PARTS = {"__init__.py", "data.py", "model.py", "ceiling.py", "where.py", "candidates.py",
+         "power.py"}
 
 
 @pytest.mark.parametrize("layer", LAYER_NAMES)

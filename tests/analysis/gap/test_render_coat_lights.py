@@ -15,7 +15,7 @@ import numpy as np
 from analysis.gap.engine import catalogue
 from analysis.gap.render import RenderData, render_loss
 from analysis.gap.render.data import _light_level
-from analysis.gap.render.optics import _fresnel_coat, ward_lobe
+from analysis.gap.render.optics.sphere import _fresnel_coat, ward_lobe
 
 SIZE, RADIUS = 32, 12.3
 RHO_D, RHO_S, F0 = 0.4, 0.08, 0.04

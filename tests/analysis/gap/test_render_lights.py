@@ -78,7 +78,7 @@ def test_broad_lobe_form_is_the_ward_plugins_lobe():
     plugin under the same light (the fit's renders), away from the silhouette."""
     import numpy as np
 
-    from analysis.gap.render.optics import ward_lobe
+    from analysis.gap.render.optics.sphere import ward_lobe
     from stimuli.glossfit.lightfit import LightScene
     from stimuli.glossfit.lightset import mask_normals
 

@@ -1,7 +1,7 @@
 """Display layer, the photometer's noise: measured from pairs of repeats with the display's drift
 between them modelled in time (:func:`fit_noise_drift`), else the calibration's noise or the
 documented meter model (:func:`meter_noise`); and the meter's floor (:func:`meter_floor`; the zeros that say
-the light fell below it since the calibration are :mod:`analysis.gap.display.zeros`).
+the light fell below it since the calibration are :mod:`analysis.gap.display.null.zeros`).
 
 Noise units: ``abs`` (cd/m^2), ``rel`` (fraction of the reading), ``shot`` (variance per
 cd/m^2), so that a reading's variance is ``abs^2 + shot L + (rel L)^2``.
