@@ -59,9 +59,10 @@ class PowerModel:
     ============ ======================== =====================================================
     field        type                     meaning
     ============ ======================== =====================================================
-    draws        ``draws(misfit, factor)`` returns ``f(rng, k) -> int array (k,)``: the
-                 -> callable               outcomes (``OUTCOME_*``) of ``k`` data sets simulated
-                                          from the fitted model with a remaining misfit of
+    draws        callable                 ``draws(misfit, factor)`` returns ``f(rng, k) -> int
+                                          array (k,)``: the outcomes (``OUTCOME_*``) of ``k``
+                                          data sets simulated from the fitted model with a
+                                          remaining misfit of
                                           ``misfit`` (lab units, the size the diagnosis
                                           measures) at ``factor`` times the data's size,
                                           each decided as the diagnosis decides (e.g. with
