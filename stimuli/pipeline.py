@@ -144,9 +144,10 @@ def _append_csv(path: Path, columns: list[str], row: dict) -> None:
     append_csv_record(path, columns, [row.get(c, "") for c in columns])
 
 
-def _remove_stale_temporaries(out: Path) -> int:
+def _remove_stale_temporaries(out: Path, subs=("exr", "png")) -> int:
+    """Remove the temporary files a killed writer left under ``out/<sub>``; returns how many."""
     n = 0
-    for sub in ("exr", "png"):
+    for sub in subs:
         for f in (out / sub).rglob(TEMPORARY_GLOB):
             f.unlink()
             n += 1
@@ -276,7 +277,9 @@ def _render_pass(out: Path, plan: pd.DataFrame, job: RenderJob, client, progress
     finally:
         bar.close()
     if client is not None:
-        _remove_stale_temporaries(out)  # a worker killed mid-write left its temporary file
+        # a worker killed mid-write left its temporary EXR; the PNGs are this process's own,
+        # written on the tone-map thread while rendering goes on (never removed here)
+        _remove_stale_temporaries(out, subs=("exr",))
     return track.n_rendered, len(done)
 
 

@@ -44,3 +44,23 @@ def test_measured_pace_fits_seconds_per_sample_and_per_image():
     text = measured_pace_text(timed, size, [100] * 36, n_workers=2)
     assert "1000.0 ms per megasample + 1.00 s per image" in text
     assert "36 images left: about 36 s on 2 worker(s)" in text  # 36 x (1 + 1) s / 2
+
+
+def test_the_cleanup_after_the_workers_pass_leaves_a_png_being_written(tmp_path):
+    """A PNG is written (temporary file, then renamed) on the tone-map thread while the render
+    pass ends; the pass's cleanup of the workers' stale temporaries once removed it mid-write
+    ("No such file or directory: .../png/indoor/indoor_g02_d02.png", a --workers 2 render in
+    CI). Only the workers' EXR temporaries are stale there."""
+    from labfiles import atomic_open
+    from stimuli.pipeline import _remove_stale_temporaries
+
+    (tmp_path / "exr").mkdir()
+    stale_exr = tmp_path / "exr" / ".a.exr.tmp-1-2"
+    stale_exr.write_bytes(b"killed worker")
+    png = tmp_path / "png" / "indoor" / "indoor_g02_d02.png"
+    png.parent.mkdir(parents=True)
+    with atomic_open(png, "wb") as fh:
+        fh.write(b"png bytes")
+        _remove_stale_temporaries(tmp_path, subs=("exr",))  # as the workers' pass ends
+    assert png.read_bytes() == b"png bytes"
+    assert not stale_exr.exists()
