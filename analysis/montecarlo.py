@@ -230,13 +230,9 @@ def _count(draws, n_sim, *, seed, point, chunk, client, progress, columns):
     return result()
 
 
-def rate_curve(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n_sim: int, *,
-               seed: int, chunk: int = 25, client=None,
-               progress: Callable[[int, int], None] | None = None) -> tuple:
-    """The decision rate at each size: ``((size, Rate), ...)``.
-
-    ``draws_at(size)`` returns the batch draw function for data (or an effect) of that size.
-    """
+def _curve(rate_at: Callable, sizes: Sequence, n_sim: int, progress) -> tuple:
+    """``((size, rate_at(size, j, tick)), ...)``: one simulated point per size, with one
+    progress count over all of them (``tick`` is that point's progress callback)."""
     sizes = list(sizes)
     if not sizes:
         raise ValueError("no sizes given; give at least one size to simulate")
@@ -249,9 +245,20 @@ def rate_curve(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n
             if progress is not None:
                 progress(base + done, total)
 
-        out.append((size, decision_rate(draws_at(size), n_sim, seed=seed, point=j, chunk=chunk,
-                                        client=client, progress=tick)))
+        out.append((size, rate_at(size, j, tick)))
     return tuple(out)
+
+
+def rate_curve(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n_sim: int, *,
+               seed: int, chunk: int = 25, client=None,
+               progress: Callable[[int, int], None] | None = None) -> tuple:
+    """The decision rate at each size: ``((size, Rate), ...)``.
+
+    ``draws_at(size)`` returns the batch draw function for data (or an effect) of that size.
+    """
+    return _curve(lambda size, j, tick: decision_rate(
+        draws_at(size), n_sim, seed=seed, point=j, chunk=chunk, client=client, progress=tick),
+        sizes, n_sim, progress)
 
 
 def rates_curve(draws_at: Callable, sizes: Sequence, n_sim: int, *, columns: int, seed: int,
@@ -261,21 +268,9 @@ def rates_curve(draws_at: Callable, sizes: Sequence, n_sim: int, *, columns: int
 
     A size may be any value ``draws_at`` takes (e.g. (participants, sessions, repeats)).
     """
-    sizes = list(sizes)
-    if not sizes:
-        raise ValueError("no sizes given; give at least one size to simulate")
-    total = n_sim * len(sizes)
-    out = []
-    for j, size in enumerate(sizes):
-        base = j * n_sim
-
-        def tick(done, _total, base=base):
-            if progress is not None:
-                progress(base + done, total)
-
-        out.append((size, decision_rates(draws_at(size), n_sim, columns=columns, seed=seed,
-                                         point=j, chunk=chunk, client=client, progress=tick)))
-    return tuple(out)
+    return _curve(lambda size, j, tick: decision_rates(
+        draws_at(size), n_sim, columns=columns, seed=seed, point=j, chunk=chunk, client=client,
+        progress=tick), sizes, n_sim, progress)
 
 
 def smallest_size(draws_at: Callable[[float], DrawBatch], sizes: Sequence[float], n_sim: int, *,

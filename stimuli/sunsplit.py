@@ -147,16 +147,9 @@ def _make_class():
 
 def register_sun_patch() -> None:
     """Register the ``sunpatch`` emitter for the current Mitsuba variant (idempotent)."""
-    import mitsuba as mi
+    from stimuli.plugins import register_plugin
 
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError("set a Mitsuba variant first (stimuli.setup_mitsuba())")
-    if variant in _registered:
-        return
-    cls = _make_class()
-    mi.register_emitter("sunpatch", lambda props: cls(props))
-    _registered.add(variant)
+    register_plugin("emitter", "sunpatch", _make_class, _registered)
 
 
 def split_emitters(probe, *, min_sun_share: float = 0.5, **region) -> dict:

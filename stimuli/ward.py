@@ -360,13 +360,6 @@ def register_ward() -> None:
 
     Call after ``mi.set_variant`` (:func:`stimuli.setup_mitsuba` does both).
     """
-    import mitsuba as mi
+    from stimuli.plugins import register_plugin
 
-    variant = mi.variant()
-    if variant is None:
-        raise RuntimeError("set a Mitsuba variant first (stimuli.setup_mitsuba())")
-    if variant in _registered:
-        return
-    cls = _make_class()
-    mi.register_bsdf("ward", lambda props: cls(props))
-    _registered.add(variant)
+    register_plugin("bsdf", "ward", _make_class, _registered)
