@@ -82,7 +82,7 @@ def check_terms(terms, fit_terms, where: str) -> list:
 
 
 def _plan(design: StudyDesign, participant: str) -> pd.DataFrame:
-    from experiment.plan import make_plan, participant_seed
+    from experiment import make_plan, participant_seed
 
     seed = participant_seed(participant)
     return make_plan(design, participant, np.random.default_rng(seed), seed=seed)
@@ -245,7 +245,7 @@ class ObserverDraws(_Tester):
 
     def response_of(self, rng: np.random.Generator) -> np.ndarray:
         """One simulated study's responses, in the layout's rows."""
-        from experiment.observers import make_observer
+        from experiment import make_observer
 
         y = np.empty(len(self.layout))
         slider = self.design.slider
