@@ -242,7 +242,7 @@ def cancel_jobs(cluster, adaptive, system: str) -> None:
         signal.signal(signal.SIGINT, before)
 
 
-def end_jobs(cluster, client, adaptive, system: str, wait_s: float = 15.0) -> None:
+def end_jobs(cluster, client, adaptive, system: str, wait_s: float = 60.0) -> None:
     """Let SLURM worker jobs end by themselves, so that they end COMPLETED (exit 0) in its
     records rather than CANCELLED: no job is replaced any more, each worker is retired and its
     process exits, and the run waits (up to ``wait_s``) until those jobs have left the queue;

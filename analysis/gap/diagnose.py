@@ -21,6 +21,7 @@ from analysis.gap.engine import (
     diagnose_losses,
     summarise,
 )
+from analysis.gap.engine.departures import with_departures
 from analysis.gap.engine.power import power_analysis
 from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS
 
@@ -43,6 +44,10 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
     if plan.sizes is not None:
         # Words again: the sizes (the misfit in the data's units) are part of the verdict.
         diag = replace(diag, **plan.sizes(diag))
+        diag = replace(diag, summary=summarise(diag))
+    if plan.departures is not None:
+        # Single units that depart from the others where the misfit cannot see them.
+        diag = with_departures(diag, plan.departures(diag))
         diag = replace(diag, summary=summarise(diag))
     if diag.verdict == NO_GAP_THAT_MATTERS and plan.cannot_exclude:
         # The bound excludes a gap of the tolerance only in what the data could measure.

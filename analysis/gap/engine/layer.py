@@ -54,6 +54,10 @@ class LayerPlan:
                      bound says (the display layer's blacks that read 0 where the calibration
                      saw light): a ``'no_gap_that_matters'`` verdict becomes ``'inconclusive'``
                      with the reasons in its words
+    departures       ``departures(diag) -> dict`` or None: single units (the observer layer's
+                     participants) that depart from the others where the misfit cannot see
+                     them, weighed into the verdict by
+                     :func:`~analysis.gap.engine.departures.with_departures`
     ================ =========================================================================
 
     A layer with three verdicts gives, besides the loss, floor and ceiling:
@@ -76,3 +80,4 @@ class LayerPlan:
     not_identifiable: dict = field(default_factory=dict)
     power: Callable[[Diagnosis], object] | None = None
     cannot_exclude: tuple = ()
+    departures: Callable[[Diagnosis], dict] | None = None

@@ -71,7 +71,11 @@ class Diagnosis:
     units). ``detectable`` (inconclusive only; else empty): ``value`` (None: above
     ``tried_up_to``), ``unit``, ``power``, ``curve``; ``to_decide``: ``factor`` (times the
     data; None: beyond ``tried_up_to``), ``words`` (the larger data set in the lab's
-    words), ``truth``, ``curve``.
+    words), ``truth``, ``curve``. ``departures`` (observer layer; else empty): single units
+    (participants) that depart from the others in a way the misfit by stimulus cannot see
+    (:func:`analysis.gap.engine.departures.with_departures`): ``tested``, ``size``,
+    ``size_upper``, ``significant``, ``where``, ``departing`` and ``verdict_without`` (the
+    verdict before they were weighed).
     """
 
     layer: str
@@ -113,12 +117,15 @@ class Diagnosis:
     tolerance: float = float("nan")
     detectable: dict = field(default_factory=dict)
     to_decide: dict = field(default_factory=dict)
+    departures: dict = field(default_factory=dict)
 
     @property
     def unexplained_remains(self) -> bool:
         """True when a gap is left that the catalogue does not explain: with a ceiling, the
         chosen model (or the plain simulation, if nothing is chosen) falls significantly short
         of it; without one, nothing (or too little) attributed of a gap above tolerance."""
+        if (self.departures or {}).get("significant"):
+            return True
         if self.remaining is not None:
             return bool(self.remaining.get("significant"))
         if self.verdict != "unexplained":

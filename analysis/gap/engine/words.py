@@ -22,7 +22,11 @@ def _names(steps) -> str:
 
 def summarise(d: Diagnosis) -> str:
     """The verdict in one or two plain sentences (no markup), then one per effect the data
-    cannot identify."""
+    cannot identify; with single units that depart from the others (``d.departures``), what
+    they change first (:func:`_departure_summary`)."""
+    dep = d.departures or {}
+    if dep.get("significant") or dep.get("verdict_without", d.verdict) != d.verdict:
+        return _departure_summary(d, dep)
     text = _verdict_words(d)
     misfit = _misfit_words(d)
     text += f" {misfit}" if misfit else ""
@@ -33,6 +37,27 @@ def summarise(d: Diagnosis) -> str:
     for name, why in (d.not_identifiable or {}).items():
         text += f" {name.replace('_', ' ').capitalize()}: not identifiable from these readings ({why})."
     return text
+
+
+def _departure_summary(d: Diagnosis, dep: dict) -> str:
+    """The words of a verdict the departing units changed or added to: the verdict the rest of
+    the data gave (:func:`summarise` without them), headed or followed by the departures."""
+    before = summarise(replace(d, verdict=dep.get("verdict_without", d.verdict), departures={}))
+    unit = d.misfit_unit or (d.remaining or {}).get("size_unit", "")
+    size = (f"a misfit of about {dep.get('size', float('nan')):.2g} {unit} over all trials "
+            f"(upper 95 % bound {dep.get('size_upper', float('nan')):.2g}), tolerance "
+            f"{dep.get('tolerance', float('nan')):g}")
+    rest = before.split(": ", 1)[1] if before.startswith(("No gap that matters: ",
+                                                            "Inconclusive: ")) else before
+    if dep.get("significant") and dep.get("verdict_without") in NOT_A_GAP:
+        return (f"A gap, unexplained by the catalogue, {dep['where']} ({size}). Over the "
+                f"population's settings by stimulus and time on task: {rest}")
+    if dep.get("significant"):
+        return f"{before} Besides, {dep['where']} ({size})."
+    why = dep.get("reason") or (f"single participants' departures from the others leave {size}, "
+                                "so a gap of the tolerance is not excluded")
+    return (f"Inconclusive: {rest.replace(' is excluded', ' is excluded for the population')}"
+            f" But {why}.{_power_words(d)}")
 
 
 def _effect_words(layer: str, step: dict) -> str:

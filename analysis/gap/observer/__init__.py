@@ -78,6 +78,7 @@ from analysis.gap.observer.model import (
     predict,
     to_slider_units,
 )
+from analysis.gap.observer.participants import participant_departures
 from analysis.gap.observer.power import misfit_power, misfit_terms, misfit_upper
 from analysis.gap.observer.where import (
     OBSERVER_SIZE_UNIT,
@@ -140,9 +141,12 @@ def _few_participants(data, base: ObserverBase) -> list[str]:
 
 
 def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions: int):
-    """``(size, size_upper, power, sizes)``: the layer's misfit, its upper 95 % bound and its
-    PowerModel, measured against the ceilings fitted per fold (``ceilings``, filled by the
-    ceiling step), and the dict the misfits are kept in for the Diagnosis."""
+    """``(size, size_upper, power, sizes, departures)``: the layer's misfit, its upper 95 %
+    bound and its PowerModel, measured against the ceilings fitted per fold (``ceilings``,
+    filled by the ceiling step), the dict the misfits are kept in for the Diagnosis, and the
+    check of single participants who depart from the others
+    (:func:`analysis.gap.observer.participants.participant_departures`, on the chosen model's
+    fits)."""
     sizes, terms = {}, {}
 
     def size(fits):
@@ -159,13 +163,20 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
         # The chosen model's (the first call's, as size's) per-trial terms kept for power.
         t, u = misfit_terms(fits, ceilings)
         terms.setdefault("after", (t, u))
+        terms.setdefault("fits", fits)
         return misfit_upper(t, u)
 
     def power(_diag):
         t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
         return misfit_power(t, u, design.gap.observer_tolerance_slider,
                             by_participant=by_participant, n_sessions=n_sessions)
-    return size, size_upper, power, sizes
+
+    def departures(_diag):
+        # On the chosen model's fits (size_upper's first call, as its terms).
+        if "fits" not in terms:
+            return {}
+        return participant_departures(terms["fits"], design.gap.observer_tolerance_slider)
+    return size, size_upper, power, sizes, departures
 
 
 def _participant(unit_id: str) -> str:
@@ -228,7 +239,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         ceilings[id(te)] = fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted)
         return ceiling_loss(ceilings[id(te)], te)
 
-    size, size_upper, power, sizes = _size_functions(
+    size, size_upper, power, sizes, departures = _size_functions(
         design, ceilings, by_participant=not any(shared.values()),
         n_sessions=int(data.groupby("participant")["session"].nunique().median()))
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
@@ -243,6 +254,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes), power=power,
+        departures=departures,
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})

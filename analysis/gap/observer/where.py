@@ -10,20 +10,28 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.gap.observer.ceiling import Ceiling, _ceiling_pred, ceiling_prediction, fit_ceiling
+from analysis.gap.observer.ceiling import (
+    Ceiling,
+    _ceiling_pred,
+    _time_features,
+    ceiling_prediction,
+    fit_ceiling,
+)
 from analysis.gap.observer.model import RESP, _fit_sigma, _nll_parts, predict
 
 __all__ = ["OBSERVER_SIZE_UNIT", "localise_observer", "observer_misfit", "observer_where",
            "slider_units_per_response"]
 
 
-_TRENDS = ("gloss", "depth", "gloss x depth", "the previous response")
+_TRENDS = ("gloss", "depth", "gloss x depth", "the previous response",
+           "the time since the session's start", "the time since the last rest")
 
 
 def observer_where(fits: list) -> str:
     """Words for where the chosen model falls short of the ceiling: which response, its mean or
     its spread, and the trend (rising or falling with gloss, depth, their product, the previous
-    response, or differing between illuminations) that best describes the shortfall.
+    response, the time since the session's start or its last rest, or differing between
+    illuminations) that best describes the shortfall.
 
     ``fits``: ``[(train, test, fitted, ceiling_loss), ...]`` per fold (see
     engine.diagnose_losses; the ceiling is refitted here for its predictions)."""
@@ -40,11 +48,15 @@ def observer_where(fits: list) -> str:
             rows.append(pd.DataFrame({
                 "response": r, "excess": own[r] - ceil[r],
                 "d_mu": c_pred["mu"][r] - chosen["mu"][r],
+                "d_time": (_time_features(test) @ model.time_coef[r]
+                           if r in model.time_coef else np.zeros(len(test))),
                 "log_sd": np.log(c_sd[r] / (sig[r] * chosen["sd"][r])),
                 "sd": sig[r] * chosen["sd"][r],
                 "gloss": test["gloss_u"].to_numpy(float),
                 "depth": test["depth_u"].to_numpy(float),
                 "prev": (test[f"{r}_prev"] - test[f"{r}_u"]).fillna(0.0).to_numpy(float),
+                "t_session": _column(test, "t_session_min"),
+                "t_rest": _column(test, "t_rest_min"),
                 "illumination": test["illumination"].to_numpy(str),
                 "participant": test["participant"].to_numpy(str)}))
     frame = pd.concat(rows, ignore_index=True)
@@ -56,10 +68,15 @@ def observer_where(fits: list) -> str:
     target, what = ((sub["d_mu"], f"in the {r} response") if mean_part >= spread_part
                     else (sub["log_sd"], f"in the spread of the {r} response"))
     t = target.to_numpy(float)
+    timed = _time_words(sub, what) if mean_part >= spread_part else ""
+    if timed:
+        return timed
     g = sub["gloss"].to_numpy(float) - sub["gloss"].mean()
     d = sub["depth"].to_numpy(float) - sub["depth"].mean()
     feats = {"gloss": g, "depth": d, "gloss x depth": g * d,
-             "the previous response": sub["prev"].to_numpy(float)}
+             "the previous response": sub["prev"].to_numpy(float),
+             "the time since the session's start": sub["t_session"].to_numpy(float),
+             "the time since the last rest": sub["t_rest"].to_numpy(float)}
     corr = {n: _corr(t, v) for n, v in feats.items()}
     # A shortfall that lives in single stimuli, not in a smooth trend: the stimulus means of
     # the shortfall hold far more of its variance than the smooth features together.
@@ -90,6 +107,27 @@ def observer_where(fits: list) -> str:
     if abs(corr[name]) < 0.3 or r2_smooth < 0.5 * r2_stim:
         return f"{what}, varying from stimulus to stimulus without a smooth trend"
     return f"{what}, {'rising' if corr[name] > 0 else 'falling'} with {name}"
+
+
+def _time_words(sub: pd.DataFrame, what: str) -> str:
+    """Words for a shortfall of the mean of which the ceiling's time-on-task part holds at
+    least a quarter of the mean square, else ''. Where there is no drift that part is shrunk
+    to next to nothing; a drift brings trends by stimulus along (both sliders creeping up by
+    0.15 slider units a minute, 11 participants: the time part held 28 % of the depth
+    response's shortfall, a trend with depth the rest), and the time is the news."""
+    d_time = sub["d_time"].to_numpy(float)
+    total = float(np.mean(sub["d_mu"].to_numpy(float) ** 2))
+    if total <= 0 or float(np.mean(d_time ** 2)) < 0.25 * total:
+        return ""
+    corr = {"the time since the session's start": _corr(d_time, sub["t_session"].to_numpy(float)),
+            "the time since the last rest": _corr(d_time, sub["t_rest"].to_numpy(float))}
+    name = max(corr, key=lambda n: abs(corr[n]))
+    return f"{what}, {'rising' if corr[name] > 0 else 'falling'} with {name}"
+
+
+def _column(frame: pd.DataFrame, name: str) -> np.ndarray:
+    """A numeric column of ``frame``, zeros where it is absent."""
+    return frame[name].to_numpy(float) if name in frame else np.zeros(len(frame))
 
 
 def _ill_levels(frame: pd.DataFrame) -> list:

@@ -14,7 +14,10 @@ simulation the real participants are diagnosed against.
 Effects added to the real participants' depth settings (slider units), before the clipping:
 ``gloss`` depth rising with the gloss level, ``size`` slider units RMS over the stimuli;
 ``illumination`` depth inflated by ``size`` slider units under one illumination (the first
-in sorted order).
+in sorted order); ``drift`` both settings creeping up by ``size`` slider units per minute
+since the session's start (fatigue, adaptation; each participant a share U(0.5, 1.5) of it);
+``swap`` the first real participant setting gloss on the depth slider and depth on the gloss
+slider on a random share ``size`` of their trials (the others do nothing of the kind).
 """
 
 from __future__ import annotations
@@ -46,11 +49,13 @@ def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
     ill = frame["illumination"].to_numpy(str)
     first = min(set(ill))
     g_c = g_lab - 6.0
-    add = {"none": np.zeros(len(frame)),
+    add = {"none": np.zeros(len(frame)), "drift": np.zeros(len(frame)),
+           "swap": np.zeros(len(frame)),
            "gloss": size * g_c / np.sqrt(np.mean(g_c ** 2)),
            "illumination": size * (ill == first)}[effect]
+    minutes = frame["onset_s"].to_numpy(float) / 60.0
     gloss, depth = np.empty(len(frame)), np.empty(len(frame))
-    for idx in frame.groupby("participant").indices.values():
+    for k, idx in enumerate(frame.groupby("participant").indices.values()):
         kg, kd = rng.uniform(0.75, 0.95), rng.uniform(0.65, 0.9)
         a_g, a_d = rng.normal(0.0, 0.5, 2)
         b_g, b_d = rng.normal(1.0, 0.1), rng.normal(0.95, 0.1)
@@ -60,6 +65,15 @@ def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
                       + c * (d_lab[idx] - 6.0) + sg * rng.standard_normal(idx.size))
         depth[idx] = (6.0 + a_d + b_d * (stevens(d_lab[idx], kd) - 6.0) + add[idx]
                       + sd * rng.standard_normal(idx.size))
+        if effect == "drift":
+            creep = size * rng.uniform(0.5, 1.5) * minutes[idx]
+            gloss[idx] += creep
+            depth[idx] += creep
+        if effect == "swap" and k == 0:
+            swapped = rng.random(idx.size) < size
+            g_i, d_i = gloss[idx].copy(), depth[idx].copy()
+            gloss[idx] = np.where(swapped, d_i, g_i)
+            depth[idx] = np.where(swapped, g_i, d_i)
     out = frame.copy()
     out["gloss_match"] = _on_pixels(np.clip(gloss, s.min, s.max))
     out["depth_match"] = _on_pixels(np.clip(depth, s.min, s.max))

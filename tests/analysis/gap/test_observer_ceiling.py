@@ -17,7 +17,8 @@ from analysis.gap.observer import (
     observer_frame,
     observer_loss,
 )
-from analysis.gap.observer.ceiling import _ceiling_pred, _cell_offsets
+from analysis.gap.observer.ceiling import _ceiling_pred
+from analysis.gap.observer.offsets import _cell_offsets
 from analysis.gapbench.bench_observer import HarderCase, generate_sessions
 from experiment import load_observer_params
 from studydesign import load_design

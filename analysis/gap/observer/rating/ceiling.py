@@ -5,7 +5,7 @@ method on the ordered-probit likelihood (each trial's working residual ``-g/h`` 
 ``h``, ``g`` and ``h`` the first and second derivatives of its NLL in the latent mean, as in
 iteratively reweighted least squares): per-stimulus offsets shrunk across participants
 (empirical Bayes, only the part that replicates *across* participants counts,
-:func:`analysis.gap.observer.ceiling._cell_offsets`), each participant's own gain and offset,
+:func:`analysis.gap.observer.offsets._cell_offsets`), each participant's own gain and offset,
 a cubic in the factor and the pull of the previous response (a light ridge penalty); then the
 noise SD refitted. The remaining gap is tested against it (the engine's paired test).
 """
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from analysis.gap.observer.ceiling import _cell_offsets
+from analysis.gap.observer.offsets import _cell_offsets
 from analysis.gap.observer.rating.model import (
     _fit_sigma,
     rating_floor,
