@@ -56,25 +56,38 @@ $(STAMP): pyproject.toml
 
 venv: $(STAMP)
 
-# The suite runs in two parts, both always, failing if either fails: the real-time tests
-# (PsychoPy windows paced by the frame clock, photometers on serial lines), which a busy CPU
-# starves, one at a time; the rest on TEST_WORKERS processes (pytest-xdist, each test file on
-# one worker, so a module's fixtures are built once). `make test TESTS=path` runs just those
-# tests, serially.
+# The suite runs in two parts at once, both always, failing if either fails: the real-time
+# tests (PsychoPy windows paced by the frame clock, photometers on serial lines), one at a time
+# at normal priority, and beside them the rest on TEST_WORKERS processes (pytest-xdist, each
+# test file on one worker, so a module's fixtures are built once) at `nice` BACKGROUND_NICE, so
+# the CPU goes to a real-time test whenever it needs it (the real-time tests mostly wait on the
+# frame clock and the serial line, and a busy CPU at their own priority starves them); then the
+# documentation site. The parallel part's output is kept in PARALLEL_LOG and printed when it
+# ends. `make test TESTS=path` runs just those tests, serially.
 TEST_WORKERS ?= 2
+BACKGROUND_NICE ?= 19
 SERIAL_TESTS := tests/experiment tests/calibration
+PARALLEL_LOG := $(PROJECT_HOME)/parallel-tests.log
 TESTS ?=
 
 test: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)
 	@if [ -n "$(TESTS)" ]; then \
 		HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(TESTS) $(PYTEST_ARGS); exit $$?; fi; \
-	start=$$(date +%s); \
-	echo "== tests in parallel ($(TEST_WORKERS) workers), all but $(SERIAL_TESTS) =="; \
-	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest -n $(TEST_WORKERS) --dist loadfile \
-		$(foreach d,$(SERIAL_TESTS),--ignore=$(d)) $(PYTEST_ARGS); first=$$?; \
+	start=$$(date +%s); rm -f $(PARALLEL_LOG).rc; \
+	echo "== tests in parallel ($(TEST_WORKERS) workers, nice $(BACKGROUND_NICE)), all but" \
+		"$(SERIAL_TESTS), beside the real-time tests; output in $(PARALLEL_LOG) =="; \
+	( HOME=$(PROJECT_HOME) nice -n $(BACKGROUND_NICE) $(XVFB) $(PY) -m pytest -n $(TEST_WORKERS) \
+		--dist loadfile $(foreach d,$(SERIAL_TESTS),--ignore=$(d)) $(PYTEST_ARGS) \
+		> $(PARALLEL_LOG) 2>&1; echo $$? > $(PARALLEL_LOG).rc ) & par=$$!; \
+	sleep 3; \
 	echo "== real-time tests, one at a time: $(SERIAL_TESTS) =="; \
 	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
+	echo "== real-time part: exit $$second after $$(( $$(date +%s) - start )) s; waiting for the" \
+		"parallel part =="; \
+	wait $$par; first=$$(cat $(PARALLEL_LOG).rc 2>/dev/null || echo 1); \
+	echo "== the parallel part's output (exit $$first, $$(( $$(date +%s) - start )) s) =="; \
+	cat $(PARALLEL_LOG); \
 	echo "== the documentation site, warnings as errors =="; \
 	$(DOCS_BUILD); third=$$?; \
 	echo "== make test: parallel part exit $$first, real-time part exit $$second," \

@@ -42,6 +42,12 @@ Where things are
 ``candidates.py``
     The catalogue, one registered :class:`Candidate` per effect
     (:data:`OBSERVER_CANDIDATES`).
+``participants/``
+    Single participants who depart from the others where the misfit cannot see them
+    (:func:`analysis.gap.observer.participants.participant_departures`; the engine weighs
+    them into the verdict, :mod:`analysis.gap.engine.departures`).
+``offsets/``
+    The ceiling's per-stimulus and per-cell offsets, shrunk across participants.
 
 ``__init__.py`` (here)
     The layer's face to the engine, :func:`plan` (the same in every layer).
