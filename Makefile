@@ -61,9 +61,9 @@ venv: $(STAMP)
 # at normal priority, and beside them the rest on TEST_WORKERS processes (pytest-xdist, each
 # test file on one worker, so a module's fixtures are built once) at `nice` BACKGROUND_NICE, so
 # the CPU goes to a real-time test whenever it needs it (the real-time tests mostly wait on the
-# frame clock and the serial line, and a busy CPU at their own priority starves them); then the
-# documentation site. The parallel part's output is kept in PARALLEL_LOG and printed when it
-# ends. `make test TESTS=path` runs just those tests, serially.
+# frame clock and the serial line, and a busy CPU at their own priority starves them); after
+# the real-time part, still beside the parallel part, the documentation site. The parallel
+# part's output is kept in PARALLEL_LOG and printed when it ends. `make test TESTS=path` runs just those tests, serially.
 TEST_WORKERS ?= 2
 BACKGROUND_NICE ?= 19
 SERIAL_TESTS := tests/experiment tests/calibration
@@ -83,13 +83,13 @@ test: system-deps $(STAMP)
 	sleep 3; \
 	echo "== real-time tests, one at a time: $(SERIAL_TESTS) =="; \
 	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
-	echo "== real-time part: exit $$second after $$(( $$(date +%s) - start )) s; waiting for the" \
-		"parallel part =="; \
+	echo "== real-time part: exit $$second after $$(( $$(date +%s) - start )) s =="; \
+	echo "== the documentation site, warnings as errors (beside the parallel part) =="; \
+	$(DOCS_BUILD); third=$$?; \
+	echo "== waiting for the parallel part after $$(( $$(date +%s) - start )) s =="; \
 	wait $$par; first=$$(cat $(PARALLEL_LOG).rc 2>/dev/null || echo 1); \
 	echo "== the parallel part's output (exit $$first, $$(( $$(date +%s) - start )) s) =="; \
 	cat $(PARALLEL_LOG); \
-	echo "== the documentation site, warnings as errors =="; \
-	$(DOCS_BUILD); third=$$?; \
 	echo "== make test: parallel part exit $$first, real-time part exit $$second," \
 		"docs exit $$third, $$(( $$(date +%s) - start )) s in all =="; \
 	[ $$first -eq 0 ] && [ $$second -eq 0 ] && [ $$third -eq 0 ]
@@ -99,7 +99,7 @@ test-fast: test
 
 # The documentation site (docs/): docs/make_pictures.py runs small versions of the pipeline's
 # steps for the pictures (about a minute on 2 cores), then Sphinx builds every page again (-E)
-# with warnings as errors. `make test` runs the same after the tests.
+# with warnings as errors. `make test` runs the same after its real-time tests.
 DOCS_HTML := docs/_build/html
 DOCS_BUILD = dstart=$$(date +%s); mkdir -p $(PROJECT_HOME); \
 	HOME=$(PROJECT_HOME) $(PY) docs/make_pictures.py \
