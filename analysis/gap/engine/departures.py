@@ -10,9 +10,11 @@ something the others do not barely moves that model. A layer may check such depa
 
 - significant (and at least the tolerance): a gap. A verdict that was not one becomes
   ``'unexplained'``; a gap stays as it is and the words add the departing units;
-- otherwise, where the verdict was no gap that matters but the departures were not tested or
-  their bound reaches the tolerance: inconclusive (what the misfit excludes is said, and that
-  single units are not excluded).
+- otherwise, where the verdict was no gap that matters but the departures were not tested,
+  some unit departs (``departing``, however small its measured size: part of a departure passes
+  for the unit's own slopes, so its size is a low estimate) or their bound reaches the
+  tolerance: inconclusive (what the misfit excludes is said, and that single units are not
+  excluded).
 """
 
 from __future__ import annotations
@@ -37,6 +39,7 @@ def with_departures(diag: Diagnosis, departures: dict) -> Diagnosis:
             verdict = "unexplained"
     elif verdict == NO_GAP_THAT_MATTERS:
         upper = dep.get("size_upper", float("nan"))
-        if not dep.get("tested") or not (np.isfinite(upper) and upper < dep["tolerance"]):
+        if (not dep.get("tested") or dep.get("departing")
+                or not (np.isfinite(upper) and upper < dep["tolerance"])):
             verdict = INCONCLUSIVE
     return replace(diag, verdict=verdict, departures=dep)

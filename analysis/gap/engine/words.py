@@ -54,8 +54,11 @@ def _departure_summary(d: Diagnosis, dep: dict) -> str:
                 f"population's settings by stimulus and time on task: {rest}")
     if dep.get("significant"):
         return f"{before} Besides, {dep['where']} ({size})."
-    why = dep.get("reason") or (f"single participants' departures from the others leave {size}, "
-                                "so a gap of the tolerance is not excluded")
+    why = dep.get("reason") or (
+        f"{dep['where']} ({size}); part of such a departure passes for the participant's own "
+        "slopes, so a gap of the tolerance is not excluded" if dep.get("departing") else
+        f"single participants' departures from the others leave {size}, so a gap of the "
+        "tolerance is not excluded")
     return (f"Inconclusive: {rest.replace(' is excluded', ' is excluded for the population')}"
             f" But {why}.{_power_words(d)}")
 

@@ -17,11 +17,15 @@ robust centre and spread (median and 1.4826 x MAD, leave-one-out; the spread at 
 across participants. Natural differences in noise
 between people (a noise SD of 0.6 to 1.1 slider units is usual) sit inside the others'
 spread; a participant who swapped the sliders on a third of their trials scatters 4-5 times
-as much.
+as much. Beside the scatter, the correlation of a participant's gloss and depth errors is held
+against the others' the same way (Fisher's z, two-sided): a participant who swaps the sliders
+on one trial in ten scatters only 1.4 times the others' median, as ordinary as the noisiest of
+them, but their two errors move against each other (a swapped trial's gloss error is minus its
+depth error), which nobody else's do. The smaller of the two p-values counts, doubled.
 
 Its size is in the misfit's units: each participant's excess mean square beyond the upper end
-of what the others allow (their 95th percentile), summed over their trials and spread over
-every trial, ``sqrt(sum_p n_p max(v_p - ref_p, 0) / N)`` slider units; the upper 95 % bound
+of what the others allow (their 95th percentile; for a participant found to depart, beyond the
+others' median), summed over their trials and spread over every trial, ``sqrt(sum_p n_p max(v_p - ref_p, 0) / N)`` slider units; the upper 95 % bound
 takes ``v_p``'s upper 95 % bound (chi-square on the participant's residual degrees of freedom).
 Fewer than :data:`MIN_PARTICIPANTS` participants: the others' spread cannot be estimated, the
 check is not made, and no gap can be excluded on this count.
@@ -77,6 +81,26 @@ def _others(log_v: np.ndarray, i: int) -> tuple[float, float]:
     return centre, max(float(1.4826 * np.median(np.abs(rest - centre))), MIN_LOG_SPREAD)
 
 
+def _correlation_tests(res: pd.DataFrame, parts: list, n: np.ndarray):
+    """Per participant the correlation of their gloss and depth residuals, a two-sided p-value
+    against the others' (Fisher's z, the others' median and 1.4826 x MAD, at least the
+    sampling SD of one participant's z), and the others' median correlation."""
+    corr = np.array([float(np.corrcoef(res.loc[res["participant"] == q, RESP[0]],
+                                       res.loc[res["participant"] == q, RESP[1]])[0, 1])
+                     for q in parts])
+    z = np.arctanh(np.clip(np.nan_to_num(corr), -0.999, 0.999))
+    p, others = np.empty(len(parts)), np.empty(len(parts))
+    for i in range(len(parts)):
+        rest = np.delete(z, i)
+        centre = float(np.median(rest))
+        sampling = 1.0 / np.sqrt(max(n[i] - 2 * _OWN_TERMS, 2.0))
+        spread = max(float(1.4826 * np.median(np.abs(rest - centre))), sampling)
+        stat = (z[i] - centre) / (spread * np.sqrt(1 + 1 / (len(parts) - 1)))
+        p[i] = float(2 * stats.norm.sf(abs(stat)))
+        others[i] = float(np.tanh(centre))
+    return corr, p, others
+
+
 def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05) -> dict:
     """Whether single participants' settings depart from the others' (module docstring).
 
@@ -97,8 +121,9 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
         ``reason``), ``size`` and ``size_upper`` (slider units), ``tolerance``,
         ``significant`` (some participant departs, Holm p < ``alpha``, and the size is at
         least the tolerance), ``departing`` (per flagged participant: ``participant``,
-        ``scatter_ratio`` (their residual RMS over the others' median), ``p_holm``,
-        ``trials``), ``where`` (words) and ``per_participant`` (every participant's
+        ``scatter_ratio`` (their residual RMS over the others' median),
+        ``error_correlation`` and ``others_error_correlation`` (their gloss and depth
+        residuals' correlation, the others' median), ``p_holm``, ``trials``), ``where`` (words) and ``per_participant`` (every participant's
         ``rms``, ``p``, ``p_holm``).
     """
     res = pd.concat([_own_residuals(te, ch) for _, te, ch, *_ in fits], ignore_index=True)
@@ -126,13 +151,22 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
         p[i] = float(stats.norm.sf(z))
         ref[i] = float(np.exp(centre + stats.norm.ppf(0.95) * spread))
         v_hi[i] = v[i] * dof[i] / float(stats.chi2.ppf(0.05, dof[i]))
+    corr, p_corr, corr_others = _correlation_tests(res, parts, n)
+    # Either test may show a departure: the smaller p, doubled (Bonferroni within a person).
+    p = np.minimum(1.0, 2.0 * np.minimum(p, p_corr))
     p_adj = holm(p)
+    flagged = [i for i in np.argsort(p) if p_adj[i] < alpha]
+    # A participant known to depart is measured against the others' typical scatter (their
+    # median), the rest against the top of the others' spread (their 95th percentile).
+    for i in flagged:
+        ref[i] = float(np.exp(_others(log_v, i)[0]))
     total = float(n.sum())
     size = float(np.sqrt(np.sum(n * np.maximum(v - ref, 0.0)) / total))
     upper = float(np.sqrt(np.sum(n * np.maximum(v_hi - ref, 0.0)) / total))
     median_rms = float(np.sqrt(np.median(v)))
-    flagged = [i for i in np.argsort(p) if p_adj[i] < alpha]
     departing = [{"participant": parts[i], "scatter_ratio": float(np.sqrt(v[i]) / median_rms),
+                  "error_correlation": float(corr[i]),
+                  "others_error_correlation": float(corr_others[i]),
                   "p_holm": float(p_adj[i]), "trials": int(n[i])} for i in flagged]
     out.update(tested=True, size=size, size_upper=upper, departing=departing,
                significant=bool(departing) and size >= tolerance,
@@ -140,10 +174,13 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
                                  "p": float(p[i]), "p_holm": float(p_adj[i])}
                                 for i, q in enumerate(parts)])
     if departing:
-        who = ", ".join(f"{d['participant']} ({d['scatter_ratio']:.1f}x)" for d in departing)
-        verb = "scatters" if len(departing) == 1 else "scatter"
-        out["where"] = (f"in single participants: {who} {verb} about the chosen model far more "
-                        "than the others do once their own offset and slopes are taken out "
-                        "(swapped sliders, random answers on some trials, or a misunderstood "
+        who = ", ".join(f"{d['participant']} ({d['scatter_ratio']:.1f}x, gloss and depth errors "
+                        f"correlated {d['error_correlation']:+.2f} against the others' "
+                        f"{d['others_error_correlation']:+.2f})" for d in departing)
+        verb = "departs" if len(departing) == 1 else "depart"
+        out["where"] = (f"in single participants: {who} {verb} from the others once their own "
+                        "offset and slopes are taken out (scatter about the chosen model, or "
+                        "gloss and depth errors that move together or against each other: "
+                        "swapped sliders, random answers on some trials, or a misunderstood "
                         "task?); look at their sessions")
     return out
