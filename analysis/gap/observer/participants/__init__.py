@@ -81,6 +81,23 @@ def _others(log_v: np.ndarray, i: int) -> tuple[float, float]:
     return centre, max(float(1.4826 * np.median(np.abs(rest - centre))), MIN_LOG_SPREAD)
 
 
+def _scatter_tests(v: np.ndarray, log_v: np.ndarray, dof: np.ndarray):
+    """Per participant: the one-sided p-value of their mean square ``v`` against the others'
+    (log scale, :func:`_others`, widened by its own sampling SD on ``dof`` degrees of
+    freedom), the top of the others' spread (their 95th percentile) and ``v``'s upper 95 %
+    bound (chi-square)."""
+    k = len(v)
+    p, ref, v_hi = np.empty(k), np.empty(k), np.empty(k)
+    for i in range(k):
+        centre, spread = _others(log_v, i)
+        own_sd = np.sqrt(2.0 / dof[i])  # SD of log v_p from sampling alone
+        z = (log_v[i] - centre) / np.sqrt(spread ** 2 * (1 + 1 / (k - 1)) + own_sd ** 2)
+        p[i] = float(stats.norm.sf(z))
+        ref[i] = float(np.exp(centre + stats.norm.ppf(0.95) * spread))
+        v_hi[i] = v[i] * dof[i] / float(stats.chi2.ppf(0.05, dof[i]))
+    return p, ref, v_hi
+
+
 def _correlation_tests(res: pd.DataFrame, parts: list, n: np.ndarray):
     """Per participant the correlation of their gloss and depth residuals, a two-sided p-value
     against the others' (Fisher's z, the others' median and 1.4826 x MAD, at least the
@@ -143,14 +160,7 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
     v = grouped.mean().reindex(parts).to_numpy(float)
     dof = np.maximum(len(RESP) * (n - _OWN_TERMS), 1.0)
     log_v = np.log(np.maximum(v, 1e-12))
-    p, ref, v_hi = np.empty(len(parts)), np.empty(len(parts)), np.empty(len(parts))
-    for i in range(len(parts)):
-        centre, spread = _others(log_v, i)
-        own_sd = np.sqrt(2.0 / dof[i])  # SD of log v_p from sampling alone
-        z = (log_v[i] - centre) / np.sqrt(spread ** 2 * (1 + 1 / (len(parts) - 1)) + own_sd ** 2)
-        p[i] = float(stats.norm.sf(z))
-        ref[i] = float(np.exp(centre + stats.norm.ppf(0.95) * spread))
-        v_hi[i] = v[i] * dof[i] / float(stats.chi2.ppf(0.05, dof[i]))
+    p, ref, v_hi = _scatter_tests(v, log_v, dof)
     corr, p_corr, corr_others = _correlation_tests(res, parts, n)
     # Either test may show a departure: the smaller p, doubled (Bonferroni within a person).
     p = np.minimum(1.0, 2.0 * np.minimum(p, p_corr))
