@@ -24,8 +24,8 @@ them, but their two errors move against each other (a swapped trial's gloss erro
 depth error), which nobody else's do. The smaller of the two p-values counts, doubled.
 
 Its size is in the misfit's units: each participant's excess mean square beyond the upper end
-of what the others allow (their 95th percentile; for a participant found to depart, beyond the
-others' median), summed over their trials and spread over every trial, ``sqrt(sum_p n_p max(v_p - ref_p, 0) / N)`` slider units; the upper 95 % bound
+of what the others allow (their 95th percentile), summed over their trials and spread over
+every trial, ``sqrt(sum_p n_p max(v_p - ref_p, 0) / N)`` slider units; the upper 95 % bound
 takes ``v_p``'s upper 95 % bound (chi-square on the participant's residual degrees of freedom).
 Fewer than :data:`MIN_PARTICIPANTS` participants: the others' spread cannot be estimated, the
 check is not made, and no gap can be excluded on this count.
@@ -166,10 +166,6 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
     p = np.minimum(1.0, 2.0 * np.minimum(p, p_corr))
     p_adj = holm(p)
     flagged = [i for i in np.argsort(p) if p_adj[i] < alpha]
-    # A participant known to depart is measured against the others' typical scatter (their
-    # median), the rest against the top of the others' spread (their 95th percentile).
-    for i in flagged:
-        ref[i] = float(np.exp(_others(log_v, i)[0]))
     total = float(n.sum())
     size = float(np.sqrt(np.sum(n * np.maximum(v - ref, 0.0)) / total))
     upper = float(np.sqrt(np.sum(n * np.maximum(v_hi - ref, 0.0)) / total))
