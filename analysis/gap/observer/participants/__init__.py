@@ -74,11 +74,12 @@ def _own_residuals(test: pd.DataFrame, fitted: list) -> pd.DataFrame:
     return pd.concat(rows, ignore_index=True) if rows else pd.DataFrame()
 
 
-def _others(log_v: np.ndarray, i: int) -> tuple[float, float]:
-    """Median and 1.4826 x MAD of ``log_v`` without entry ``i``."""
-    rest = np.delete(log_v, i)
+def _others(values: np.ndarray, i: int, least: float = MIN_LOG_SPREAD) -> tuple[float, float]:
+    """Median and 1.4826 x MAD of ``values`` without entry ``i``, the spread at least
+    ``least``."""
+    rest = np.delete(values, i)
     centre = float(np.median(rest))
-    return centre, max(float(1.4826 * np.median(np.abs(rest - centre))), MIN_LOG_SPREAD)
+    return centre, max(float(1.4826 * np.median(np.abs(rest - centre))), least)
 
 
 def _scatter_tests(v: np.ndarray, log_v: np.ndarray, dof: np.ndarray):
@@ -108,10 +109,8 @@ def _correlation_tests(res: pd.DataFrame, parts: list, n: np.ndarray):
     z = np.arctanh(np.clip(np.nan_to_num(corr), -0.999, 0.999))
     p, others = np.empty(len(parts)), np.empty(len(parts))
     for i in range(len(parts)):
-        rest = np.delete(z, i)
-        centre = float(np.median(rest))
         sampling = 1.0 / np.sqrt(max(n[i] - 2 * _OWN_TERMS, 2.0))
-        spread = max(float(1.4826 * np.median(np.abs(rest - centre))), sampling)
+        centre, spread = _others(z, i, least=sampling)
         stat = (z[i] - centre) / (spread * np.sqrt(1 + 1 / (len(parts) - 1)))
         p[i] = float(2 * stats.norm.sf(abs(stat)))
         others[i] = float(np.tanh(centre))
