@@ -23,6 +23,10 @@ R2n   in-catalogue effects of >= 2x tolerance, full size: every expected   >= 85
       name in the verdict
 R3    effects of >= 1x tolerance (realised), any size:                     <= 5 %
       ``no_gap_that_matters`` (the rate shown is of that verdict)
+R3w   observer only: effects whose part a person's own offset cannot       <= 5 %
+      absorb (truth.json's ``size_within_person``) is >= 1x tolerance:
+      ``no_gap_that_matters`` (issue 43: "a person's own offset is not a
+      gap"; R3 counts the total size, mean shift included)
 R4    no-effect cases at the smallest size (3 participants, a short run,   >= 90 %
       12 lights): ``no_gap_that_matters`` or ``inconclusive``
 ====  ===================================================================  ==========
@@ -324,6 +328,10 @@ def rows(layer: str, rs: list[dict]) -> list[tuple]:
     def big(r, m):
         return r["size_in_tolerances"] is not None and r["size_in_tolerances"] >= m * 0.98
 
+    def big_within(r, m):
+        w = r.get("size_within_person_in_tolerances")
+        return w is not None and w >= m * 0.98
+
     small = smallest(layer, rs)
     effect = [r for r in rs if not r["no_effect"]]
     out = [
@@ -337,6 +345,8 @@ def rows(layer: str, rs: list[dict]) -> list[tuple]:
          [r for r in effect if r["full"] and big(r, 2) and r["in_catalogue"]]),
         ("R3", "effect >= 1x tol -> no_gap_that_matters", "<= 5 %",
          lambda r: r["kind"] == "excluded", [r for r in effect if big(r, 1)]),
+        ("R3w", "within-person >= 1x tol -> no_gap_that_matters", "<= 5 %",
+         lambda r: r["kind"] == "excluded", [r for r in effect if big_within(r, 1)]),
         ("R4", f"no effect, smallest ({small}) -> excl./inconcl.", ">= 90 %",
          lambda r: r["kind"] in ("excluded", "inconclusive", "legacy"),
          [r for r in rs if r["no_effect"] and r["size"] == small]),
@@ -366,6 +376,8 @@ def table(results: list[dict]) -> tuple[str, list[dict]]:
             continue
         for rid, desc, target, ok, recs in rows(layer, rs):
             n, k = len(recs), len(ok)
+            if rid == "R3w" and not n:
+                continue  # no within-person size in this layer's truth.json
             lo, hi = wilson(k, n)
             rate = f"{100.0 * k / n:5.1f} %" if n else "    -  "
             ci = f"[{100 * lo:4.1f}, {100 * hi:5.1f}]" if n else ""

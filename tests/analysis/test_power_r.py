@@ -60,6 +60,9 @@ def test_power_agrees_with_lme4_simulate_refit_and_car_anova_at_two_n(tmp_path, 
         theirs = row.hits / row.nsim
         se = np.sqrt(theirs * (1 - theirs) / row.nsim + mine.rate * (1 - mine.rate) / mine.n)
         rates.append((mine.rate, theirs))
+        print(f"{row.layout}: ours {mine.rate:.3f} ({mine.n} studies), lme4+car {theirs:.3f} "
+              f"({row.nsim}), difference {mine.rate - theirs:+.3f} = "
+              f"{(mine.rate - theirs) / max(se, 0.01):+.2f} SE")  # shown with pytest -rP
         assert abs(mine.rate - theirs) < 2.6 * max(se, 0.01), (row.layout, mine, theirs)
     # an informative check: power between the ends at both N, and higher at 12 than at 6
     assert 0.1 < rates[0][0] < rates[1][0] < 0.95

@@ -65,6 +65,29 @@ def test_a_diagnosed_case_is_read_not_recomputed(score, tmp_path):
     assert len(rows["R2n"][3]) == 1 and len(rows["R3"][3]) == 0
 
 
+def test_an_observer_effect_a_person_can_absorb_counts_in_r3_not_r3w(score, tmp_path):
+    # rest_drift at 1x: total size 1.0 tolerance, 0.55 of it left once each person's own mean
+    # change is taken out; slider_swap at 1x: 1.0 within. Both read no_gap_that_matters.
+    recs = []
+    for name, within in (("rest_drift-x1-n20-s5", 0.55), ("slider_swap-x1-n20-s5", 1.0)):
+        fake_case(tmp_path, "observer", name, "no_gap_that_matters",
+                  {"expected": "unexplained", "size_in_tolerances": 1.0,
+                   "size_within_person_in_tolerances": within})
+        case = name.split("-")[0]
+        recs.append(score.score_one("observer", case, 1.0, "n20", 5, tmp_path, timeout_s=5,
+                                    force=False))
+    rows = {row[0]: row for row in score.rows("observer", recs)}
+    assert (len(rows["R3"][3]), len(rows["R3"][4])) == (2, 2)
+    assert [r["case"] for r in rows["R3w"][4]] == ["slider_swap"]
+    text, out = score.table(recs)
+    assert "R3w" in text and {"R3", "R3w"} <= {o["row"] for o in out}
+    fake_case(tmp_path, "display", "clean-full-s3", "no_gap_that_matters",
+              {"expected": "none", "size_in_tolerances": 0.0})
+    clean = score.score_one("display", "clean", None, "full", 3, tmp_path, timeout_s=5,
+                            force=False)
+    assert "R3w" not in score.table([clean])[0]  # no within-person size outside the observer
+
+
 def test_a_case_locked_by_a_live_runner_is_left_to_it(score, tmp_path):
     lock = tmp_path / ".locks" / "display-clean-full-s3.lock"
     lock.parent.mkdir(parents=True)
