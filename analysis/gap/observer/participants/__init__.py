@@ -139,8 +139,8 @@ def participant_departures(fits: list, tolerance: float, *, alpha: float = 0.05)
         least the tolerance), ``departing`` (per flagged participant: ``participant``,
         ``scatter_ratio`` (their residual RMS over the others' median),
         ``error_correlation`` and ``others_error_correlation`` (their gloss and depth
-        residuals' correlation, the others' median), ``p_holm``, ``trials``), ``where`` (words) and ``per_participant`` (every participant's
-        ``rms``, ``p``, ``p_holm``).
+        residuals' correlation, the others' median), ``p_holm``, ``trials``), ``where``
+        (words) and ``per_participant`` (every participant's ``rms``, ``p``, ``p_holm``).
     """
     res = pd.concat([_own_residuals(te, ch) for _, te, ch, *_ in fits], ignore_index=True)
     out = {"tested": False, "tolerance": float(tolerance), "significant": False,
