@@ -242,12 +242,18 @@ def cancel_jobs(cluster, adaptive, system: str) -> None:
         signal.signal(signal.SIGINT, before)
 
 
+def _close_workers(addresses: list[str], dask_scheduler=None) -> None:
+    """On the scheduler: ask each worker at ``addresses`` to shut down (its job then ends)."""
+    for address in addresses:
+        dask_scheduler.close_worker(address)
+
+
 def end_jobs(cluster, client, adaptive, system: str, wait_s: float = 60.0) -> None:
     """Let SLURM worker jobs end by themselves, so that they end COMPLETED (exit 0) in its
-    records rather than CANCELLED: no job is replaced any more, each worker is retired and its
-    process exits, and the run waits (up to ``wait_s``) until those jobs have left the queue;
-    any still there then is cancelled (``scancel``), as closing the cluster cancels the jobs that
-    never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
+    records rather than CANCELLED: no job is replaced any more, each worker is retired (or,
+    where it still holds a result the client refers to, closed) and its process exits, and the
+    run waits (up to ``wait_s``) until those jobs have left the queue; any still there then is
+    cancelled (``scancel``), as closing the cluster cancels the jobs that never ran a worker. Other systems: every job is cancelled on closing, as before (their queue
     commands are untested here)."""
     from concurrent.futures import CancelledError
 
@@ -256,9 +262,15 @@ def end_jobs(cluster, client, adaptive, system: str, wait_s: float = 60.0) -> No
         return
     try:
         retired = client.retire_workers(close_workers=True)
+        # Dask refuses to retire a worker holding a result the client still refers to ("unique
+        # data could not be moved"): the run is over and its results kept, so close it anyway
+        kept = {addr: info for addr, info in client.scheduler_info()["workers"].items()
+                if addr not in retired}
+        if kept:
+            client.run_on_scheduler(_close_workers, list(kept))
     except (OSError, TimeoutError, CancelledError):
         return
-    names = {str(info.get("name")) for info in retired.values()}
+    names = {str(info.get("name")) for info in [*retired.values(), *kept.values()]}
     ending = []
     for key, job in list(cluster.workers.items()):  # a job's workers are named KEY or KEY-i
         if getattr(job, "job_id", None) and any(n == str(key) or n.startswith(f"{key}-")

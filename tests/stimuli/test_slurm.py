@@ -136,3 +136,38 @@ def test_image_statistics_on_slurm_jobs(tmp_path, slurm, rng):
     states = {j: slurm.job_state(j) for j in jobs}
     assert len(jobs) == 1 and states[jobs[0]] == "COMPLETED", f"{states}\n{history}"
     assert slurm.jobs() == []
+
+
+_HOLDS_A_RESULT = """
+from stimuli.dask_cluster import JobSpec, open_client
+spec = JobSpec(system="slurm", cores=1, memory="1GiB", walltime="00:10:00", jobs=1)
+with open_client(spec=spec) as (client, _):
+    kept = client.submit(bytes, 1000)  # its result stays on the one worker while held here
+    assert kept.result() == bytes(1000)
+    print("held", flush=True)
+"""
+
+
+def test_a_worker_job_still_holding_a_result_ends_completed(tmp_path, slurm):
+    """At the end of a run the client may still hold results that live only on a worker; Dask
+    then refuses to retire that worker ("unique data could not be moved"), which the run's end
+    took as "no job of ours ended" and cancelled the job. The run is over and its results
+    kept, so the worker is closed all the same: its job ends COMPLETED, not CANCELLED."""
+    before = set(slurm.submitted())
+    err_path = tmp_path / "held.err"
+    with open(err_path, "w") as err_file:
+        proc = subprocess.Popen([sys.executable, "-c", _HOLDS_A_RESULT], cwd=tmp_path,
+                                env={**os.environ, **slurm.env, "PYTHONPATH": str(REPO)},
+                                stdout=subprocess.PIPE, stderr=err_file, text=True,
+                                start_new_session=True)
+    try:
+        stdout = proc.communicate(timeout=180)[0]
+    finally:
+        kill(proc)
+    err, history = err_path.read_text(), _job_history(slurm)
+    print(f"a client holding a result:\n{history}\n--- stderr\n{err}")
+    assert proc.returncode == 0 and "held" in stdout, err + history
+    jobs = [j for j in slurm.submitted() if j not in before]
+    states = {j: slurm.job_state(j) for j in jobs}
+    assert len(jobs) == 1 and states[jobs[0]] == "COMPLETED", f"{states}\n{history}"
+    assert slurm.jobs() == []
