@@ -17,8 +17,15 @@ fewer photons (noisier photos: ``--photons``), nothing added: the data cannot ex
 misfit; a larger data set is more photos of the same three levels, each level's copy with its
 own noise (``copies`` x 3 photos).
 
-Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render]
-[--photons P ...]``
+Observer layer, with ``--observer``: populations of observers written apart from the
+diagnosis's model (``tests/analysis/gap/observer_population_gen.py``: Stevens power laws, own
+offsets and slopes, crosstalk), diagnosed against a pilot of 8 of them fitted with
+``fit-observer``: 4 participants whose depth rises with gloss (0.3 slider units RMS), and 20
+whose settings both creep up 0.095 slider units a minute (1.06x the tolerance within a
+person); a larger data set is more participants of the same population.
+
+Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render |
+--observer] [--photons P ...]``
 """
 
 from __future__ import annotations
@@ -95,6 +102,47 @@ def render_check(photons: float, draws: int, seed: int) -> None:
         _print_brute(verdicts, rate, times)
 
 
+OBSERVER_CASES = (("depth rising with gloss 0.3, 4 participants", "gloss", 0.3, 4, 1),
+                  ("both sliders creeping 0.095 per minute, 20 participants", "drift", 0.095,
+                   20, 2))
+
+
+def observer_check(draws: int, seed: int) -> None:
+    """The observer layer's brute-force check (see the module's docstring)."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.analysis.gap.observer_population_gen import DESIGN, population
+
+    for name, effect, size, n, case_seed in OBSERVER_CASES:
+        t0 = time.perf_counter()
+        pilot, real = population(case_seed, n, effect, size)
+        diag = diagnose("observer", real, pilot, DESIGN, seed=case_seed, n_boot=200)[0]
+        took = time.perf_counter() - t0
+        print(f"observer, {name}: verdict {diag.verdict}, misfit "
+              f"{diag.remaining.get('size'):.3f}, upper bound {diag.misfit_upper:.3f} slider "
+              f"units, diagnosis {took:.1f} s")
+        if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
+            print(f"  nothing to check (to_decide {diag.to_decide.get('words')})")
+            continue
+        det, dec = diag.detectable, diag.to_decide
+        print(f"  detectable: {det['value']} slider units; to_decide: x{dec['factor']} "
+              f"({dec['words']})")
+        rate = next(c for c in dec["curve"] if c["size"] == dec["factor"])
+        more = int(np.ceil(dec["factor"] * n))
+        verdicts, times = [], []
+        for i in range(draws):
+            t0 = time.perf_counter()
+            pilot, real = population(seed + i, more, effect, size)
+            d = diagnose("observer", real, pilot, DESIGN, seed=seed + i, n_boot=200)[0]
+            times.append(time.perf_counter() - t0)
+            verdicts.append(d.verdict)
+            print(f"    seed {seed + i}: {d.verdict}, misfit {d.remaining.get('size'):.3f}, "
+                  f"upper {d.misfit_upper:.3f}", flush=True)
+        print(f"  {more} participants:")
+        _print_brute(verdicts, rate, times)
+
+
 def _print_brute(verdicts: list, rate: dict, times: list) -> None:
     n = len(verdicts)
     decided = sum(v != "inconclusive" for v in verdicts)
@@ -110,9 +158,13 @@ def main(argv=None) -> int:
     ap.add_argument("--draws", type=int, default=10)
     ap.add_argument("--seed", type=int, default=100)
     ap.add_argument("--render", action="store_true", help="the render layer's check only")
+    ap.add_argument("--observer", action="store_true", help="the observer layer's check only")
     ap.add_argument("--photons", type=float, nargs="+", default=[170.0])
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)
+    if args.observer:
+        observer_check(args.draws, args.seed)
+        return 0
     if args.render:
         for photons in args.photons:
             render_check(photons, args.draws, args.seed)

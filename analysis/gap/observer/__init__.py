@@ -85,7 +85,12 @@ from analysis.gap.observer.model import (
     to_slider_units,
 )
 from analysis.gap.observer.participants import participant_departures
-from analysis.gap.observer.power import misfit_power, misfit_terms, misfit_upper
+from analysis.gap.observer.power import (
+    misfit_ceiling_draws,
+    misfit_power,
+    misfit_terms,
+    misfit_upper,
+)
 from analysis.gap.observer.where import (
     OBSERVER_SIZE_UNIT,
     localise_observer,
@@ -168,14 +173,15 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
     def size_upper(fits):
         # The chosen model's (the first call's, as size's) per-trial terms kept for power.
         t, u = misfit_terms(fits, ceilings)
-        terms.setdefault("after", (t, u))
+        c = misfit_ceiling_draws(fits, ceilings)
+        terms.setdefault("after", (t, u, c))
         terms.setdefault("fits", fits)
-        return misfit_upper(t, u)
+        return misfit_upper(t, u, c)
 
     def power(_diag):
-        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+        t, u, c = terms.get("after", (np.zeros(0), np.zeros(0), np.zeros(0)))
         return misfit_power(t, u, design.gap.observer_tolerance_slider,
-                            by_participant=by_participant, n_sessions=n_sessions)
+                            by_participant=by_participant, n_sessions=n_sessions, ceiling=c)
 
     def departures(_diag):
         # On the chosen model's fits (size_upper's first call, as its terms).

@@ -5,18 +5,23 @@ trials of the distance between the chosen model's predicted settings and the fle
 (slider units). :func:`misfit_terms` gives its per-trial squared distances (both responses
 summed) and the units that are independent: participants where they are held out whole,
 else each participant's sessions (a person's trials share their own offset, so they are not
-independent draws). :func:`misfit_upper` is the misfit's one-sided upper 95 % bound, a
-percentile bootstrap over those units (Efron & Tibshirani 1993, ch. 13), or Student's t over
-them where that is wider (few participants): below the design's
+independent draws). The misfit is a distance from the flexible model, which is itself
+estimated: :func:`misfit_ceiling_draws` is the misfit's spread over that model's corrections
+refitted on resampled training participants. :func:`misfit_upper` is the misfit's one-sided
+upper 95 % bound, a percentile bootstrap over the held-out units (Efron & Tibshirani 1993,
+ch. 13) with a draw of the flexible model's error added to each resample, or Student's t over
+the units with both variances where that is wider (few participants): below the design's
 ``[gap] observer_tolerance_slider`` the verdict is no gap that matters.
 
 :func:`misfit_power` is the :class:`~analysis.gap.engine.PowerModel` of an inconclusive
 verdict: a data set ``factor`` times as large is drawn by resampling the units (their
 per-trial squared distances, shifted so that their mean is the squared misfit simulated, so
 the spread between units is the data's own, not an assumed normal one), its misfit and bounds
-measured and decided as the diagnosis decides (:func:`analysis.gap.engine.decide_size`).
-What the resampling cannot move is the ceiling's own estimation error, which shrinks with
-more data: the bound it gives for ``to_decide`` errs on the side of more data.
+measured and decided as the diagnosis decides (:func:`analysis.gap.engine.decide_size`), the
+flexible model's error variance taken to shrink as one over the data's size. What neither
+moves is the shrinkage of the flexible model's penalised terms toward no correction (a bias
+toward a smaller misfit, which more data lessens): the size it gives for ``to_decide`` errs
+on the side of more data.
 """
 
 from __future__ import annotations
@@ -27,11 +32,11 @@ import numpy as np
 from scipy import stats
 
 from analysis.gap.engine import PowerModel, decide_size
-from analysis.gap.observer.ceiling import ceiling_prediction
+from analysis.gap.observer.ceiling import ceiling_mean_draws, ceiling_prediction
 from analysis.gap.observer.model import RESP
 from analysis.gap.observer.where import _distance_sq, _model_spread
 
-__all__ = ["misfit_power", "misfit_terms", "misfit_upper"]
+__all__ = ["misfit_ceiling_draws", "misfit_power", "misfit_terms", "misfit_upper"]
 
 _N_BOOT = 2000
 _Z95 = 1.6448536269514722  # one-sided 95 %
@@ -58,22 +63,55 @@ def misfit_terms(fits: list, ceilings: dict) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate(terms), np.concatenate(units)
 
 
+def misfit_ceiling_draws(fits: list, ceilings: dict) -> np.ndarray:
+    """The squared misfit (slider units^2, the mean of :func:`misfit_terms`' terms) under each
+    of the ceilings' coefficient draws (:func:`analysis.gap.observer.ceiling.ceiling_mean_draws`),
+    centred on the misfit measured: the ceiling's own estimation error, shape (draws,); empty
+    where the ceilings have none. The folds' ceilings share most of their training data, so
+    their draws are paired by rank (as if perfectly correlated: the widest spread the folds
+    can give, not one that assumes them independent)."""
+    per_fold, n = [], 0
+    for train, test, chosen, _ in fits:
+        lo, hi = test.attrs["range"]
+        draws = ceiling_mean_draws(ceilings[id(test)], test)
+        if not draws:
+            return np.zeros(0)
+        mu_c, sd_c = ceiling_prediction(ceilings[id(test)], test)
+        mu, sd = _model_spread(train, test, list(chosen))
+        now = sum(float(_distance_sq(mu[r], sd[r], mu_c[r], sd_c[r], lo, hi).sum())
+                  for r in RESP)
+        drawn = sum(np.array([_distance_sq(mu[r], sd[r], m, sd_c[r], lo, hi).sum()
+                              for m in draws[r]]) for r in RESP)
+        per_fold.append(np.sort(drawn - now))
+        n += len(test)
+    if not per_fold or n == 0:
+        return np.zeros(0)
+    return np.sum(per_fold, axis=0) / n
+
+
 def _unit_sums(terms: np.ndarray, units: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     codes, inv = np.unique(units, return_inverse=True)
     return (np.bincount(inv, weights=terms, minlength=codes.size),
             np.bincount(inv, minlength=codes.size).astype(float))
 
 
-def misfit_upper(terms: np.ndarray, units: np.ndarray, *, seed: int = 0) -> float:
+def misfit_upper(terms: np.ndarray, units: np.ndarray, ceiling: np.ndarray | None = None, *,
+                 seed: int = 0) -> float:
     """One-sided upper 95 % bound of the misfit ``sqrt(mean(terms))`` (slider units): the
     95th percentile of its bootstrap over ``units`` (resampled whole), or its Student-t bound
-    over them where larger."""
+    over them where larger; with ``ceiling`` (:func:`misfit_ceiling_draws`) the ceiling's
+    estimation error is added to both (a draw of it to each resample; its variance to the
+    t bound's)."""
     if terms.size == 0:
         return float("nan")
     s, n = _unit_sums(terms, units)
     rng = np.random.default_rng(seed)
     counts = rng.multinomial(s.size, np.full(s.size, 1.0 / s.size), size=_N_BOOT)
     boot = (counts @ s) / np.maximum(counts @ n, 1.0)
+    var_c = 0.0
+    if ceiling is not None and ceiling.size > 1:
+        boot = boot + ceiling[rng.integers(0, ceiling.size, _N_BOOT)]
+        var_c = float(np.var(ceiling, ddof=1))
     # Few units: the percentile bootstrap's interval is too narrow (its resamples hold at
     # most that many distinct participants); Student's t on C - 1 degrees of freedom over the
     # ratio estimator's standard error (Cameron & Miller 2015) where that is wider. With 4
@@ -81,15 +119,17 @@ def misfit_upper(terms: np.ndarray, units: np.ndarray, *, seed: int = 0) -> floa
     # bound alone was 0.240 slider units: no gap that matters (issue 43, seed 1).
     r = float(s.sum() / n.sum())
     se = float(np.sqrt(np.sum((s - r * n) ** 2) * s.size / max(s.size - 1, 1))) / n.sum()
+    se = math.sqrt(se ** 2 + var_c)
     t_bound = r + float(stats.t.ppf(0.95, max(s.size - 1, 1))) * se
     return float(np.sqrt(max(np.quantile(boot, 0.95), t_bound, 0.0)))
 
 
-def _decide(s: np.ndarray, n: np.ndarray, tolerance: float) -> int:
+def _decide(s: np.ndarray, n: np.ndarray, tolerance: float, var_c: float = 0.0) -> int:
     """The verdict on one simulated data set of unit sums ``s`` over ``n`` trials: its
-    misfit and bounds from the ratio estimator's standard error over units."""
+    misfit and bounds from the ratio estimator's standard error over units and the ceiling's
+    own variance ``var_c`` (slider units^4)."""
     r = s.sum() / n.sum()
-    se = math.sqrt(max(float(np.sum((s - r * n) ** 2)), 0.0)) / n.sum()
+    se = math.sqrt(max(float(np.sum((s - r * n) ** 2)), 0.0) / n.sum() ** 2 + var_c)
     size = math.sqrt(max(r, 0.0))
     upper = math.sqrt(max(r + _Z95 * se, 0.0))
     return int(decide_size(np.array([size]), np.array([r - _Z95 * se]), np.array([upper]),
@@ -97,14 +137,18 @@ def _decide(s: np.ndarray, n: np.ndarray, tolerance: float) -> int:
 
 
 def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
-                 by_participant: bool, n_sessions: int, n_sim: int = 100) -> PowerModel | None:
+                 by_participant: bool, n_sessions: int, n_sim: int = 100,
+                 ceiling: np.ndarray | None = None) -> PowerModel | None:
     """The PowerModel of an inconclusive observer diagnosis (see the module docstring):
     misfits tried 0.5-4 x the tolerance, data sizes 1.5-8 x (participants where they are
-    held out whole, else sessions per participant). None without held-out trials."""
+    held out whole, else sessions per participant); the ceiling's estimation error
+    (``ceiling``, :func:`misfit_ceiling_draws`) taken to shrink as one over the data's size.
+    None without held-out trials."""
     if terms.size == 0:
         return None
     s, n = _unit_sums(terms, units)
     mean = float(s.sum() / n.sum())
+    var_c = float(np.var(ceiling, ddof=1)) if ceiling is not None and ceiling.size > 1 else 0.0
 
     def draws(misfit: float, factor: float):
         shifted = s - n * mean + n * misfit ** 2
@@ -114,7 +158,7 @@ def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
             out = np.empty(k, int)
             for i in range(k):
                 pick = rng.integers(0, s.size, k_units)
-                out[i] = _decide(shifted[pick], n[pick], tolerance)
+                out[i] = _decide(shifted[pick], n[pick], tolerance, var_c / factor)
             return out
         return run
 
