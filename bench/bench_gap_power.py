@@ -20,9 +20,9 @@ own noise (``copies`` x 3 photos).
 Observer layer, with ``--observer``: populations of observers written apart from the
 diagnosis's model (``tests/analysis/gap/observer_population_gen.py``: Stevens power laws, own
 offsets and slopes, crosstalk), diagnosed against a pilot of 8 of them fitted with
-``fit-observer``: 4 participants whose depth rises with gloss (0.3 slider units RMS), and 20
-whose settings both creep up 0.095 slider units a minute (1.06x the tolerance within a
-person); a larger data set is more participants of the same population.
+``fit-observer``: 4 participants whose depth rises with gloss (0.3 slider units RMS), 6 with
+nothing added, and 20 whose settings both creep up 0.095 slider units a minute (1.06x the
+tolerance within a person); a larger data set is more participants of the same population.
 
 Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render |
 --observer] [--photons P ...]``
@@ -103,6 +103,7 @@ def render_check(photons: float, draws: int, seed: int) -> None:
 
 
 OBSERVER_CASES = (("depth rising with gloss 0.3, 4 participants", "gloss", 0.3, 4, 1),
+                  ("nothing added, 6 participants", "none", 0.0, 6, 1),
                   ("both sliders creeping 0.095 per minute, 20 participants", "drift", 0.095,
                    20, 2))
 

@@ -15,6 +15,7 @@ from the data), not an assumed noise of an ideal observer.
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -220,7 +221,7 @@ _COEF_DRAWS = 200
 def _coefficient_draws(mx, tx, y, w, who, lams: tuple, seed: int = 0):
     """The mean and time corrections refitted, at their chosen penalties ``lams``, on
     the training units ``who`` (participants, or their sessions) resampled with replacement
-    (a cluster bootstrap; Cameron & Miller 2015):
+    (a cluster bootstrap with Poisson weights; Cameron & Miller 2015, Hanley & MacGibbon 2006):
     arrays (:data:`_COEF_DRAWS`, terms) of ``b`` and ``b_t`` as :func:`fit_ceiling` fits
     them in its last round (``y`` that round's residual from the model extended).
 
@@ -230,7 +231,7 @@ def _coefficient_draws(mx, tx, y, w, who, lams: tuple, seed: int = 0):
     upper bound of 0.221-0.238 slider units (issue 43, unseen seeds 1011 and 1013). The
     per-cell offsets and the noise model are not refitted (they are shrunk per cell; the
     smooth corrections carry the trends a bound must not miss)."""
-    codes, inv = np.unique(who, return_inverse=True)
+    codes, inv = np.unique(np.asarray(who, str), return_inverse=True)
     k, kt = mx.shape[1], tx.shape[1]
     xx = np.zeros((codes.size, k, k))
     xy = np.zeros((codes.size, k))
@@ -244,12 +245,13 @@ def _coefficient_draws(mx, tx, y, w, who, lams: tuple, seed: int = 0):
         xx[c], xy[c] = mx[m].T @ wx, wx.T @ y[m]
         tt[c], ty[c], tm[c] = tx[m].T @ wt, wt.T @ y[m], wt.T @ mx[m]
     pen, pen_t = _penalty(mx), _penalty(tx)
-    rng = np.random.default_rng(seed)
-    counts = rng.multinomial(codes.size, np.full(codes.size, 1.0 / codes.size),
-                             size=_COEF_DRAWS).astype(float)
+    # Poisson weights drawn from each unit's own name: a unit weighs the same in a draw of
+    # every fold's ceiling, so the folds' draws are correlated as their training data overlap.
+    counts = np.stack([np.random.default_rng([seed, zlib.crc32(c.encode())]).poisson(
+        1.0, _COEF_DRAWS) for c in codes], axis=1).astype(float)
     b_draws, t_draws = np.empty((_COEF_DRAWS, k)), np.empty((_COEF_DRAWS, kt))
     for i, cnt in enumerate(counts):
-        ws = float(cnt @ wsum)
+        ws = max(float(cnt @ wsum), 1e-9)
         a = np.tensordot(cnt, xx, 1) + lams[0] * ws * pen + 1e-9 * np.eye(k)
         b = np.linalg.solve(a, cnt @ xy)
         a_t = np.tensordot(cnt, tt, 1) + lams[1] * ws * pen_t + 1e-9 * np.eye(kt)

@@ -67,9 +67,9 @@ def misfit_ceiling_draws(fits: list, ceilings: dict) -> np.ndarray:
     """The squared misfit (slider units^2, the mean of :func:`misfit_terms`' terms) under each
     of the ceilings' coefficient draws (:func:`analysis.gap.observer.ceiling.ceiling_mean_draws`),
     centred on the misfit measured: the ceiling's own estimation error, shape (draws,); empty
-    where the ceilings have none. The folds' ceilings share most of their training data, so
-    their draws are paired by rank (as if perfectly correlated: the widest spread the folds
-    can give, not one that assumes them independent)."""
+    where the ceilings have none. Draw ``i`` of every fold weighs each training unit alike
+    (:func:`analysis.gap.observer.ceiling._coefficient_draws`), so the folds' errors add as
+    correlated as their shared training data make them."""
     per_fold, n = [], 0
     for train, test, chosen, _ in fits:
         lo, hi = test.attrs["range"]
@@ -82,7 +82,7 @@ def misfit_ceiling_draws(fits: list, ceilings: dict) -> np.ndarray:
                   for r in RESP)
         drawn = sum(np.array([_distance_sq(mu[r], sd[r], m, sd_c[r], lo, hi).sum()
                               for m in draws[r]]) for r in RESP)
-        per_fold.append(np.sort(drawn - now))
+        per_fold.append(drawn - now)
         n += len(test)
     if not per_fold or n == 0:
         return np.zeros(0)
