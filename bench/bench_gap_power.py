@@ -22,7 +22,8 @@ diagnosis's model (``tests/analysis/gap/observer_population_gen.py``: Stevens po
 offsets and slopes, crosstalk), diagnosed against a pilot of 8 of them fitted with
 ``fit-observer``: 4 participants whose depth rises with gloss (0.3 slider units RMS), 6 with
 nothing added, and 20 whose settings both creep up 0.095 slider units a minute (1.06x the
-tolerance within a person); a larger data set is more participants of the same population.
+tolerance within a person); a larger data set is more participants of the same population, diagnosed against
+the same simulation (the case's pilot).
 
 Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render |
 --observer] [--photons P ...]``
@@ -134,7 +135,8 @@ def observer_check(draws: int, seed: int) -> None:
         verdicts, times = [], []
         for i in range(draws):
             t0 = time.perf_counter()
-            pilot, real = population(seed + i, more, effect, size)
+            # The same simulation (the case's pilot), more participants of the population.
+            real = population(seed + i, more, effect, size)[1]
             d = diagnose("observer", real, pilot, DESIGN, seed=seed + i, n_boot=200)[0]
             times.append(time.perf_counter() - t0)
             verdicts.append(d.verdict)
