@@ -218,6 +218,14 @@ def _cv_ridge(x, y, w, groups) -> tuple[np.ndarray, float]:
 _COEF_DRAWS = 200
 
 
+def _draw_units(train: pd.DataFrame, by_participant: bool) -> np.ndarray:
+    """The units :func:`_coefficient_draws` resamples: participants, or each participant's
+    sessions where the held-out trials' participants are trained on (their own terms are then
+    estimated from their own trials)."""
+    who = train["participant"].to_numpy(str)
+    return who + "|" + train["session"].astype(str).to_numpy() if by_participant else who
+
+
 def _coefficient_draws(mx, tx, y, w, who, lams: tuple, seed: int = 0):
     """The mean and time corrections refitted, at their chosen penalties ``lams``, on
     the training units ``who`` (participants, or their sessions) resampled with replacement
@@ -324,12 +332,8 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
     who = train["participant"].to_numpy(str)
     pred0 = predict(train, list(fitted))
     sigma = _fit_sigma(train, pred0)
-    coef, var_coef, cells, mu, sd, time_coef = {}, {}, {}, {}, {}, {}
-    coef_draws, time_draws = {}, {}
-    # The units the draws resample: participants, or each participant's sessions where the
-    # held-out trials' participants are trained on (their own terms are then estimated).
-    clusters = (who + "|" + train["session"].astype(str).to_numpy() if by_participant
-                else who)
+    coef, var_coef, cells, mu, sd, time_coef, coef_draws, time_draws = ({} for _ in range(8))
+    units = _draw_units(train, by_participant)
     tx = _time_features(train)
     for r in RESP:
         mx, vx = _features(train, ills, mid, span, r, parts)
@@ -352,8 +356,7 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
             m_r = m0 + mx @ b + tx @ b_t + off
             s_r = s0 * np.sqrt(np.exp(vx @ lv))
         coef[r], var_coef[r], time_coef[r] = b, lv, b_t
-        coef_draws[r], time_draws[r] = _coefficient_draws(mx, tx, y_round, w, clusters,
-                                                          (lam, lam_t))
+        coef_draws[r], time_draws[r] = _coefficient_draws(mx, tx, y_round, w, units, (lam, lam_t))
         cells[r] = {"stimulus": stim_off, "cell": cell_off}
         mu[r], sd[r] = m_r, s_r
     lam, wl, form = _mixtures(train, mu, sd, pred0)
