@@ -73,6 +73,21 @@ def _render_data(folder: Path, seed: int, copies: int):
     return RenderData(levels)
 
 
+def _suggestion(diag, what: str, unit: str, t0: float):
+    """Print a diagnosis (begun at ``t0``, ``time.perf_counter``) and, inconclusive, its
+    ``detectable`` and ``to_decide``; return ``(to_decide, its simulated rate at that size)``,
+    or None where there is nothing to check."""
+    print(f"{what}: verdict {diag.verdict}, misfit {diag.remaining.get('size'):.3g} {unit}, "
+          f"upper bound {diag.misfit_upper:.3g} {unit}, diagnosis "
+          f"{time.perf_counter() - t0:.1f} s")
+    if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
+        print(f"  nothing to check (to_decide {diag.to_decide.get('words')})")
+        return None
+    det, dec = diag.detectable, diag.to_decide
+    print(f"  detectable: {det['value']} {unit}; to_decide: x{dec['factor']} ({dec['words']})")
+    return dec, next(c for c in dec["curve"] if c["size"] == dec["factor"])
+
+
 def render_check(photons: float, draws: int, seed: int) -> None:
     """The render layer's brute-force check at ``photons`` (see the module's docstring)."""
     from analysis.gapbench import bench_render as br
@@ -82,16 +97,10 @@ def render_check(photons: float, draws: int, seed: int) -> None:
         t0 = time.perf_counter()
         diag = diagnose("render", _render_data(Path(tmp) / "one", seed, 1), None, None,
                         seed=seed, n_boot=300)[0]
-        took = time.perf_counter() - t0
-        print(f"render, {photons:g} photons: verdict {diag.verdict}, misfit "
-              f"{diag.remaining.get('size'):.2f} %, upper bound {diag.misfit_upper:.2f} %, "
-              f"diagnosis {took:.1f} s")
-        if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
-            print(f"  nothing to check (to_decide {diag.to_decide.get('words')})")
+        suggested = _suggestion(diag, f"render, {photons:g} photons", "%", t0)
+        if suggested is None:
             return
-        det, dec = diag.detectable, diag.to_decide
-        print(f"  detectable: {det['value']} %; to_decide: x{dec['factor']} ({dec['words']})")
-        rate = next(c for c in dec["curve"] if c["size"] == dec["factor"])
+        dec, rate = suggested
         verdicts, times = [], []
         for i in range(draws):
             t0 = time.perf_counter()
@@ -120,17 +129,10 @@ def observer_check(draws: int, seed: int) -> None:
         t0 = time.perf_counter()
         pilot, real = population(case_seed, n, effect, size)
         diag = diagnose("observer", real, pilot, DESIGN, seed=case_seed, n_boot=200)[0]
-        took = time.perf_counter() - t0
-        print(f"observer, {name}: verdict {diag.verdict}, misfit "
-              f"{diag.remaining.get('size'):.3f}, upper bound {diag.misfit_upper:.3f} slider "
-              f"units, diagnosis {took:.1f} s")
-        if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
-            print(f"  nothing to check (to_decide {diag.to_decide.get('words')})")
+        suggested = _suggestion(diag, f"observer, {name}", "slider units", t0)
+        if suggested is None:
             continue
-        det, dec = diag.detectable, diag.to_decide
-        print(f"  detectable: {det['value']} slider units; to_decide: x{dec['factor']} "
-              f"({dec['words']})")
-        rate = next(c for c in dec["curve"] if c["size"] == dec["factor"])
+        dec, rate = suggested
         more = int(np.ceil(dec["factor"] * n))
         verdicts, times = [], []
         for i in range(draws):
