@@ -90,9 +90,14 @@ def _suggestion(diag, what: str, unit: str, t0: float):
 
 def render_check(photons: float, draws: int, seed: int) -> None:
     """The render layer's brute-force check at ``photons`` (see the module's docstring)."""
-    from analysis.gapbench import bench_render as br
+    from analysis.gapbench import render_photos
 
-    br._ANALYTIC_PHOTONS = float(photons)
+    # The analytic sphere's photon count lives in render_photos (it moved there from
+    # bench_render once, and setting it on the old module then changed nothing, silently).
+    if not hasattr(render_photos, "_ANALYTIC_PHOTONS"):
+        raise SystemExit("analysis.gapbench.render_photos has no _ANALYTIC_PHOTONS: --photons "
+                         "cannot be set; update bench_gap_power.py")
+    render_photos._ANALYTIC_PHOTONS = float(photons)
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
         diag = diagnose("render", _render_data(Path(tmp) / "one", seed, 1), None, None,
