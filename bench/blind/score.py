@@ -23,17 +23,20 @@ R2n   in-catalogue effects of >= 2x tolerance, full size: every expected   >= 85
       name in the verdict
 R3    effects of >= 1x tolerance (realised), any size:                     <= 5 %
       ``no_gap_that_matters`` (the rate shown is of that verdict)
-R3w   observer only: effects whose part a person's own offset cannot       <= 5 %
-      absorb (truth.json's ``size_within_person``) is >= 1x tolerance:
-      ``no_gap_that_matters`` (issue 43: "a person's own offset is not a
-      gap"; R3 counts the total size, mean shift included)
+R3w   effects whose part the fitted simulation cannot absorb is >= 1x     <= 5 %
+      tolerance: ``no_gap_that_matters``. Observer: what a person's own
+      offset cannot absorb (truth.json's ``size_within_person``; issue 43:
+      "a person's own offset is not a gap"); render: what a Ward material
+      refitted to the fit's lights cannot (``size_beyond_fit``: the
+      simulation is the fitted material). R3 counts the total size.
 R4    no-effect cases at the smallest size (3 participants, a short run,   >= 90 %
       12 lights): ``no_gap_that_matters`` or ``inconclusive``
 ====  ===================================================================  ==========
 
 Each row prints the count, the rate, a Wilson 95 % interval and the verdicts' breakdown; then
 one line per case, effect multiple and data size: the median realised size (in tolerances,
-truth.json; observer: also the part a person's own offset cannot absorb, "within") beside the median misfit the diagnosis reports before its catalogue (in the layer's
+truth.json; observer and render: also the part the fitted simulation cannot absorb,
+"unabs.") beside the median misfit the diagnosis reports before its catalogue (in the layer's
 units: slider units, % of luminance, % of the photos' RMS; tolerance 0.25, 1, 1), and how many
 were a gap.
 
@@ -218,7 +221,8 @@ def read_result(layer, case, multiple, size, seed, folder: Path, status: str) ->
             "in_catalogue": bool(t.get("in_catalogue")) and case not in NONE_CASES[layer],
             "expected": [n for n in expected if n != "unexplained"],
             "size_in_tolerances": t.get("size_in_tolerances"),
-            "size_within_person_in_tolerances": t.get("size_within_person_in_tolerances"),
+            "size_unabsorbed_in_tolerances": t.get("size_within_person_in_tolerances",
+                                                   t.get("size_beyond_fit_in_tolerances")),
             "status": status,
             "verdict": verdict, "kind": kind, "names": names, "folder": str(folder), **extra}
 
@@ -328,8 +332,8 @@ def rows(layer: str, rs: list[dict]) -> list[tuple]:
     def big(r, m):
         return r["size_in_tolerances"] is not None and r["size_in_tolerances"] >= m * 0.98
 
-    def big_within(r, m):
-        w = r.get("size_within_person_in_tolerances")
+    def big_unabsorbed(r, m):
+        w = r.get("size_unabsorbed_in_tolerances")
         return w is not None and w >= m * 0.98
 
     small = smallest(layer, rs)
@@ -345,8 +349,8 @@ def rows(layer: str, rs: list[dict]) -> list[tuple]:
          [r for r in effect if r["full"] and big(r, 2) and r["in_catalogue"]]),
         ("R3", "effect >= 1x tol -> no_gap_that_matters", "<= 5 %",
          lambda r: r["kind"] == "excluded", [r for r in effect if big(r, 1)]),
-        ("R3w", "within-person >= 1x tol -> no_gap_that_matters", "<= 5 %",
-         lambda r: r["kind"] == "excluded", [r for r in effect if big_within(r, 1)]),
+        ("R3w", "unabsorbed >= 1x tol -> no_gap_that_matters", "<= 5 %",
+         lambda r: r["kind"] == "excluded", [r for r in effect if big_unabsorbed(r, 1)]),
         ("R4", f"no effect, smallest ({small}) -> excl./inconcl.", ">= 90 %",
          lambda r: r["kind"] in ("excluded", "inconclusive", "legacy"),
          [r for r in rs if r["no_effect"] and r["size"] == small]),
@@ -377,7 +381,7 @@ def table(results: list[dict]) -> tuple[str, list[dict]]:
         for rid, desc, target, ok, recs in rows(layer, rs):
             n, k = len(recs), len(ok)
             if rid == "R3w" and not n:
-                continue  # no within-person size in this layer's truth.json
+                continue  # no unabsorbed size in this layer's truth.json
             lo, hi = wilson(k, n)
             rate = f"{100.0 * k / n:5.1f} %" if n else "    -  "
             ci = f"[{100 * lo:4.1f}, {100 * hi:5.1f}]" if n else ""
@@ -386,15 +390,15 @@ def table(results: list[dict]) -> tuple[str, list[dict]]:
             out.append({"layer": layer, "row": rid, "cases": desc, "target": target, "pass": k,
                         "n": n, "ci95": [lo, hi], "verdicts": breakdown(recs)})
     lines += ["", (f"{'layer':9s} {'case':16s} {'x tol':>6s} {'size':6s} {'real. x':>7s} "
-                   f"{'within':>7s} {'misfit':>7s} {'gap':>7s}  verdicts")]
+                   f"{'unabs.':>7s} {'misfit':>7s} {'gap':>7s}  verdicts")]
     groups = defaultdict(list)
     for r in results:
         groups[(r["layer"], r["case"], r["multiple"], r["size"])].append(r)
     for (layer, case, m, size), recs in groups.items():
         real = [r["size_in_tolerances"] for r in recs if r["size_in_tolerances"] is not None]
         said = [r["misfit_before"] for r in recs if r.get("misfit_before") is not None]
-        within = [r["size_within_person_in_tolerances"] for r in recs
-                  if r.get("size_within_person_in_tolerances") is not None]
+        within = [r["size_unabsorbed_in_tolerances"] for r in recs
+                  if r.get("size_unabsorbed_in_tolerances") is not None]
         gaps = sum(r["kind"] == "gap" for r in recs)
         lines.append(f"{layer:9s} {case:16s} {'-' if m is None else f'{m:g}':>6s} {size:6s} "
                      f"{median(real)} {median(within)} {median(said)} {gaps:3d}/{len(recs):<3d}  "

@@ -85,7 +85,24 @@ def test_an_observer_effect_a_person_can_absorb_counts_in_r3_not_r3w(score, tmp_
               {"expected": "none", "size_in_tolerances": 0.0})
     clean = score.score_one("display", "clean", None, "full", 3, tmp_path, timeout_s=5,
                             force=False)
-    assert "R3w" not in score.table([clean])[0]  # no within-person size outside the observer
+    assert "R3w" not in score.table([clean])[0]  # no unabsorbed size in the display's truth
+
+
+def test_a_render_effect_a_refitted_ward_can_absorb_counts_in_r3_not_r3w(score, tmp_path):
+    # lens_flare at 1x: 1.0 tolerance against the true material, 0.69 against the Ward that
+    # best fits the fit's lights (truth.json's size_beyond_fit); interreflection at 2x: 1.9.
+    recs = []
+    for name, m, beyond in (("lens_flare-x1-L48-s5", 1.0, 0.69),
+                            ("interreflection-x2-L48-s5", 2.0, 1.9)):
+        fake_case(tmp_path, "render", name, "no_gap_that_matters",
+                  {"expected": "unexplained", "size_in_tolerances": m,
+                   "size_beyond_fit_in_tolerances": beyond})
+        recs.append(score.score_one("render", name.split("-")[0], m, "L48", 5, tmp_path,
+                                    timeout_s=5, force=False))
+    rows = {row[0]: row for row in score.rows("render", recs)}
+    assert (len(rows["R3"][3]), len(rows["R3"][4])) == (2, 2)
+    assert [r["case"] for r in rows["R3w"][4]] == ["interreflection"]
+    assert "unabsorbed" in score.table(recs)[0]
 
 
 def test_a_case_locked_by_a_live_runner_is_left_to_it(score, tmp_path):
