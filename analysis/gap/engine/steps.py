@@ -341,10 +341,10 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
 
     - Chosen effects: their names, or ``'unexplained'`` where they explain less than
       ``min_share`` of the gap (a NaN share does not refuse them). With ``tolerate_chosen``,
-      the floor sound and nothing significant beyond them, the plain simulation's own misfit
-      decides first: its upper 95 % bound (``remaining['size_before_upper']``) below the
-      tolerance is no gap that matters; its point (``size_before``) below but not its bound,
-      inconclusive.
+      the floor sound (or the size not using the noise model) and nothing significant beyond
+      them, the plain simulation's own misfit decides first: its upper 95 % bound
+      (``remaining['size_before_upper']``) below the tolerance is no gap that matters; its
+      point (``size_before``) below but not its bound, inconclusive.
     - Nothing chosen: inconclusive where the floor is mis-estimated (the held-out loss below
       it: neither a gap nor excluded), unless the size does not use the noise model
       (``size_without_noise_model``) and its bound excludes a gap; ``'unexplained'`` where what remains beyond the ceiling
@@ -356,7 +356,8 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
     rem = remaining or {}
     sound = floor_status == "ok"
     if steps:
-        if tolerate_chosen and sound and not rem.get("significant") and "size_before" in rem:
+        held = sound or size_without_noise_model
+        if tolerate_chosen and held and not rem.get("significant") and "size_before" in rem:
             tol = rem["tolerance"]
             if rem.get("size_before_upper", np.inf) < tol:
                 return NO_GAP_THAT_MATTERS

@@ -99,8 +99,13 @@ def _verdict_words(d: Diagnosis) -> str:
         head = {INCONCLUSIVE: "Inconclusive: ",
                 NO_GAP_THAT_MATTERS: "No gap that matters (the misfit's bound rests on no "
                                      "noise model): "}.get(d.verdict, "")
-        bound = (f" It leaves {_bound_words(d.remaining)}." if d.remaining and "size_upper"
-                 in d.remaining and "size" in d.remaining else "")
+        rem = d.remaining or {}
+        bound = (f" It leaves {_bound_words(rem)}." if "size_upper" in rem and "size" in rem
+                 else "")
+        if d.steps and d.verdict in NOT_A_GAP and "size_before" in rem:
+            # Held to the tolerance by the plain simulation's own misfit (tolerate_chosen).
+            plain = dict(rem, size=rem["size_before"], size_upper=d.misfit_upper)
+            bound = f" Without it the plain simulation leaves {_bound_words(plain)}."
         return f"{head}{_floor_words(d)}{bound}{_power_words(d)}"
     rem = d.remaining or {}
     further, within = _remaining_words(rem)

@@ -223,6 +223,14 @@ def test_no_gap_that_matters_only_when_the_misfits_upper_bound_lies_below_the_to
     assert verdict_of(steps, 1.0, 0.5, remaining=unsure, **kw) == "inconclusive"
     assert verdict_of(steps, 1.0, 0.5, remaining=large, **kw) == "a"
     assert verdict_of(steps, 1.0, 0.5, remaining=small) == "a"  # not held to it
+    # A mis-estimated floor: the nats prove nothing, so the size decides only where it does
+    # not use the noise model (the render layer's; blind render seed 1004's plain Ward sphere
+    # read "broad_lobe", its misfit 0.04 % of the photos' RMS, bound 0.10 %).
+    assert verdict_of(steps, 1.0, 0.5, remaining=small, floor_status="misestimated", **kw) == "a"
+    assert verdict_of(steps, 1.0, 0.5, remaining=small, floor_status="misestimated",
+                      size_without_noise_model=True, **kw) == "no_gap_that_matters"
+    assert verdict_of(steps, 1.0, 0.5, remaining=large, floor_status="misestimated",
+                      size_without_noise_model=True, **kw) == "a"
 
 
 def test_summary_says_what_is_explained_and_what_remains_within_the_tolerance():
@@ -291,3 +299,25 @@ def test_held_out_units_refuse_empty_folds_unnamed_repeats_and_unnamed_clusters(
         cluster_codes(cv, str)
     named = CrossFit([(None, None, len)], len, lambda _te: ["p0", "p1", "q0"])
     assert list(cluster_codes(named, lambda u: u[0])) == [0, 0, 1]
+
+
+def test_a_misestimated_floor_held_to_the_tolerance_says_the_plain_simulations_misfit():
+    """Chosen effects under a mis-estimated floor, excluded by the plain simulation's own
+    misfit (the render layer): the words give that misfit and its bound, not the chosen
+    model's, which did not decide."""
+    d = Diagnosis(layer="render", ranking=(), steps=({"added": "broad_lobe"},),
+                  verdict="no_gap_that_matters", gap_before=0.02, gap_after=-0.05,
+                  shrink_abs=0.07, shrink_abs_ci=(0.05, 0.09), shrink_pct=300.0,
+                  shrink_pct_ci=(200.0, 400.0), seed=1, explained_share=1.0,
+                  gap_before_ci=(0.01, 0.03), gap_after_ci=(-0.06, -0.04),
+                  floor_status="misestimated", misfit_upper=0.10,
+                  remaining={"gap": 0.0, "ci": (-0.01, 0.01), "p": 0.5, "significant": False,
+                             "size": 0.16, "size_upper": 0.18, "size_before": 0.038,
+                             "size_before_upper": 0.10, "tolerance": 1.0,
+                             "size_unit": "% of the RMS", "size_source": "the design"})
+    words = summarise(d)
+    assert words.startswith("No gap that matters (the misfit's bound rests on no noise "
+                            "model): The noise floor is mis-estimated"), words
+    assert ("Attributed: broad lobe. Without it the plain simulation leaves a misfit of about "
+            "0.038 % of the RMS (upper 95 % bound 0.1 %), so a misfit of the tolerance, 1 % "
+            "(the design), is excluded.") in words, words
