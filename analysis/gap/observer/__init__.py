@@ -261,7 +261,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=OBSERVER_MIN_GAIN,
                                  min_size=design.gap.observer_tolerance_slider,
                                  size_unit=OBSERVER_SIZE_UNIT,
-                                 size_source="the design's [gap] observer_tolerance_slider")
+                                 size_source="the design's [gap] observer_tolerance_slider",
+                                 tolerate_chosen=True)
     return LayerPlan(
         functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
