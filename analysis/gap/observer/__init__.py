@@ -211,7 +211,11 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
     drawn from ``rng``); the ceiling of the chosen model is what a flexible extension of it
     still gains. What remains counts as a gap only where the chosen model's settings also lie
     at least the design's ``[gap] observer_tolerance_slider`` from the ceiling's
-    (:func:`observer_misfit`, in slider units; the Diagnosis's ``misfit_*`` fields).
+    (:func:`observer_misfit`, in slider units; the Diagnosis's ``misfit_*`` fields). Named
+    effects are held to it too (``tolerate_chosen``, as in every layer): where nothing
+    significant remains beyond them, the plain simulation's own misfit and its bound decide
+    (a catalogue effect significant at 0.1-0.2 slider units, below the 0.25 tolerance, is no
+    gap that matters where the bound excludes the tolerance, else inconclusive).
     """
     _same_path(real, sim)
     if study is not None:

@@ -166,7 +166,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, study,
         ceiling_given_chosen=True, unit_ids=rating_unit_ids, size=size, size_upper=size_upper,
         where=lambda fits: rating_where(fits, BY_NAME, st.estimates))
     settings = DiagnosisSettings(n_boot=n_boot, min_gain=RATING_MIN_GAIN, min_size=tolerance,
-                                 size_unit=unit, size_source=source)
+                                 size_unit=unit, size_source=source, tolerate_chosen=True)
     return LayerPlan(
         functions, settings, sizes=lambda _diag: dict(sizes), power=power,
         localise=localise, folds=folds, split=text, warnings=tuple(notes),
