@@ -171,15 +171,21 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
         return measured.get("misfit_after", float("nan"))
 
     def size_upper(fits):
-        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power,
+        # and the plain simulation's (a call with nothing chosen) for a verdict it decides.
         t, u = misfit_terms(fits, ceilings)
         c = misfit_ceiling_draws(fits, ceilings)
         terms.setdefault("after", (t, u, c))
         terms.setdefault("fits", fits)
+        if not any(chosen for _tr, _te, chosen, _c in fits):
+            terms["plain"] = (t, u, c)
         return misfit_upper(t, u, c)
 
-    def power(_diag):
-        t, u, c = terms.get("after", (np.zeros(0), np.zeros(0), np.zeros(0)))
+    def power(diag):
+        # Named effects held to the tolerance: the verdict judged the plain simulation.
+        plain = bool(diag.steps) and "size_before" in (diag.remaining or {})
+        t, u, c = terms.get("plain" if plain else "after",
+                            (np.zeros(0), np.zeros(0), np.zeros(0)))
         return misfit_power(t, u, design.gap.observer_tolerance_slider,
                             by_participant=by_participant, n_sessions=n_sessions, ceiling=c)
 

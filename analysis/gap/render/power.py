@@ -2,8 +2,9 @@
 held-out lights) would decide an inconclusive diagnosis (the engine's
 :class:`~analysis.gap.engine.PowerModel`).
 
-Simulated from the fitted models, reused as they are: each held-out photo is the chosen
-model's prediction plus a misfit of the shape the photos show (a local smooth of what the
+Simulated from the fitted models, reused as they are: each held-out photo is the prediction
+of the model the verdict judged (the chosen model's, or the plain render's where named effects
+were held to the tolerance) plus a misfit of the shape the photos show (a local smooth of what the
 chosen model leaves, 3 px wide; a uniform change of light where that is nearly nothing),
 scaled to a size in % of the photos' RMS luminance, plus camera noise drawn from the layer's
 noise model (``sd`` per pixel). The size and its bounds are those of the diagnosis
@@ -94,7 +95,11 @@ def render_power(test: RenderData, diag: Diagnosis, *, noun: str = "held-out pho
     seed : int
         Seeds the pool of noise images.
     """
-    fitted = [(s["added"], s["params"]) for s in diag.steps]
+    rem = diag.remaining or {}
+    # Named effects held to the tolerance (tolerate_chosen): the verdict judged the plain
+    # render's misfit, so its power is the plain render's.
+    holds_plain = bool(diag.steps) and "size_before" in rem
+    fitted = [] if holds_plain else [(s["added"], s["params"]) for s in diag.steps]
     pool = _pool(test, fitted, np.random.default_rng(seed))
     pairs, mean_sq = pool["pairs"], pool["mean_sq"]
     if pairs.sum() == 0 or mean_sq <= 0 or not np.isfinite(diag.tolerance):
@@ -103,8 +108,7 @@ def render_power(test: RenderData, diag: Diagnosis, *, noun: str = "held-out pho
     fixed, drawn = ("C0", "C1") if size_of > 1e-3 else ("U0", "U1")
     unit_size = misfit_bounds(pool[fixed], pairs, mean_sq)[0]
     tol = float(diag.tolerance)
-    rem = diag.remaining or {}
-    now = float(rem.get("size", 0.0))
+    now = float(rem["size_before"] if holds_plain else rem.get("size", 0.0))
     n_tiles = pairs.size
     n_photos = len(test.levels)
 

@@ -97,13 +97,18 @@ def _size_functions(ceilings: dict, unit: str, tolerance: float):
         return measured.get("misfit_after", float("nan"))
 
     def size_upper(fits):
-        # The chosen model's (the first call's, as size's) per-trial terms kept for power.
+        # The chosen model's (the first call's, as size's) per-trial terms kept for power,
+        # and the plain simulation's (a call with nothing chosen) for a verdict it decides.
         t, u = rating_misfit_terms(fits, ceilings, BY_NAME)
         terms.setdefault("after", (t, u))
+        if not any(chosen for _tr, _te, chosen, _c in fits):
+            terms["plain"] = (t, u)
         return misfit_upper(t, u)
 
-    def power(_diag):
-        t, u = terms.get("after", (np.zeros(0), np.zeros(0)))
+    def power(diag):
+        # Named effects held to the tolerance: the verdict judged the plain simulation.
+        plain = bool(diag.steps) and "size_before" in (diag.remaining or {})
+        t, u = terms.get("plain" if plain else "after", (np.zeros(0), np.zeros(0)))
         model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
         return model if model is None else replace(model, unit=unit)
     return size, size_upper, power, sizes
