@@ -173,6 +173,10 @@ def light_arrays(ls: LightSet, k: int, scene: LightScene, ward: dict,
     r = np.hypot(yy - cy, xx - cx) / radius
     sphere = ndimage.binary_erosion(ls.mask)
     valid = _fit_pixels(ls, k, min_cos)
+    # The sphere's pixels the fit skips for want of direct light (attached shadow, grazing
+    # light): the render predicts them (nearly) dark, so light there -- a floor's bounce, a
+    # lens's glare -- is a misfit the gap diagnosis sizes.
+    shadow = sphere & ~ls.saturated[k] & (ls.normals @ light <= min_cos)
     inner = sphere & (r < 0.85)
     spec = np.where(inner, specular, 0.0)
     highlight = inner & (spec >= 0.5 * spec.max()) if spec.max() > 0 else np.zeros_like(inner)
@@ -180,7 +184,7 @@ def light_arrays(ls: LightSet, k: int, scene: LightScene, ward: dict,
             "residual": (ls.photos[k] - (diffuse + specular)[..., None]).astype(np.float32),
             "diffuse": rgb(diffuse), "specular": rgb(specular),
             "highlight": highlight, "body": inner & ~highlight, "rim": sphere & (r >= 0.85),
-            "background": ~ls.mask, "sphere": sphere, "valid": valid,
+            "background": ~ls.mask, "sphere": sphere, "valid": valid, "shadow": shadow,
             "normals": ls.normals.astype(np.float32), "light": np.asarray(light, np.float64)}
 
 

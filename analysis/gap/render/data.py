@@ -228,6 +228,9 @@ def _light_level(name: str, arrays: dict, held_out: bool = False) -> dict:
         raise GapError(f"{name}: no light or normals in the residual file; fit the set with "
                        "python -m stimuli fit-gloss SET --lights 1-24 --out FIT")
     lv = make_level(name, arrays, arrays, None, coat_lights=False)
+    if held_out and "shadow" in arrays:
+        # Sized over the sphere's unlit pixels too (ceiling.sized_pixels).
+        lv["sized"] = lv["fit"] | (np.asarray(arrays["shadow"], bool) & np.isfinite(lv["P"]))
     lv["light"] = light = np.asarray(arrays["light"], float)
     lv["normals"] = n = np.moveaxis(np.asarray(arrays["normals"], float), -1, 0)
     lv["shared"], lv["wider"], lv["use"] = True, {}, lv["fit"]

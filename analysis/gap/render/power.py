@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from analysis.gap.engine import Diagnosis, PowerModel, decide_size
-from analysis.gap.render.ceiling import _local_mean, misfit_bounds, tile_products
+from analysis.gap.render.ceiling import _local_mean, misfit_bounds, sized_pixels, tile_products
 from analysis.gap.render.data import RenderData
 from analysis.gap.render.model import _predict
 
@@ -45,11 +45,14 @@ _SHAPE_SIGMA_PX = 3.0
 
 
 def _shape(lv: dict, fitted: list) -> tuple[np.ndarray, np.ndarray]:
-    """(prediction, misfit shape) of one held-out photo, 0 off its used pixels."""
-    m = lv["use"]
+    """(prediction, misfit shape) of one held-out photo, 0 off its sized pixels."""
+    m = sized_pixels(lv)
     pred = _predict(lv, fitted)
     res = np.where(m, lv["P"] - pred, 0.0)
-    w = np.where(m, 1 / lv["sd"] ** 2, 0.0)
+    # Weights 1 / sd^2, the SD held to the lit pixels' median: where the render is black the
+    # noise model's SD is its read noise alone, often fitted as 0.
+    sd = np.maximum(lv["sd"], float(np.median(lv["sd"][lv["use"]])) if lv["use"].any() else 1.0)
+    w = np.where(m, 1 / sd ** 2, 0.0)
     return np.where(m, pred, 0.0), np.where(m, _local_mean(res, w, _SHAPE_SIGMA_PX), 0.0)
 
 
@@ -59,7 +62,7 @@ def _pool(test: RenderData, fitted: list, rng: np.random.Generator) -> dict:
     out = {k: [] for k in ("C0", "U0", "pairs", "C1", "U1", "C2")}
     sq = n = 0.0
     for lv in test.levels:
-        m = lv["use"]
+        m = sized_pixels(lv)
         pred, shape = _shape(lv, fitted)
         c0, pairs = tile_products(lv, shape)
         u0, _ = tile_products(lv, pred)
