@@ -191,7 +191,6 @@ def make_level(name: str, a: dict, b: dict, distance: float | None = None, *,
             "noise": noise, "sd": noise_sd(R0, *noise)}
 
 
-
 def load_lights(real, sim, lights=None) -> tuple[RenderData, RenderData, str]:
     """(train, test, split in words) of a directional-light fit (SIM; None: REAL). With
     ``lights``: train = SIM's fitted pixels, test = REAL's (the photo set's) photos under
@@ -228,8 +227,7 @@ def _light_level(name: str, arrays: dict, held_out: bool = False) -> dict:
         raise GapError(f"{name}: no light or normals in the residual file; fit the set with "
                        "python -m stimuli fit-gloss SET --lights 1-24 --out FIT")
     lv = make_level(name, arrays, arrays, None, coat_lights=False)
-    if held_out and "shadow" in arrays:
-        # Sized over the sphere's unlit pixels too (ceiling.sized_pixels).
+    if held_out and "shadow" in arrays:  # sized over the unlit pixels too (sized_pixels)
         lv["sized"] = lv["fit"] | (np.asarray(arrays["shadow"], bool) & np.isfinite(lv["P"]))
     lv["light"] = light = np.asarray(arrays["light"], float)
     lv["normals"] = n = np.moveaxis(np.asarray(arrays["normals"], float), -1, 0)
