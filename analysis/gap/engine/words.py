@@ -105,7 +105,8 @@ def _verdict_words(d: Diagnosis) -> str:
         if d.steps and d.verdict in NOT_A_GAP and "size_before" in rem:
             # Held to the tolerance by the plain simulation's own misfit (tolerate_chosen).
             plain = dict(rem, size=rem["size_before"], size_upper=d.misfit_upper)
-            bound = f" Without it the plain simulation leaves {_bound_words(plain)}."
+            them = "it" if len(d.steps) == 1 else "them"
+            bound = f" Without {them} the plain simulation leaves {_bound_words(plain)}."
         return f"{head}{_floor_words(d)}{bound}{_power_words(d)}"
     rem = d.remaining or {}
     further, within = _remaining_words(rem)
