@@ -17,7 +17,10 @@ Effects added to the real participants' depth settings (slider units), before th
 in sorted order); ``drift`` both settings creeping up by ``size`` slider units per minute
 since the session's start (fatigue, adaptation; each participant a share U(0.5, 1.5) of it);
 ``swap`` the first real participant setting gloss on the depth slider and depth on the gloss
-slider on a random share ``size`` of their trials (the others do nothing of the kind).
+slider on a random share ``size`` of their trials (the others do nothing of the kind);
+``own_crosstalk`` each real participant's depth setting leaning on the gloss level by their
+own amount, N(0, ``size``) slider units per level (individual differences the simulation
+has no term for; none on average).
 """
 
 from __future__ import annotations
@@ -50,7 +53,7 @@ def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
     first = min(set(ill))
     g_c = g_lab - 6.0
     add = {"none": np.zeros(len(frame)), "drift": np.zeros(len(frame)),
-           "swap": np.zeros(len(frame)),
+           "swap": np.zeros(len(frame)), "own_crosstalk": np.zeros(len(frame)),
            "gloss": size * g_c / np.sqrt(np.mean(g_c ** 2)),
            "illumination": size * (ill == first)}[effect]
     minutes = frame["onset_s"].to_numpy(float) / 60.0
@@ -69,6 +72,8 @@ def _settings(frame: pd.DataFrame, rng: np.random.Generator, effect: str,
             creep = size * rng.uniform(0.5, 1.5) * minutes[idx]
             gloss[idx] += creep
             depth[idx] += creep
+        if effect == "own_crosstalk":
+            depth[idx] += rng.normal(0.0, size) * g_c[idx]
         if effect == "swap" and k == 0:
             swapped = rng.random(idx.size) < size
             g_i, d_i = gloss[idx].copy(), depth[idx].copy()
