@@ -92,15 +92,9 @@ def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
     dummies = [(ill == name).astype(float) for name in ills[1:]]
     who = data["participant"].to_numpy(str)
     # Each participant's own intercept and slopes (effect coding: the population is their
-    # average), where the same participants are in the training and the held-out part: on
-    # the simulation's own regressors only (model._base_x: gloss on both levels, depth on
-    # depth), the departures its between-observer spread allows each observer (adapt_base).
-    # A person's own slope on a regressor the simulation gives nobody is no more a gap with
-    # trials held out than with participants held out, where the population's mean is what
-    # is compared (issue 43: the same person-level logic below 4 participants); blind seed
-    # 1021, 3 participants and nothing added, read "unexplained ... differing between
-    # participants" from each one's own gloss -> depth crosstalk (the generator's N(0.04,
-    # 0.04)).
+    # average) where trials are held out, on the simulation's own regressors (model._base_x):
+    # a person's own slope on a term it gives nobody is no gap, as with participants held
+    # out whole (blind seed 1021: each one's own gloss -> depth crosstalk read "unexplained").
     own = [(who == q).astype(float) - (who == parts[-1]) for q in parts[:-1]]
     slopes = (np.ones(len(g)), g, d) if r == "gloss" else (np.ones(len(g)), d)
     mean_x = np.c_[np.ones(len(g)), g, d, g * d, g * g, d * d, x_prev,
@@ -306,7 +300,7 @@ def fit_ceiling(train: pd.DataFrame, *, by_participant: bool = False,
 
     1. a mean correction: a quadratic surface in gloss and depth (with their product), the
        previous response, illumination-specific intercept and slopes and (``by_participant``)
-       each participant's own intercept and slopes, by ridge regression; then, on what that
+       each one's own intercept and slopes on the simulation's regressors, by ridge; then, on what that
        leaves, a time-on-task correction (minutes since the session's start and since its
        last rest, :func:`_time_features`) by a ridge regression with its own penalty;
     2. per-cell offsets in two levels, the stimulus (gloss x depth level, pooled over
