@@ -73,11 +73,19 @@ def _render_data(folder: Path, seed: int, copies: int):
     return RenderData(levels)
 
 
+def _misfit(diag) -> float:
+    """The misfit the verdict judged: the plain simulation's where named effects were held to
+    the tolerance (its bound is then ``misfit_upper``), else what the chosen effects leave."""
+    rem = diag.remaining or {}
+    return float(rem["size_before"] if diag.steps and "size_before" in rem
+                 else rem.get("size", float("nan")))
+
+
 def _suggestion(diag, what: str, unit: str, t0: float):
     """Print a diagnosis (begun at ``t0``, ``time.perf_counter``) and, inconclusive, its
     ``detectable`` and ``to_decide``; return ``(to_decide, its simulated rate at that size)``,
     or None where there is nothing to check."""
-    print(f"{what}: verdict {diag.verdict}, misfit {diag.remaining.get('size'):.3g} {unit}, "
+    print(f"{what}: verdict {diag.verdict}, misfit {_misfit(diag):.3g} {unit}, "
           f"upper bound {diag.misfit_upper:.3g} {unit}, diagnosis "
           f"{time.perf_counter() - t0:.1f} s")
     if diag.verdict != "inconclusive" or diag.to_decide.get("factor") is None:
@@ -147,7 +155,7 @@ def observer_check(draws: int, seed: int) -> None:
             d = diagnose("observer", real, pilot, DESIGN, seed=seed + i, n_boot=200)[0]
             times.append(time.perf_counter() - t0)
             verdicts.append(d.verdict)
-            print(f"    seed {seed + i}: {d.verdict}, misfit {d.remaining.get('size'):.3f}, "
+            print(f"    seed {seed + i}: {d.verdict}, misfit {_misfit(d):.3f}, "
                   f"upper {d.misfit_upper:.3f}", flush=True)
         print(f"  {more} participants:")
         _print_brute(verdicts, rate, times)

@@ -20,7 +20,8 @@ since the session's start (fatigue, adaptation; each participant a share U(0.5, 
 slider on a random share ``size`` of their trials (the others do nothing of the kind);
 ``own_crosstalk`` each real participant's depth setting leaning on the gloss level by their
 own amount, N(0, ``size``) slider units per level (individual differences the simulation
-has no term for; none on average).
+has no term for; none on average). This one was added on 2026-11-28 by a writer who had read
+the diagnosis (to reproduce blind seed 1021's false gap): it is not independent of it.
 """
 
 from __future__ import annotations
