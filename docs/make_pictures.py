@@ -25,7 +25,13 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PY = sys.executable
-XVFB = ["xvfb-run", "-a", "-s", "-screen 0 1280x1024x24"]
+
+
+def xvfb(run_dir: Path, screen: str = "1280x1024x24") -> list[str]:
+    """``xvfb-run`` with its X authority file in ``run_dir``: xvfb-run then makes no temporary
+    folder of its own, whose removal at exit once failed in CI (exit 5, "problem while cleaning
+    up temporary directory") after the session had run and saved its trials."""
+    return ["xvfb-run", "-a", "-f", str(run_dir / "Xauthority"), "-s", f"-screen 0 {screen}"]
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
@@ -76,7 +82,7 @@ def calibration(run_dir: Path, pics: Path, log: Path) -> None:
         'rc=0; "$PY" -m calibration check --calibration "$CAL/calibration.json" --device pr655 '
         '--port "$(cat "$CAL/port")" --out "$CHECK" --sim-aim "$CAL/aim.json" --fast '
         '--grid 1 --warmup-interval-s 0.2 --warmup-window-s 1 --warmup-max-s 5 || rc=$?; [ "$rc" -le 1 ]\n')
-    run(["xvfb-run", "-a", "-s", f"-screen 0 {w}x{h}x24", "bash", "-c", script, "calibration",
+    run([*xvfb(run_dir, f"{w}x{h}x24"), "bash", "-c", script, "calibration",
          PY, str(cal), str(check), str(design.display.nominal_refresh_hz)], log=log)
     for name in ("gamma.png", "uniformity.png"):
         shutil.copy(cal / name, pics / f"calibration_{name}")
@@ -97,7 +103,7 @@ def session(run_dir: Path, pics: Path, log: Path) -> None:
     """The session app under Xvfb with a simulated observer at the X mouse: it saves the first
     answered trial's screen, is stopped (Esc twice) at trial 3, is resumed by the same command
     and stopped again at trial 5; ``status`` after each stop (the texts the session guide shows)."""
-    cmd = [*XVFB, PY, "-m", "experiment", "run", "--participant", "D01", "--session", "1",
+    cmd = [*xvfb(run_dir), PY, "-m", "experiment", "run", "--participant", "D01", "--session", "1",
            "--stimuli", str(run_dir / "stimuli" / "manifest.csv"),
            "--calibration", str(run_dir / "calibration" / "calibration.json"),
            "--data", str(run_dir / "data"), "--simulate", "humanlike", "--fast"]
