@@ -26,7 +26,7 @@ tolerance within a person); a larger data set is more participants of the same p
 the same simulation (the case's pilot).
 
 Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render |
---observer] [--photons P ...]``
+--observer [--cases I ...]] [--photons P ...]``
 """
 
 from __future__ import annotations
@@ -131,14 +131,17 @@ OBSERVER_CASES = (("depth rising with gloss 0.3, 4 participants", "gloss", 0.3, 
                    20, 2))
 
 
-def observer_check(draws: int, seed: int) -> None:
-    """The observer layer's brute-force check (see the module's docstring)."""
+def observer_check(draws: int, seed: int, cases: list[int] | None = None) -> None:
+    """The observer layer's brute-force check (see the module's docstring); ``cases``: the
+    indices into :data:`OBSERVER_CASES` to run (default all)."""
     import sys
 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     from tests.analysis.gap.observer_population_gen import DESIGN, population
 
-    for name, effect, size, n, case_seed in OBSERVER_CASES:
+    for i_case, (name, effect, size, n, case_seed) in enumerate(OBSERVER_CASES):
+        if cases is not None and i_case not in cases:
+            continue
         t0 = time.perf_counter()
         pilot, real = population(case_seed, n, effect, size)
         diag = diagnose("observer", real, pilot, DESIGN, seed=case_seed, n_boot=200)[0]
@@ -178,10 +181,12 @@ def main(argv=None) -> int:
     ap.add_argument("--render", action="store_true", help="the render layer's check only")
     ap.add_argument("--observer", action="store_true", help="the observer layer's check only")
     ap.add_argument("--photons", type=float, nargs="+", default=[170.0])
+    ap.add_argument("--cases", type=int, nargs="+", default=None,
+                    help="with --observer: which of its cases to run (0, 1, 2; default all)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)
     if args.observer:
-        observer_check(args.draws, args.seed)
+        observer_check(args.draws, args.seed, args.cases)
         return 0
     if args.render:
         for photons in args.photons:
