@@ -18,6 +18,15 @@ fit, which a ridge penalty can only narrow, on today's data is ``factor`` times 
 on ``factor`` times the data (:meth:`CoefficientDraws.at`). It is still below what was measured
 (0.013 at 12, 0.009 at 24): a larger data set also sees more of the simulation's own error (a
 pilot's sampling error), which this does not draw.
+
+Also tried and dropped: simulating the choice cross-validation would make at the larger size
+(each penalty's held-out loss with its estimation error's part shrunk to one ``f``-th, the
+one-standard-error rule over ``f`` times the trials) and the misfit measured there (the point
+fit at that penalty, less today's estimation error beyond that size's). It put the misfit of
+the case above at 0.25-0.27 slider units from 9 to 48 participants (measured in full: 0.23 at
+12, 0.21-0.29 at 18, 0.19-0.26 at 36) and named 18 participants (89 % simulated, 3 of 8
+decided); for depth rising with gloss at 4 participants (truth 0.3 slider units) it put the
+misfit at 0.24-0.26 where 24 participants measured 0.35-0.40, and named "more than 32".
 """
 
 from __future__ import annotations
