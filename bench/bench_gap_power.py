@@ -21,9 +21,10 @@ Observer layer, with ``--observer``: populations of observers written apart from
 diagnosis's model (``tests/analysis/gap/observer_population_gen.py``: Stevens power laws, own
 offsets and slopes, crosstalk), diagnosed against a pilot of 8 of them fitted with
 ``fit-observer``: 4 participants whose depth rises with gloss (0.3 slider units RMS), 6 with
-nothing added, and 20 whose settings both creep up 0.095 slider units a minute (1.06x the
-tolerance within a person); a larger data set is more participants of the same population, diagnosed against
-the same simulation (the case's pilot).
+nothing added, 20 whose settings both creep up 0.095 slider units a minute (1.06x the
+tolerance within a person), and 6 with nothing added against another pilot (``--cases 3``);
+a larger data set is more participants of the same population, diagnosed against the same
+simulation (the case's pilot).
 
 Usage: ``.venv/bin/python bench/bench_gap_power.py [--draws N] [--seed S] [--render |
 --observer [--cases I ...]] [--photons P ...]``
@@ -128,7 +129,8 @@ def render_check(photons: float, draws: int, seed: int) -> None:
 OBSERVER_CASES = (("depth rising with gloss 0.3, 4 participants", "gloss", 0.3, 4, 1),
                   ("nothing added, 6 participants", "none", 0.0, 6, 1),
                   ("both sliders creeping 0.095 per minute, 20 participants", "drift", 0.095,
-                   20, 2))
+                   20, 2),
+                  ("nothing added, 6 participants, another pilot", "none", 0.0, 6, 2))
 
 
 def observer_check(draws: int, seed: int, cases: list[int] | None = None) -> None:
@@ -182,7 +184,7 @@ def main(argv=None) -> int:
     ap.add_argument("--observer", action="store_true", help="the observer layer's check only")
     ap.add_argument("--photons", type=float, nargs="+", default=[170.0])
     ap.add_argument("--cases", type=int, nargs="+", default=None,
-                    help="with --observer: which of its cases to run (0, 1, 2; default all)")
+                    help="with --observer: which of its cases to run (0-3; default all)")
     args = ap.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)
     if args.observer:

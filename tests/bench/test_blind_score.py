@@ -131,3 +131,15 @@ def test_the_plan_runs_effects_at_the_full_size_and_no_effect_cases_at_every_siz
         ("gloss_depth", 1.0, "n20"), ("gloss_depth", 2.0, "n20"),
         ("none", None, "n20"), ("none", None, "n3")]
     assert len(jobs) == 8
+
+
+def test_the_render_misfit_column_is_the_misfit_the_verdict_judged(score):
+    """Render: the plain simulation's misfit net of the photos' noise (``remaining.size_before``),
+    not the held-out RMS with the camera's noise in it; the other layers' own fields first."""
+    render = {"remaining": {"size": 1.13, "size_before": 1.23}, "misfit_pct_before": 4.01,
+              "misfit_before": float("nan"), "misfit": {}}
+    assert score.reported_misfit(render) == pytest.approx(1.23)
+    assert score.reported_misfit({"remaining": {"size": 0.4}, "misfit_pct_before": 3.0}) == 0.4
+    assert score.reported_misfit({"misfit_before": 0.21, "remaining": {"size": 0.3}}) == 0.21
+    assert score.reported_misfit({"misfit": {"size_pct_before": 0.8},
+                                  "remaining": {"size": 0.5}}) == 0.8

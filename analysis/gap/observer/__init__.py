@@ -175,25 +175,19 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
         # and the plain simulation's (a call with nothing chosen) for a verdict it decides.
         t, u = misfit_terms(fits, ceilings)
         c = misfit_ceiling_draws(fits, ceilings)
-        # The ceilings these terms were measured against (a later fit replaces them in
-        # ``ceilings``), for their draws at a larger data set's penalty (power).
-        now = dict(ceilings)
-        kept = (t, u, c, lambda factor: misfit_ceiling_draws(fits, now, factor))
-        terms.setdefault("after", kept)
+        terms.setdefault("after", (t, u, c))
         terms.setdefault("fits", fits)
         if not any(chosen for _tr, _te, chosen, _c in fits):
-            terms["plain"] = kept
+            terms["plain"] = (t, u, c)
         return misfit_upper(t, u, c)
 
     def power(diag):
         # Named effects held to the tolerance: the verdict judged the plain simulation.
         plain = bool(diag.steps) and "size_before" in (diag.remaining or {})
-        if (key := "plain" if plain else "after") not in terms:
-            return None
-        t, u, c, c_at = terms[key]
+        t, u, c = terms.get("plain" if plain else "after",
+                            (np.zeros(0), np.zeros(0), np.zeros(0)))
         return misfit_power(t, u, design.gap.observer_tolerance_slider,
-                            by_participant=by_participant, n_sessions=n_sessions, ceiling=c,
-                            ceiling_at=c_at)
+                            by_participant=by_participant, n_sessions=n_sessions, ceiling=c)
 
     def departures(_diag):
         # On the chosen model's fits (size_upper's first call, as its terms).
