@@ -27,6 +27,10 @@ DEB_PACKAGES := xvfb xauth libglu1-mesa libgl1 libegl1 libfontconfig1 libasound2
 	libllvm19 r-base-core r-cran-lme4 r-cran-car r-cran-lmertest r-cran-pbkrtest fonts-dejavu-core \
 	chromium slurm-wlm munge
 XVFB := xvfb-run -a -s "-screen 0 1280x1024x24"
+# The test parts' Xvfb, each with its X authority file in PROJECT_HOME (`$(call XVFB_AS,name)`):
+# xvfb-run then makes and removes no temporary folder of its own, whose removal once failed in
+# CI (exit 5 after the command had passed; docs/make_pictures.py does the same).
+XVFB_AS = xvfb-run -a -f $(PROJECT_HOME)/Xauthority-$(1) -s "-screen 0 1280x1024x24"
 
 .PHONY: help demo test test-fast docs system-deps venv lint bench clean-venv
 
@@ -73,16 +77,16 @@ TESTS ?=
 test: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)
 	@if [ -n "$(TESTS)" ]; then \
-		HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(TESTS) $(PYTEST_ARGS); exit $$?; fi; \
+		HOME=$(PROJECT_HOME) $(call XVFB_AS,tests) $(PY) -m pytest $(TESTS) $(PYTEST_ARGS); exit $$?; fi; \
 	start=$$(date +%s); rm -f $(PARALLEL_LOG).rc; \
 	echo "== tests in parallel ($(TEST_WORKERS) workers, nice $(BACKGROUND_NICE)), all but" \
 		"$(SERIAL_TESTS), beside the real-time tests; output in $(PARALLEL_LOG) =="; \
-	( HOME=$(PROJECT_HOME) nice -n $(BACKGROUND_NICE) $(XVFB) $(PY) -m pytest -n $(TEST_WORKERS) \
+	( HOME=$(PROJECT_HOME) nice -n $(BACKGROUND_NICE) $(call XVFB_AS,parallel) $(PY) -m pytest -n $(TEST_WORKERS) \
 		--dist loadfile $(foreach d,$(SERIAL_TESTS),--ignore=$(d)) $(PYTEST_ARGS) \
 		> $(PARALLEL_LOG) 2>&1; echo $$? > $(PARALLEL_LOG).rc ) & par=$$!; \
 	sleep 3; \
 	echo "== real-time tests, one at a time: $(SERIAL_TESTS) =="; \
-	HOME=$(PROJECT_HOME) $(XVFB) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
+	HOME=$(PROJECT_HOME) $(call XVFB_AS,realtime) $(PY) -m pytest $(SERIAL_TESTS) $(PYTEST_ARGS); second=$$?; \
 	echo "== real-time part: exit $$second after $$(( $$(date +%s) - start )) s =="; \
 	echo "== the documentation site, warnings as errors (beside the parallel part) =="; \
 	$(DOCS_BUILD); third=$$?; \
