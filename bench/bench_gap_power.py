@@ -42,7 +42,7 @@ from pathlib import Path
 import numpy as np
 
 from analysis.gap import diagnose
-from analysis.gap.engine import NOT_A_GAP
+from analysis.gap.engine import NOT_A_GAP, judged_plain
 from analysis.gapbench import inject
 from studydesign import load_design
 
@@ -78,8 +78,7 @@ def _misfit(diag) -> float:
     """The misfit the verdict judged: the plain simulation's where named effects were held to
     the tolerance (its bound is then ``misfit_upper``), else what the chosen effects leave."""
     rem = diag.remaining or {}
-    return float(rem["size_before"] if diag.steps and "size_before" in rem
-                 else rem.get("size", float("nan")))
+    return float(rem["size_before"] if judged_plain(diag) else rem.get("size", float("nan")))
 
 
 def _suggestion(diag, what: str, unit: str, t0: float):
@@ -184,8 +183,12 @@ def main(argv=None) -> int:
     ap.add_argument("--observer", action="store_true", help="the observer layer's check only")
     ap.add_argument("--photons", type=float, nargs="+", default=[170.0])
     ap.add_argument("--cases", type=int, nargs="+", default=None,
-                    help="with --observer: which of its cases to run (0-3; default all)")
+                    choices=range(len(OBSERVER_CASES)), metavar="I",
+                    help=f"with --observer: which of its cases to run (0-{len(OBSERVER_CASES) - 1};"
+                         " default all)")
     args = ap.parse_args(argv)
+    if args.cases is not None and not args.observer:
+        ap.error("--cases picks the observer layer's cases: give --observer too")
     warnings.simplefilter("ignore", UserWarning)
     if args.observer:
         observer_check(args.draws, args.seed, args.cases)
@@ -197,7 +200,7 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name, effect, strength, seed in CASES:
             diag, took = _diagnose(Path(tmp) / f"{seed}", effect, strength, 1, seed)
-            print(f"{name}: verdict {diag.verdict}, misfit {diag.remaining.get('size_before', diag.remaining.get('size')):.2f} %, "
+            print(f"{name}: verdict {diag.verdict}, misfit {_misfit(diag):.2f} %, "
                   f"upper bound {diag.misfit_upper:.2f} %, diagnosis {took:.1f} s")
             if diag.verdict != "inconclusive":
                 print("  not inconclusive: nothing to check")

@@ -32,6 +32,8 @@ def xvfb(run_dir: Path, screen: str = "1280x1024x24") -> list[str]:
     folder of its own, whose removal at exit once failed in CI (exit 5, "problem while cleaning
     up temporary directory") after the session had run and saved its trials."""
     return ["xvfb-run", "-a", "-f", str(run_dir / "Xauthority"), "-s", f"-screen 0 {screen}"]
+
+
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 

@@ -125,7 +125,8 @@ def classify(verdict: str | None) -> tuple[str, list[str]]:
 def reported_misfit(d: dict) -> float | None:
     """The misfit the diagnosis reports before its catalogue, in the layer's units (slider
     units, % of luminance, % of the photos' RMS), or None. Render: the plain simulation's
-    misfit the verdict judges (``remaining.size_before``, net of the photos' own noise), not
+    misfit as the verdict sizes it (``remaining.size_before``, or ``size`` where nothing was
+    chosen; net of the photos' own noise), not
     ``misfit_pct_before``, the held-out RMS with the camera's noise in it (4.0 % beside 1.2 %
     for the interreflection at 1.25x, seed 1006)."""
     rem = d.get("remaining") or {}

@@ -176,7 +176,7 @@ def light_arrays(ls: LightSet, k: int, scene: LightScene, ward: dict,
     # The sphere's pixels the fit skips for want of direct light (attached shadow, grazing
     # light): the render predicts them (nearly) dark, so light there -- a floor's bounce, a
     # lens's glare -- is a misfit the gap diagnosis sizes.
-    shadow = sphere & ~ls.saturated[k] & (ls.normals @ light <= min_cos)
+    shadow = sphere & ~ls.saturated[k] & ~valid
     inner = sphere & (r < 0.85)
     spec = np.where(inner, specular, 0.0)
     highlight = inner & (spec >= 0.5 * spec.max()) if spec.max() > 0 else np.zeros_like(inner)

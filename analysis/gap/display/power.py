@@ -27,7 +27,7 @@ from analysis.gap.display.ceiling import (
     size_bounds,
 )
 from analysis.gap.display.model import display_mean_given
-from analysis.gap.engine import Diagnosis, PowerModel, decide_size
+from analysis.gap.engine import Diagnosis, PowerModel, decide_size, judged_plain
 
 __all__ = ["DISPLAY_FACTORS", "display_power"]
 
@@ -86,7 +86,7 @@ def display_power(folds: list, diag: Diagnosis) -> PowerModel | None:
         The finished diagnosis (its chosen effects, tolerance and remaining misfit).
     """
     rem = diag.remaining or {}
-    holds_plain = bool(diag.steps) and "size_before" in rem
+    holds_plain = judged_plain(diag)
     fitted = [] if holds_plain else [(s["added"], s["params"]) for s in diag.steps]
     pooled = _pooled(folds, fitted)
     if not pooled["sd"].size or not np.isfinite(diag.tolerance):

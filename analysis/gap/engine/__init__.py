@@ -50,12 +50,18 @@ from analysis.gap.engine.registry import (
 from analysis.gap.engine.result import CandidateScore, Diagnosis
 from analysis.gap.engine.settings import DiagnosisSettings, LayerFunctions
 from analysis.gap.engine.stats import holm
-from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
+from analysis.gap.engine.steps import (
+    INCONCLUSIVE,
+    NO_GAP_THAT_MATTERS,
+    NOT_A_GAP,
+    judged_plain,
+)
 from analysis.gap.engine.words import summarise
 
 __all__ = ["INCONCLUSIVE", "LAYER_NAMES", "NOT_A_GAP", "NO_GAP_THAT_MATTERS", "OUTCOME_GAP",
            "OUTCOME_INCONCLUSIVE", "OUTCOME_NONE", "Candidate", "CandidateScore", "Diagnosis",
            "DiagnosisSettings", "GapError", "LayerFunctions", "LayerPlan", "OutOfCatalogue",
            "ParamDoc", "PowerModel", "candidate", "catalogue", "decide_size",
-           "diagnose_losses", "effect", "holm", "out_of_catalogue", "power_analysis", "register",
+           "diagnose_losses", "effect", "holm", "judged_plain", "out_of_catalogue",
+           "power_analysis", "register",
            "register_out_of_catalogue", "split_held_out", "strengths", "summarise"]

@@ -36,6 +36,7 @@ __all__ = [
     "backfit",
     "combine_greedily",
     "explained_shares",
+    "judged_plain",
     "mean_params",
     "measure_gap",
     "remaining_gap",
@@ -57,6 +58,16 @@ INCONCLUSIVE = "inconclusive"
 
 #: The verdicts that are not a gap (every other verdict names effects or is "unexplained").
 NOT_A_GAP = (NO_GAP_THAT_MATTERS, INCONCLUSIVE)
+
+
+def judged_plain(diag) -> bool:
+    """Whether a finished Diagnosis's verdict was decided by the plain simulation's own misfit:
+    effects were chosen, held to the tolerance (``tolerate_chosen``), and the verdict is not a
+    gap (:func:`verdict_of`). Its misfit is then ``remaining['size_before']`` and its bound
+    ``misfit_upper``; the power of such a verdict is the plain simulation's (every layer's
+    ``power`` hook and the words ask this)."""
+    return (bool(diag.steps) and diag.verdict in NOT_A_GAP
+            and "size_before" in (diag.remaining or {}))
 
 
 def with_added(chosen: list[list], name: str, params: list) -> list[list]:

@@ -11,7 +11,7 @@ import numpy as np
 from analysis.gap.engine.errors import GapError
 from analysis.gap.engine.registry import candidate
 from analysis.gap.engine.result import Diagnosis
-from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP
+from analysis.gap.engine.steps import INCONCLUSIVE, NO_GAP_THAT_MATTERS, NOT_A_GAP, judged_plain
 
 __all__ = ["summarise", "with_summary"]
 
@@ -102,7 +102,7 @@ def _verdict_words(d: Diagnosis) -> str:
         rem = d.remaining or {}
         bound = (f" It leaves {_bound_words(rem)}." if "size_upper" in rem and "size" in rem
                  else "")
-        if d.steps and d.verdict in NOT_A_GAP and "size_before" in rem:
+        if judged_plain(d):
             # Held to the tolerance by the plain simulation's own misfit (tolerate_chosen).
             plain = dict(rem, size=rem["size_before"], size_upper=d.misfit_upper)
             them = "it" if len(d.steps) == 1 else "them"
@@ -112,7 +112,7 @@ def _verdict_words(d: Diagnosis) -> str:
     further, within = _remaining_words(rem)
     if not d.steps:
         return _nothing_chosen_words(d, rem, further, within)
-    if d.verdict in NOT_A_GAP:
+    if judged_plain(d):
         one = len(d.steps) == 1
         size = dict(rem, size=rem["size_before"], size_upper=d.misfit_upper)
         head = "No gap that matters" if d.verdict == NO_GAP_THAT_MATTERS else "Inconclusive"

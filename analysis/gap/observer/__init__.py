@@ -60,7 +60,13 @@ from pathlib import Path
 
 import numpy as np
 
-from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
+from analysis.gap.engine import (
+    DiagnosisSettings,
+    GapError,
+    LayerFunctions,
+    LayerPlan,
+    judged_plain,
+)
 from analysis.gap.observer.candidates import OBSERVER_CANDIDATES
 from analysis.gap.observer.ceiling import ceiling_floor, ceiling_loss, fit_ceiling
 from analysis.gap.observer.data import (
@@ -183,8 +189,7 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
 
     def power(diag):
         # Named effects held to the tolerance: the verdict judged the plain simulation.
-        plain = bool(diag.steps) and "size_before" in (diag.remaining or {})
-        t, u, c = terms.get("plain" if plain else "after",
+        t, u, c = terms.get("plain" if judged_plain(diag) else "after",
                             (np.zeros(0), np.zeros(0), np.zeros(0)))
         return misfit_power(t, u, design.gap.observer_tolerance_slider,
                             by_participant=by_participant, n_sessions=n_sessions, ceiling=c)

@@ -28,6 +28,7 @@ from analysis.gap.observer.model import (
     _PULL_WEIGHTS,
     RESP,
     _aim_frame,
+    _base_x,
     _fit_sigma,
     _gauss_share,
     _nll,
@@ -92,11 +93,11 @@ def _features(data: pd.DataFrame, ills: tuple, mid: float, span: float, r: str,
     dummies = [(ill == name).astype(float) for name in ills[1:]]
     who = data["participant"].to_numpy(str)
     # Each participant's own intercept and slopes (effect coding: the population is their
-    # average) where trials are held out, on the simulation's own regressors (model._base_x):
-    # a person's own slope on a term it gives nobody is no gap, as with participants held
-    # out whole (blind seed 1021: each one's own gloss -> depth crosstalk read "unexplained").
+    # average) where trials are held out, on the simulation's own regressors (_base_x): a
+    # person's own slope on a term it gives nobody is no gap, as with participants held out
+    # whole (blind seed 1021: each one's own gloss -> depth crosstalk read "unexplained").
     own = [(who == q).astype(float) - (who == parts[-1]) for q in parts[:-1]]
-    slopes = (np.ones(len(g)), g, d) if r == "gloss" else (np.ones(len(g)), d)
+    slopes = tuple(_base_x(data, r).T) if own else ()
     mean_x = np.c_[np.ones(len(g)), g, d, g * d, g * g, d * d, x_prev,
                    *[u * v for u in dummies for v in (np.ones(len(g)), g, d)],
                    *[u * v for u in own for v in slopes]]

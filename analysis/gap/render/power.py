@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from analysis.gap.engine import Diagnosis, PowerModel, decide_size
+from analysis.gap.engine import Diagnosis, PowerModel, decide_size, judged_plain
 from analysis.gap.render.ceiling import _local_mean, misfit_bounds, sized_pixels, tile_products
 from analysis.gap.render.data import RenderData
 from analysis.gap.render.model import _predict
@@ -101,7 +101,7 @@ def render_power(test: RenderData, diag: Diagnosis, *, noun: str = "held-out pho
     rem = diag.remaining or {}
     # Named effects held to the tolerance (tolerate_chosen): the verdict judged the plain
     # render's misfit, so its power is the plain render's.
-    holds_plain = bool(diag.steps) and "size_before" in rem
+    holds_plain = judged_plain(diag)
     fitted = [] if holds_plain else [(s["added"], s["params"]) for s in diag.steps]
     pool = _pool(test, fitted, np.random.default_rng(seed))
     pairs, mean_sq = pool["pairs"], pool["mean_sq"]

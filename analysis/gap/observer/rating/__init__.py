@@ -18,7 +18,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan
+from analysis.gap.engine import DiagnosisSettings, GapError, LayerFunctions, LayerPlan, judged_plain
 from analysis.gap.observer.power import misfit_power, misfit_upper
 from analysis.gap.observer.rating.candidates import BY_NAME, rating_candidates
 from analysis.gap.observer.rating.ceiling import (
@@ -107,8 +107,7 @@ def _size_functions(ceilings: dict, unit: str, tolerance: float):
 
     def power(diag):
         # Named effects held to the tolerance: the verdict judged the plain simulation.
-        plain = bool(diag.steps) and "size_before" in (diag.remaining or {})
-        t, u = terms.get("plain" if plain else "after", (np.zeros(0), np.zeros(0)))
+        t, u = terms.get("plain" if judged_plain(diag) else "after", (np.zeros(0), np.zeros(0)))
         model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
         return model if model is None else replace(model, unit=unit)
     return size, size_upper, power, sizes
