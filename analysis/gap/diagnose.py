@@ -45,22 +45,24 @@ def _diagnose_layer(layer: str, real, sim, design, *, seed: int, n_boot: int, **
         # Words again: the sizes (the misfit in the data's units) are part of the verdict.
         diag = replace(diag, **plan.sizes(diag))
         diag = replace(diag, summary=summarise(diag))
+    held = diag.verdict == NO_GAP_THAT_MATTERS and bool(plan.cannot_exclude)
+    if held:
+        # The bound excludes a gap of the tolerance only in what the data could measure.
+        diag = replace(diag, verdict=INCONCLUSIVE)
     if plan.departures is not None:
         # Single units that depart from the others where the misfit cannot see them.
         diag = with_departures(diag, plan.departures(diag))
         diag = replace(diag, summary=summarise(diag))
-    if diag.verdict == NO_GAP_THAT_MATTERS and plan.cannot_exclude:
-        # The bound excludes a gap of the tolerance only in what the data could measure.
-        diag = replace(diag, verdict=INCONCLUSIVE)
-        words = summarise(diag).replace(" is excluded.", " is excluded where the meter measured.")
-        diag = replace(diag, summary=words + " The data cannot exclude a gap: "
-                       + " ".join(plan.cannot_exclude))
-        return diag, plan.localise(diag, rng)
+        held = held and diag.verdict == INCONCLUSIVE
     if diag.verdict == INCONCLUSIVE and plan.power is not None:
         model = plan.power(diag)
         if model is not None:
             diag = replace(diag, **power_analysis(model, seed=seed))
             diag = replace(diag, summary=summarise(diag))
+    if held:
+        words = summarise(diag).replace(" is excluded.", f" is excluded {plan.excluded_where}.")
+        diag = replace(diag, summary=words + " The data cannot exclude a gap: "
+                       + " ".join(plan.cannot_exclude))
     return diag, plan.localise(diag, rng)
 
 

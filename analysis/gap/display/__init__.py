@@ -201,4 +201,5 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, **_) -> La
         not_identifiable=display_identifiability(data),
         sizes=lambda diag: display_misfit(folds, [(st["added"], st["params"])
                                                   for st in diag.steps]),
-        power=lambda diag: display_power(folds, diag))
+        # No more repeats decide what blacks read as 0 leave open (cannot_exclude).
+        power=None if zeros else (lambda diag: display_power(folds, diag)))

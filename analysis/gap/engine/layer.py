@@ -52,8 +52,11 @@ class LayerPlan:
                      again. None: an inconclusive verdict says neither
     cannot_exclude   reasons, in words, that the data cannot exclude a gap whatever the misfit's
                      bound says (the display layer's blacks that read 0 where the calibration
-                     saw light): a ``'no_gap_that_matters'`` verdict becomes ``'inconclusive'``
-                     with the reasons in its words
+                     saw light; the observer layer's fewer than 4 participants): a
+                     ``'no_gap_that_matters'`` verdict becomes ``'inconclusive'`` with the
+                     reasons in its words (and ``power``'s, where the plan has one)
+    excluded_where   words that say what the misfit's bound covers where ``cannot_exclude``
+                     keeps it from excluding a gap ("where the meter measured")
     departures       ``departures(diag) -> dict`` or None: single units (the observer layer's
                      participants) that depart from the others where the misfit cannot see
                      them, weighed into the verdict by
@@ -80,4 +83,5 @@ class LayerPlan:
     not_identifiable: dict = field(default_factory=dict)
     power: Callable[[Diagnosis], object] | None = None
     cannot_exclude: tuple = ()
+    excluded_where: str = "where the meter measured"
     departures: Callable[[Diagnosis], dict] | None = None

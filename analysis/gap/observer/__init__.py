@@ -157,7 +157,31 @@ def _few_participants(data, base: ObserverBase) -> list[str]:
             "sessions of several observers")]
 
 
-def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions: int):
+def _few_to_exclude(data) -> tuple[str, ...]:
+    """Why fewer than 4 participants cannot exclude a gap of the tolerance, whatever the
+    misfit's bound says (:attr:`analysis.gap.engine.LayerPlan.cannot_exclude`); empty with 4
+    or more.
+
+    Their trials are held out within each person, and the flexible model the misfit is
+    measured against is fitted from these few people, each with their own offset and slopes:
+    its population part is shrunk toward the simulation, and one person's departure is judged
+    against two others. Effects at the tolerance read "no gap that matters" there (blind dev
+    seeds 0-3 at 3 participants, 2026-11-28: 3 of 48 effects at 1-2x the tolerance, a
+    participant who now and then swaps the sliders and depth inflated under one illumination,
+    bounds 0.22-0.25 slider units; the population generator's depth rising with gloss at 1.2x
+    the tolerance, bound 0.21)."""
+    n = data["participant"].nunique()
+    if n >= 4:
+        return ()
+    why = (f"with {n} participant(s) the flexible model of the population is fitted from "
+           "these few people, each with their own offset and slopes, and one person's "
+           "departure is judged against the other one or two, so the misfit's bound holds "
+           "for these people, not for the population (effects at the tolerance read no gap "
+           "there); diagnose 4 or more participants, held out whole.")
+    return (why,)
+
+
+def _size_functions(design, ceilings: dict):
     """``(size, size_upper, power, sizes, departures)``: the layer's misfit, its upper 95 %
     bound and its PowerModel, measured against the ceilings fitted per fold (``ceilings``,
     filled by the ceiling step), the dict the misfits are kept in for the Diagnosis, and the
@@ -191,8 +215,7 @@ def _size_functions(design, ceilings: dict, *, by_participant: bool, n_sessions:
         # Named effects held to the tolerance: the verdict judged the plain simulation.
         t, u, c = terms.get("plain" if judged_plain(diag) else "after",
                             (np.zeros(0), np.zeros(0), np.zeros(0)))
-        return misfit_power(t, u, design.gap.observer_tolerance_slider,
-                            by_participant=by_participant, n_sessions=n_sessions, ceiling=c)
+        return misfit_power(t, u, design.gap.observer_tolerance_slider, ceiling=c)
 
     def departures(_diag):
         # On the chosen model's fits (size_upper's first call, as its terms).
@@ -266,9 +289,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         ceilings[id(te)] = fit_ceiling(tr, by_participant=shared[id(te)], fitted=fitted)
         return ceiling_loss(ceilings[id(te)], te)
 
-    size, size_upper, power, sizes, departures = _size_functions(
-        design, ceilings, by_participant=not any(shared.values()),
-        n_sessions=int(data.groupby("participant")["session"].nunique().median()))
+    size, size_upper, power, sizes, departures = _size_functions(design, ceilings)
     functions = LayerFunctions(loss=observer_loss, floor=lambda te: floor[id(te)],
                                ceiling=ceiling, ceiling_given_chosen=True, where=observer_where,
                                size=size, size_upper=size_upper, unit_ids=observer_unit_ids,
@@ -282,7 +303,8 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int,
         functions, settings,
         localise=lambda _diag, rng: localise_observer(data, design, rng, n_boot=min(n_boot, 500)),
         folds=folds, split=text, warnings=notes, sizes=lambda _diag: dict(sizes), power=power,
-        departures=departures,
+        departures=departures, cannot_exclude=_few_to_exclude(data),
+        excluded_where="for these participants",
         loss_info={"base": {"kind": base.kind, "source": base.source,
                             "coef_slider_units": {r: list(v) for r, v in base.coef.items()}},
                    "floor": "the ceiling model's own loss on data it draws (data-driven)"})

@@ -3,9 +3,8 @@
 The misfit (:func:`analysis.gap.observer.where.observer_misfit`) is the RMS over held-out
 trials of the distance between the chosen model's predicted settings and the flexible model's
 (slider units). :func:`misfit_terms` gives its per-trial squared distances (both responses
-summed) and the units that are independent: participants where they are held out whole,
-else each participant's sessions (a person's trials share their own offset, so they are not
-independent draws). The misfit is a distance from the flexible model, which is itself
+summed) and the units that are independent: participants (a person's trials share their own
+offset, so they are not independent draws; nor are one person's sessions). The misfit is a distance from the flexible model, which is itself
 estimated: :func:`misfit_ceiling_draws` is the misfit's spread over that model's corrections
 refitted on resampled training participants. :func:`misfit_upper` is the misfit's one-sided
 upper 95 % bound, a percentile bootstrap over the held-out units (Efron & Tibshirani 1993,
@@ -61,8 +60,11 @@ _N_BOOT = 2000
 
 def misfit_terms(fits: list, ceilings: dict) -> tuple[np.ndarray, np.ndarray]:
     """Per held-out trial the squared distance (slider units^2, both responses summed) of the
-    chosen model's predicted settings from the ceiling's, and the trial's independent unit
-    (participant, or participant|session where participants are in training and test parts).
+    chosen model's predicted settings from the ceiling's, and the trial's independent unit:
+    its participant, also where trials are held out within people (fewer than 4): a person's
+    sessions share their own offset and slopes, and the population is drawn by people, so
+    ``to_decide`` there is in participants too (it named more sessions per participant, which
+    cannot decide what 3 people leave open).
 
     ``fits`` and ``ceilings`` as :func:`analysis.gap.observer.where.observer_misfit` takes
     them."""
@@ -72,9 +74,7 @@ def misfit_terms(fits: list, ceilings: dict) -> tuple[np.ndarray, np.ndarray]:
         mu_c, sd_c = ceiling_prediction(ceilings[id(test)], test)
         mu, sd = _model_spread(train, test, list(chosen))
         terms.append(sum(_distance_sq(mu[r], sd[r], mu_c[r], sd_c[r], lo, hi) for r in RESP))
-        who = test["participant"].astype(str)
-        shared = bool(set(train["participant"]) & set(test["participant"]))
-        units.append((who + "|" + test["session"].astype(str) if shared else who).to_numpy())
+        units.append(test["participant"].astype(str).to_numpy())
     if not terms:
         return np.zeros(0), np.zeros(0, dtype=object)
     return np.concatenate(terms), np.concatenate(units)
@@ -159,12 +159,11 @@ def _decide(s: np.ndarray, n: np.ndarray, tolerance: float, var_c: float = 0.0) 
                            tolerance)[0])
 
 
-def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
-                 by_participant: bool, n_sessions: int, n_sim: int = 100,
+def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *, n_sim: int = 100,
                  ceiling: np.ndarray | None = None) -> PowerModel | None:
     """The PowerModel of an inconclusive observer diagnosis (see the module docstring):
-    misfits tried 0.5-4 x the tolerance, data sizes 1.5-8 x (participants where they are
-    held out whole, else sessions per participant); the ceiling's estimation error
+    misfits tried 0.5-4 x the tolerance, data sizes 1.5-8 x the participants (``units``:
+    participants, as :func:`misfit_terms` gives them); the ceiling's estimation error
     (``ceiling``, :func:`misfit_ceiling_draws`) taken to shrink as one over the data's size.
     None without held-out trials."""
     if terms.size == 0:
@@ -188,10 +187,7 @@ def misfit_power(terms: np.ndarray, units: np.ndarray, tolerance: float, *,
     n_units = s.size
 
     def more(factor: float) -> str:
-        if by_participant:
-            return f"{math.ceil(factor * n_units)} participants ({factor:g}x)"
-        return (f"{math.ceil(factor * n_sessions)} sessions per participant "
-                f"({factor:g}x the trials)")
+        return f"{math.ceil(factor * n_units)} participants ({factor:g}x)"
     return PowerModel(draws=draws, misfit_now=math.sqrt(max(mean, 0.0)),
                       misfits=tuple(tolerance * m for m in (0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0)),
                       factors=(1.5, 2.0, 3.0, 4.0, 6.0, 8.0), unit="slider units", more=more,

@@ -34,7 +34,7 @@ def test_upper_bound_lies_above_the_misfit_and_widens_with_fewer_participants():
 
 def test_power_model_decides_a_clear_gap_and_a_clear_none():
     t, u = _terms(2, 0.2)
-    model = misfit_power(t, u, TOL, by_participant=True, n_sessions=2)
+    model = misfit_power(t, u, TOL)
     rng = np.random.default_rng(0)
     assert (model.draws(0.02, 1.0)(rng, 40) == OUTCOME_NONE).mean() >= 0.9
     assert (model.draws(4 * TOL, 1.0)(rng, 40) == OUTCOME_GAP).mean() >= 0.9
@@ -46,7 +46,7 @@ def test_to_decide_is_decided_in_about_80_percent_of_draws_at_the_size_it_names(
     point),
     and the next smaller factor tried decides fewer."""
     t, u = _terms(3, 0.2)
-    model = misfit_power(t, u, TOL, by_participant=True, n_sessions=2)
+    model = misfit_power(t, u, TOL)
     out = power_analysis(model, seed=5)["to_decide"]
     assert out["factor"] is not None and "participants" in out["words"]
     rng = np.random.default_rng(11)

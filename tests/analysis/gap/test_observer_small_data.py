@@ -1,6 +1,6 @@
 """The observer layer on small or damaged data (issues 43 and 44): simulated sessions holding
 NaN are refused by file and row, not crashed on inside scipy; fewer than 4 participants are
-never a gap for their own offsets."""
+never a gap for their own offsets, and never exclude a gap for the population."""
 
 from __future__ import annotations
 
@@ -38,9 +38,6 @@ def test_a_simulated_frame_holding_nan_is_refused_naming_participant_and_session
     sim.loc[5, "gloss_match"] = np.nan
     with pytest.raises(GapError, match=r"1 of \d+ rows .*participant, session: \[\['B00'"):
         diagnose("observer", real, sim, DESIGN, seed=1, n_boot=50)
-
-
-
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_three_participants_with_nothing_added_are_never_a_gap(seed):
@@ -80,3 +77,18 @@ def test_three_participants_against_the_ideal_observer_are_not_tested_for_own_of
     diag, _ = diagnose("observer", real, IDEAL, DESIGN, seed=5, n_boot=200)
     assert "differing between participants" not in diag.summary
     assert any("cannot be told from a gap" in w for w in diag.warnings)
+
+
+def test_three_participants_with_an_effect_at_the_tolerance_do_not_exclude_a_gap():
+    """Depth settings rising with gloss by 0.3 slider units RMS (1.2x the 0.25 tolerance), 3
+    participants: the flexible model fitted from these 3 people leaves a misfit of 0.16 slider
+    units, bound 0.21, which read "no gap that matters". With fewer than 4 participants the
+    bound holds for them, not for the population: inconclusive, the reason said, and what
+    would decide it counted in participants (more sessions of the same 3 people cannot)."""
+    pilot, real = population(1, 3, "gloss", 0.3)
+    diag, _ = diagnose("observer", real, pilot, DESIGN, seed=1, n_boot=200)
+    assert diag.verdict == "inconclusive", diag.summary
+    assert diag.misfit_upper < DESIGN.gap.observer_tolerance_slider  # the bound alone excludes
+    assert "is excluded for these participants" in diag.summary
+    assert "with 3 participant(s)" in diag.summary and "4 or more participants" in diag.summary
+    assert "participants" in diag.to_decide["words"], diag.to_decide

@@ -108,7 +108,7 @@ def _size_functions(ceilings: dict, unit: str, tolerance: float):
     def power(diag):
         # Named effects held to the tolerance: the verdict judged the plain simulation.
         t, u = terms.get("plain" if judged_plain(diag) else "after", (np.zeros(0), np.zeros(0)))
-        model = misfit_power(t, u, tolerance, by_participant=True, n_sessions=1)
+        model = misfit_power(t, u, tolerance)
         return model if model is None else replace(model, unit=unit)
     return size, size_upper, power, sizes
 
