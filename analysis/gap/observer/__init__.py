@@ -15,6 +15,11 @@ flexible extension of a model fitted to the real data; the remaining gap is test
 ceiling built on the *chosen* model. The noise *floor* is the loss the ceiling over the plain
 simulation has on data it generates itself, not an assumed noise of an ideal observer.
 
+Fewer than 4 participants never exclude a gap (no ``'no_gap_that_matters'``): their trials are
+held out within each person and the ceiling is fitted from these few people, so the misfit's
+bound holds for them, not for the population (:func:`_few_to_exclude`; ``to_decide`` counts
+participants there too).
+
 Where things are
 ----------------
 ``model.py``

@@ -4,13 +4,15 @@ The misfit (:func:`analysis.gap.observer.where.observer_misfit`) is the RMS over
 trials of the distance between the chosen model's predicted settings and the flexible model's
 (slider units). :func:`misfit_terms` gives its per-trial squared distances (both responses
 summed) and the units that are independent: participants (a person's trials share their own
-offset, so they are not independent draws; nor are one person's sessions). The misfit is a distance from the flexible model, which is itself
-estimated: :func:`misfit_ceiling_draws` is the misfit's spread over that model's corrections
-refitted on resampled training participants. :func:`misfit_upper` is the misfit's one-sided
-upper 95 % bound, a percentile bootstrap over the held-out units (Efron & Tibshirani 1993,
-ch. 13) with a draw of the flexible model's error added to each resample, or Student's t over
-the units with both variances where that is wider (few participants): below the design's
-``[gap] observer_tolerance_slider`` the verdict is no gap that matters.
+offset, so they are not independent draws; nor are one person's sessions). The misfit is a
+distance from the flexible model, which is itself estimated: :func:`misfit_ceiling_draws` is
+the misfit's spread over that model's corrections refitted on resampled training participants.
+:func:`misfit_upper` is the misfit's one-sided upper 95 % bound, a percentile bootstrap over
+the held-out units (Efron & Tibshirani 1993, ch. 13) with a draw of the flexible model's error
+added to each resample, or Student's t over the units with both variances where that is wider
+(few participants): below the design's ``[gap] observer_tolerance_slider`` the verdict is no
+gap that matters (with 4 or more participants: fewer cannot exclude a gap, see
+:mod:`analysis.gap.observer`).
 
 :func:`misfit_power` is the :class:`~analysis.gap.engine.PowerModel` of an inconclusive
 verdict: a data set ``factor`` times as large is drawn by resampling the units (their
