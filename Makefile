@@ -26,10 +26,9 @@ DEB_PACKAGES := xvfb xauth libglu1-mesa libgl1 libegl1 libfontconfig1 libasound2
 	libxcb-icccm4 libxcb-keysyms1 libxcb-cursor0 \
 	libllvm19 r-base-core r-cran-lme4 r-cran-car r-cran-lmertest r-cran-pbkrtest fonts-dejavu-core \
 	chromium slurm-wlm munge
-XVFB := xvfb-run -a -s "-screen 0 1280x1024x24"
-# The test parts' Xvfb, each with its X authority file in PROJECT_HOME (`$(call XVFB_AS,name)`):
-# xvfb-run then makes and removes no temporary folder of its own, whose removal once failed in
-# CI (exit 5 after the command had passed; docs/make_pictures.py does the same).
+# Each Xvfb with its X authority file in PROJECT_HOME (`$(call XVFB_AS,name)`): xvfb-run then
+# makes and removes no temporary folder of its own, whose removal once failed in CI (exit 5
+# after the command had passed; docs/make_pictures.py and scripts/demo.sh do the same).
 XVFB_AS = xvfb-run -a -f $(PROJECT_HOME)/Xauthority-$(1) -s "-screen 0 1280x1024x24"
 
 .PHONY: help demo test test-fast docs system-deps venv lint bench clean-venv
@@ -116,14 +115,14 @@ docs: system-deps $(STAMP)
 
 demo: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)
-	HOME=$(PROJECT_HOME) OUT=$(OUT) PY=$(PY) XVFB='$(XVFB)' bash scripts/demo.sh
+	HOME=$(PROJECT_HOME) OUT=$(OUT) PY=$(PY) bash scripts/demo.sh
 
 lint: $(STAMP)
 	$(PY) -m ruff check .
 
 bench: system-deps $(STAMP)
 	mkdir -p $(PROJECT_HOME)
-	for b in bench/*.py; do HOME=$(PROJECT_HOME) $(XVFB) $(PY) $$b || exit 1; done
+	for b in bench/*.py; do HOME=$(PROJECT_HOME) $(call XVFB_AS,bench) $(PY) $$b || exit 1; done
 
 clean-venv:
 	rm -rf $(VENV)

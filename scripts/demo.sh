@@ -1,15 +1,17 @@
 #!/usr/bin/env bash
 # The main job on embedded defaults: design -> calibration -> gloss fit -> stimuli -> sessions ->
-# analysis report -> sim-to-real report. Called by `make demo` (which sets PY, XVFB, OUT, HOME).
+# analysis report -> sim-to-real report. Called by `make demo` (which sets PY, OUT, HOME).
 # Each run writes into a new folder out/demo-<UTC time>; nothing from an earlier run is touched.
 set -euo pipefail
 PY=${PY:-.venv/bin/python}
-XVFB=${XVFB:-xvfb-run -a -s "-screen 0 1280x1024x24"}
 OUT=${OUT:-out}
 RUN="$OUT/demo-$(date -u +%Y%m%dT%H%M%SZ)"
 mkdir -p "$RUN"
 RUN=$(cd "$RUN" && pwd)  # absolute: the session app refuses a relative --data
 ln -sfn "$(basename "$RUN")" "$OUT/latest"
+# Each xvfb-run keeps its X authority file here (-f), so it makes and removes no temporary
+# folder of its own (that removal once failed in CI after the command had passed).
+XAUTH="$RUN/Xauthority"
 t0=$(date +%s)
 STEP_NAME=""; STEP_T=$t0; STEP_TIMES=()
 # Each step's heading with the time since the start; at the end, each step's own time and the
@@ -33,7 +35,7 @@ mkdir -p "$RUN/design"
 # --- calibration ---
 step "display calibration: simulated PR-655 on a pseudo-terminal, PsychoPy window under Xvfb"
 # The fake photometer and the procedure share one X display: the fake reads the window's pixels.
-# That display has the design's resolution (as the lab's CRT would), not $XVFB's 1280x1024.
+# That display has the design's resolution (as the lab's CRT would), not the sessions' 1280x1024.
 # Fewer levels and repeats and a short settling time than a lab run, to keep the demo near a minute;
 # 2 repeats, the fewest from which the sim-to-real step can estimate the photometer's noise.
 CAL="$RUN/calibration"
@@ -42,7 +44,7 @@ CAL_RES=$("$PY" -c 'from studydesign import load_design; w, h = load_design().di
 # Xvfb has no vertical blank (frames come at hundreds of Hz): record the design's nominal rate,
 # flagged in the calibration record as given, not measured. A lab run measures it.
 CAL_HZ=$("$PY" -c 'from studydesign import load_design; print(load_design().display.nominal_refresh_hz)')
-xvfb-run -a -s "-screen 0 ${CAL_RES}x24" bash -c '
+xvfb-run -a -f "$XAUTH" -s "-screen 0 ${CAL_RES}x24" bash -c '
   set -euo pipefail
   PY=$1; CAL=$2; HZ=$3; CHECK=$4
   "$PY" -m calibration fake-photometer --device pr655 --aim "$CAL/aim.json" \
@@ -120,7 +122,7 @@ then
   echo "note: stimuli were corrected for another calibration; running with --accept-calibration-mismatch"
   EXP_FLAGS+=(--accept-calibration-mismatch)
 fi
-xvfb-run -a -s "-screen 0 1280x1024x24" bash -c '
+xvfb-run -a -f "$XAUTH" -s "-screen 0 1280x1024x24" bash -c '
   set -euo pipefail
   PY=$1; MANIFEST=$2; CAL=$3; DATA=$4; shift 4
   for p in D01 D02; do
