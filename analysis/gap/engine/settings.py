@@ -77,6 +77,15 @@ class LayerFunctions:
                                                         a fixed split the verdict does not
                                                         depend on the seed; other CIs stay
                                                         bootstrap CIs). Needs ``unit_ids``
+    absorbed             ``absorbed(fits)`` -> float    how far the simulation's own fit moved
+                         or None                        to take up the chosen effects, in
+                                                        ``size``'s units (the render layer: its
+                                                        material with the named camera terms
+                                                        modelled against the plain fit's). At
+                                                        least ``min_size``: named effects are a
+                                                        gap even where the plain simulation's
+                                                        misfit is within the tolerance
+                                                        (``tolerate_chosen``)
     ==================== ============================== =====================================
 
     Raises
@@ -95,6 +104,7 @@ class LayerFunctions:
     size_upper: Callable | None = None
     unit_ids: Callable | None = None
     cluster_of: Callable | None = None
+    absorbed: Callable | None = None
 
     def __post_init__(self):
         for f in fields(self):

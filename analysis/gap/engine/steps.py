@@ -297,6 +297,8 @@ def remaining_gap(cv: CrossFit, combination: Combination, test: PairedTest,
             rem["size_before"] = float(functions.size(plain))
             if functions.size_upper is not None:
                 rem["size_before_upper"] = float(functions.size_upper(plain))
+            if functions.absorbed is not None:
+                rem["absorbed"] = float(functions.absorbed(fits))
     if detected and functions.where is not None:
         rem["where"] = functions.where(fits)
     return rem, ceil
@@ -355,7 +357,9 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
       the floor sound (or the size not using the noise model) and nothing significant beyond
       them, the plain simulation's own misfit decides first: its upper 95 % bound
       (``remaining['size_before_upper']``) below the tolerance is no gap that matters; its
-      point (``size_before``) below but not its bound, inconclusive.
+      point (``size_before``) below but not its bound, inconclusive -- unless the simulation's
+      own fit absorbed the chosen effects by at least the tolerance (``remaining['absorbed']``,
+      ``LayerFunctions.absorbed``): then they are a gap.
     - Nothing chosen: inconclusive where the floor is mis-estimated (the held-out loss below
       it: neither a gap nor excluded), unless the size does not use the noise model
       (``size_without_noise_model``) and its bound excludes a gap; ``'unexplained'`` where what remains beyond the ceiling
@@ -368,7 +372,9 @@ def verdict_of(steps: list, share: float, min_share: float, *, floor_status: str
     sound = floor_status == "ok"
     if steps:
         held = sound or size_without_noise_model
-        if tolerate_chosen and held and not rem.get("significant") and "size_before" in rem:
+        absorbed = rem.get("absorbed", 0.0) >= rem.get("tolerance", np.inf)
+        if (tolerate_chosen and held and not rem.get("significant") and "size_before" in rem
+                and not absorbed):
             tol = rem["tolerance"]
             if rem.get("size_before_upper", np.inf) < tol:
                 return NO_GAP_THAT_MATTERS

@@ -30,6 +30,7 @@ def summarise(d: Diagnosis) -> str:
     text = _verdict_words(d)
     misfit = _misfit_words(d)
     text += f" {misfit}" if misfit else ""
+    text += _absorbed_words(d)
     if d.steps and d.verdict != "unexplained" and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
@@ -139,6 +140,26 @@ def _verdict_words(d: Diagnosis) -> str:
     if rem:
         return f"{text}; nothing significant remains beyond a flexible model of the data."
     return f"{text}."
+
+
+def _absorbed_words(d: Diagnosis) -> str:
+    """' The simulation's own fit took them up: ...' where the chosen effects are a gap
+    because the fit absorbed them by at least the tolerance (``remaining['absorbed']``), else
+    ''."""
+    rem = d.remaining or {}
+    tol = rem.get("tolerance", np.inf)
+    if not d.steps or d.verdict in NOT_A_GAP or rem.get("absorbed", 0.0) < tol:
+        return ""
+    unit = rem.get("size_unit", "")
+    short = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
+    source = f" ({rem['size_source']})" if rem.get("size_source") else ""
+    it = "it" if len(d.steps) == 1 else "them"
+    return (f" The simulation's own fit took {it} up: modelled, the fitted model moves by "
+            f"{rem['absorbed']:.2g} {unit} from the plain fit's, at least the tolerance of "
+            f"{tol:g}{short}{source} -- a gap in what the simulation was fitted to, though the "
+            f"plain simulation predicts the held-out data within "
+            f"{rem.get('size_before', float('nan')):.2g}{short}; fit it again with {it} "
+            "modelled.").replace("  ", " ")
 
 
 def _floor_words(d: Diagnosis) -> str:

@@ -113,6 +113,7 @@ from analysis.gap.render.ceiling import (
     RENDER_MIN_SHARE,
     RENDER_SIZE_UNIT,
     light_ceiling,
+    material_shift,
     misfit_pct,
     render_ceiling,
     render_floor,
@@ -208,6 +209,7 @@ def plan(real, sim, design, rng: np.random.Generator, *, n_boot: int, lights=Non
     functions = LayerFunctions(
         loss=render_loss, floor=render_floor, ceiling=ceiling, ceiling_given_chosen=True,
         where=render_where, size=render_misfit_pct, size_upper=render_misfit_upper,
+        absorbed=material_shift,
         unit_ids=render_unit_ids,
         # Each held-out pixel its own cluster: the tests' normal limit, with no Monte-Carlo
         # error (the split is fixed, so the verdict does not depend on the seed). Under the
