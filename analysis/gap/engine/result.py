@@ -69,8 +69,8 @@ class Diagnosis:
     ``remaining['size_unit']`` (the plain simulation's where the layer holds chosen effects
     to the tolerance), NaN where the layer gives none; ``tolerance`` the layer's (same
     units). ``remaining['absorbed']`` (render layer, where effects were chosen): how far the
-    simulation's own fit moved to take them up, same units (at least the tolerance: a gap). ``detectable`` (inconclusive only; else empty): ``value`` (None: above
-    ``tried_up_to``), ``unit``, ``power``, ``curve``; ``to_decide``: ``factor`` (times the
+    simulation's own fit moved to take them up, same units (at least the tolerance: a gap).
+    ``detectable`` (inconclusive only; else empty): ``value`` (None: above ``tried_up_to``), ``unit``, ``power``, ``curve``; ``to_decide``: ``factor`` (times the
     data; None: beyond ``tried_up_to``), ``words`` (the larger data set in the lab's
     words), ``truth``, ``curve``. ``departures`` (observer layer; else empty): single units
     (participants) that depart from the others in a way the misfit by stimulus cannot see

@@ -28,9 +28,12 @@ def summarise(d: Diagnosis) -> str:
     if dep.get("significant") or dep.get("verdict_without", d.verdict) != d.verdict:
         return _departure_summary(d, dep)
     text = _verdict_words(d)
+    absorbed = _absorbed_words(d)
+    if absorbed:
+        # The gap first: the sentences after it speak of the held-out data alone.
+        text = f"{absorbed} {text.replace(' is excluded.', ' is excluded on the held-out data.')}"
     misfit = _misfit_words(d)
     text += f" {misfit}" if misfit else ""
-    text += _absorbed_words(d)
     if d.steps and d.verdict != "unexplained" and d.floor_status == "ok":
         for st in d.steps:
             said = _effect_words(d.layer, st)
@@ -143,9 +146,9 @@ def _verdict_words(d: Diagnosis) -> str:
 
 
 def _absorbed_words(d: Diagnosis) -> str:
-    """' The simulation's own fit took them up: ...' where the chosen effects are a gap
-    because the fit absorbed them by at least the tolerance (``remaining['absorbed']``), else
-    ''."""
+    """'A gap in the fitted model: ...' where the chosen effects are a gap because the
+    simulation's own fit took them up by at least the tolerance (``remaining['absorbed']``),
+    else ''."""
     rem = d.remaining or {}
     tol = rem.get("tolerance", np.inf)
     if not d.steps or d.verdict in NOT_A_GAP or rem.get("absorbed", 0.0) < tol:
@@ -154,10 +157,10 @@ def _absorbed_words(d: Diagnosis) -> str:
     short = " %" if unit.startswith("%") else (f" {unit}" if unit else "")
     source = f" ({rem['size_source']})" if rem.get("size_source") else ""
     it = "it" if len(d.steps) == 1 else "them"
-    return (f" The simulation's own fit took {it} up: modelled, the fitted model moves by "
-            f"{rem['absorbed']:.2g} {unit} from the plain fit's, at least the tolerance of "
-            f"{tol:g}{short}{source} -- a gap in what the simulation was fitted to, though the "
-            f"plain simulation predicts the held-out data within "
+    return (f"A gap in the fitted model: the simulation's own fit took {_names(d.steps)} up -- "
+            f"modelled, the fitted model moves by {rem['absorbed']:.2g} {unit} from the plain "
+            f"fit's, at least the tolerance of {tol:g}{short}{source}, though the plain "
+            f"simulation predicts the held-out data within "
             f"{rem.get('size_before', float('nan')):.2g}{short}; fit it again with {it} "
             "modelled.").replace("  ", " ")
 

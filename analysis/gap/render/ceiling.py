@@ -13,7 +13,7 @@ import numpy as np
 from scipy import ndimage
 
 from analysis.gap.render.data import _BLOCK, RenderData
-from analysis.gap.render.model import _basis, _predict
+from analysis.gap.render.model import _predict
 
 #: An attribution must remove >= 80 % of the held-out gap (as for the display layer).
 RENDER_MIN_SHARE = 0.8
@@ -250,8 +250,14 @@ def misfit_pct(test: RenderData, fitted: list) -> float:
         m = lv["use"]
         res.append((lv["P"] - _predict(lv, list(fitted)))[m])
         lum.append(lv["P"][m])
-    r, p = np.concatenate(res), np.concatenate(lum)
-    return float(100 * np.sqrt(np.mean(r**2) / np.mean(p**2))) if p.size else float("nan")
+    return _pct_of_photos(res, lum)
+
+
+def _pct_of_photos(res: list, lum: list, empty: float = float("nan")) -> float:
+    """RMS of the pixel arrays ``res`` in % of the RMS of ``lum`` (the photos' pixels);
+    ``empty`` where there are none."""
+    r, p = (np.concatenate(res), np.concatenate(lum)) if lum else (np.zeros(0), np.zeros(0))
+    return float(100 * np.sqrt(np.mean(r**2) / np.mean(p**2))) if p.size else empty
 
 
 #: The render catalogue's terms that model the camera, not the material: the photos' own
@@ -281,15 +287,9 @@ def material_shift(fits: list) -> float:
         chosen = list(chosen)
         if not any(name in CAMERA_TERMS for name, _ in chosen):
             continue
-        scale = next((q["scale"] for _, q in reversed(chosen) if "scale" in q), {})
         material = [c for c in chosen if c[0] not in CAMERA_TERMS]
         for lv in te.levels:
-            a, b = scale.get(lv["name"], scale.get("*", (1.0, 1.0)))
-            D, S, B = _basis(lv, material)
             m = lv["use"]
-            diff.append((_predict(lv, []) - (B + a * D + b * S))[m])
+            diff.append((_predict(lv, []) - _predict(lv, material, scaled_by=chosen))[m])
             lum.append(lv["P"][m])
-    if not diff:
-        return 0.0
-    r, p = np.concatenate(diff), np.concatenate(lum)
-    return float(100 * np.sqrt(np.mean(r**2) / np.mean(p**2))) if p.size else 0.0
+    return _pct_of_photos(diff, lum, empty=0.0)

@@ -231,11 +231,13 @@ def _terms(lv: dict) -> list:
     return catalogue("render") + (catalogue("render_lights") if "light" in lv else [])
 
 
-def _predict(lv: dict, fitted: list) -> np.ndarray:
+def _predict(lv: dict, fitted: list, scaled_by: list | None = None) -> np.ndarray:
     """The extended render: the Ward fit's diffuse and specular scales re-fitted with the
-    extension (``scale`` of the last fitted step, per level; 1 for the plain render)."""
+    extension (``scale`` of the last fitted step, per level; 1 for the plain render); with
+    ``scaled_by``, that list's scales instead of ``fitted``'s (a part of a fitted model)."""
     D, S, B = _basis(lv, fitted)
-    scale = next((q["scale"] for _, q in reversed(fitted) if "scale" in q), {})
+    steps = fitted if scaled_by is None else scaled_by
+    scale = next((q["scale"] for _, q in reversed(steps) if "scale" in q), {})
     a, b = scale.get(lv["name"], scale.get("*", (1.0, 1.0)))
     return B + a * D + b * S
 

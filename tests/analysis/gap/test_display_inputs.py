@@ -134,6 +134,9 @@ def test_a_black_that_reads_zero_where_the_calibration_saw_light_is_named(tmp_pa
         diag = diagnose("display", check, tmp_path / "cal", None, seed=0, n_boot=200)[0]
         assert diag.verdict == "inconclusive", diag.summary  # was no_gap_that_matters
         assert "The data cannot exclude a gap" in diag.summary
+        assert "is excluded where the meter measured" in diag.summary
+        # More repeats cannot decide what the zeros leave open: no power model, no to_decide.
+        assert layer.power is None and not diag.to_decide, diag.to_decide
         assert "check the meter's range and zero" in named[0]
     else:
         assert named == [] and layer.cannot_exclude == ()
